@@ -1,0 +1,153 @@
+"""Low-level file I/O with validation: every failure names the file and the problem."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from leovr.errors import DataError
+
+
+def require_file(path: Path, what: str) -> Path:
+    """Return `path` if it is a readable file, else raise a DataError saying what was expected."""
+    if not path.is_file():
+        raise DataError(path, f"missing {what}")
+    if not os.access(path, os.R_OK):
+        raise DataError(path, f"{what} is not readable")
+    return path
+
+
+def read_image(path: Path, gray: bool = False) -> np.ndarray:
+    """Read an 8-bit image as RGB (H x W x 3) or gray (H x W); gray files stay gray."""
+    require_file(path, "image")
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise DataError(path, "corrupt or unsupported image (OpenCV could not decode it)")
+    if img.dtype != np.uint8:
+        img = cv2.convertScaleAbs(img, alpha=255.0 / max(float(img.max()), 1.0))
+    if img.ndim == 3:
+        img = cv2.cvtColor(img[:, :, :3], cv2.COLOR_BGR2RGB)
+    return img
+
+
+def read_depth_png(path: Path, scale: float = 1000.0) -> np.ndarray:
+    """Read a 16-bit depth PNG as float32 metres (0 = unknown); `scale` is units per metre."""
+    require_file(path, "depth image")
+    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if d is None:
+        raise DataError(path, "corrupt depth image (OpenCV could not decode it)")
+    if d.dtype != np.uint16 or d.ndim != 2:
+        raise DataError(path, f"depth image must be single-channel uint16, got {d.dtype} with shape {d.shape}")
+    return d.astype(np.float32) / scale
+
+
+def depth_to_uint16(depth: np.ndarray, scale: float = 1000.0) -> np.ndarray:
+    """Metres to uint16 units (millimetres by default); invalid or out-of-range values become 0."""
+    d = np.nan_to_num(np.asarray(depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0) * scale
+    d = np.where((d > 0) & (d < 65535.5), np.round(d), 0)
+    return d.astype(np.uint16)
+
+
+def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
+    """Write through a temporary file in the same folder, then rename: readers never see half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_depth_png(path: Path, depth: np.ndarray, scale: float = 1000.0) -> None:
+    """Write depth in metres as a uint16 PNG (millimetres by default), atomically."""
+
+    def _write(tmp: Path) -> None:
+        if not cv2.imwrite(str(tmp), depth_to_uint16(depth, scale)):
+            raise DataError(path, "could not write depth PNG")
+
+    atomic_write(path, _write)
+
+
+def write_image(path: Path, image: np.ndarray) -> None:
+    """Write an RGB or gray uint8 image atomically."""
+
+    def _write(tmp: Path) -> None:
+        img = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+        if not cv2.imwrite(str(tmp), img):
+            raise DataError(path, "could not write image")
+
+    atomic_write(path, _write)
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write a text file atomically."""
+    atomic_write(path, lambda tmp: tmp.write_text(text))
+
+
+def read_point_file(path: Path, fields: int = 4) -> np.ndarray:
+    """Read a float32 point file (`fields` values per point), dropping NaN/inf points with a warning.
+
+    Raises a DataError when the file is missing, its size is not a whole number of points, or it
+    holds no valid point.
+    """
+    require_file(path, "LiDAR scan")
+    size = path.stat().st_size
+    rec = 4 * fields
+    if size % rec:
+        raise DataError(path, f"size {size} bytes is not a multiple of {rec} bytes ({fields} float32 per point)")
+    pts = np.fromfile(path, dtype=np.float32).reshape(-1, fields)
+    return clean_points(pts, path)
+
+
+def clean_points(pts: np.ndarray, source: str | Path) -> np.ndarray:
+    """Drop non-finite points (warning with the source name); an empty result is an error."""
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.all():
+        warnings.warn(f"{source}: dropped {int((~finite).sum())} NaN or infinite points", stacklevel=3)
+        pts = pts[finite]
+    if len(pts) == 0:
+        raise DataError(Path(source), "empty LiDAR scan (no valid points)")
+    return pts
+
+
+def check_timestamps(t: np.ndarray, source: Path) -> np.ndarray:
+    """Timestamps must be finite and strictly increasing."""
+    t = np.asarray(t, np.float64)
+    if not np.isfinite(t).all():
+        raise DataError(source, "timestamps contain NaN or infinite values")
+    back = np.where(np.diff(t) <= 0)[0]
+    if len(back):
+        i = int(back[0])
+        raise DataError(source, f"timestamps go backwards (or repeat) at entry {i + 1}: {t[i]:.6f} -> {t[i + 1]:.6f}")
+    return t
+
+
+def read_matrix_rows(path: Path, what: str) -> dict[str, np.ndarray]:
+    """Parse `key: v v v ...` calibration files (KITTI style) into float arrays."""
+    require_file(path, what)
+    out: dict[str, np.ndarray] = {}
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(path, f"unreadable {what}: {exc}") from exc
+    for n, line in enumerate(lines, 1):
+        if ":" not in line:
+            continue
+        key, _, val = line.partition(":")
+        try:
+            out[key.strip()] = np.array([float(v) for v in val.split()])
+        except ValueError:
+            if key.strip() in ("calib_time",):
+                continue
+            raise DataError(path, f"line {n}: '{key.strip()}' is not a list of numbers") from None
+    return out

@@ -1,0 +1,253 @@
+"""The project's native sequence format (documented in docs/formats.md): reader and streaming writer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from leovr.data.io import (
+    atomic_write,
+    check_timestamps,
+    read_depth_png,
+    read_image,
+    read_point_file,
+    require_file,
+    write_depth_png,
+    write_image,
+    write_text,
+)
+from leovr.data.records import Frame
+from leovr.data.sequence import Sequence
+from leovr.errors import DataError
+from leovr.geometry import pose_from_tum, pose_to_tum
+
+FORMAT = "leovr-native"
+VERSION = 1
+ALLOWED_FIELDS = {"x", "y", "z", "intensity", "time"}
+
+
+def is_native(path: Path) -> bool:
+    return (path / "sequence.yaml").is_file()
+
+
+def frame_name(i: int, ext: str) -> str:
+    return f"{i:06d}.{ext}"
+
+
+def read_tum_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A TUM trajectory file (t tx ty tz qx qy qz qw) as timestamps and F x 4 x 4 poses."""
+    require_file(path, "TUM pose file")
+    try:
+        rows = np.loadtxt(path, comments="#", ndmin=2)
+    except ValueError as exc:
+        raise DataError(path, f"unreadable TUM poses: {exc}") from exc
+    if rows.shape[1] != 8:
+        raise DataError(path, f"expected 8 columns (t tx ty tz qx qy qz qw), got {rows.shape[1]}")
+    return rows[:, 0], np.stack([pose_from_tum(r[1:]) for r in rows]) if len(rows) else np.zeros((0, 4, 4))
+
+
+def write_tum_poses(path: Path, stamps: np.ndarray, poses: np.ndarray) -> None:
+    """Write F x 4 x 4 poses as a TUM trajectory, atomically."""
+    lines = [f"{t:.6f} " + " ".join(f"{v:.9f}" for v in pose_to_tum(T)) for t, T in zip(stamps, poses)]
+    write_text(path, "\n".join(lines) + ("\n" if lines else ""))
+
+
+def _matrix(meta: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
+    try:
+        m = np.array(meta[key], dtype=np.float64)
+    except (KeyError, TypeError, ValueError):
+        raise DataError(path, f"missing or non-numeric '{key}'") from None
+    if m.shape != shape:
+        raise DataError(path, f"'{key}' must be {shape[0]}x{shape[1]}, got shape {m.shape}")
+    return m
+
+
+class NativeSequence(Sequence):
+    """Reader for folders holding `sequence.yaml`."""
+
+    name = "native"
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = path = Path(path)
+        meta_file = require_file(path / "sequence.yaml", "sequence description")
+        try:
+            meta = yaml.safe_load(meta_file.read_text())
+        except yaml.YAMLError as exc:
+            raise DataError(meta_file, f"invalid YAML: {exc}") from exc
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise DataError(meta_file, f"not a {FORMAT} description (missing 'format: {FORMAT}')")
+        self.meta = meta
+        cam = meta.get("camera") or {}
+        self.K = _matrix(cam, "K", (3, 3), meta_file)
+        self.width, self.height = int(cam.get("width", 0)), int(cam.get("height", 0))
+        self.rate_hz = float(meta.get("rate_hz", 10.0))
+        n = int(meta.get("frames", -1))
+        self.image_files = sorted((path / "images").glob("*.png"))
+        if n < 0 or len(self.image_files) != n:
+            raise DataError(path / "images", f"{len(self.image_files)} images but sequence.yaml says frames: {n}")
+        lidar = meta.get("lidar")
+        self.has_lidar = bool(lidar)
+        self.fields: list[str] = []
+        self.T_cam_lidar = np.eye(4)
+        if lidar:
+            self.fields = list(lidar.get("fields", ["x", "y", "z", "intensity"]))
+            if self.fields[:3] != ["x", "y", "z"] or not set(self.fields) <= ALLOWED_FIELDS:
+                raise DataError(meta_file, f"lidar.fields must start with x, y, z and use {sorted(ALLOWED_FIELDS)}")
+            self.T_cam_lidar = _matrix(lidar, "T_cam_lidar", (4, 4), meta_file)
+            self.scan_files = sorted((path / "lidar").glob("*.bin"))
+            if len(self.scan_files) != n:
+                raise DataError(path / "lidar", f"{len(self.scan_files)} scans but {n} images")
+        ts = path / "timestamps.txt"
+        if ts.is_file():
+            try:
+                t = np.loadtxt(ts, ndmin=1)
+            except ValueError as exc:
+                raise DataError(ts, f"unreadable timestamps: {exc}") from exc
+            self._times = check_timestamps(t, ts)
+            if len(t) != n:
+                raise DataError(ts, f"{len(t)} timestamps for {n} frames")
+        else:
+            self._times = np.arange(n) / self.rate_hz
+        self._poses = None
+        pose_file = path / "poses_tum.txt"
+        if pose_file.is_file():
+            _, self._poses = read_tum_poses(pose_file)
+            if len(self._poses) != n:
+                raise DataError(pose_file, f"{len(self._poses)} poses for {n} frames")
+        self.has_poses = self._poses is not None
+        self.has_depth = (path / "depth").is_dir()
+        self.has_masks = (path / "masks").is_dir()
+
+    def _num_frames(self) -> int:
+        return len(self.image_files)
+
+    def timestamps(self) -> np.ndarray:
+        return self._times.copy()
+
+    def _load(self, i: int) -> Frame:
+        points = times = None
+        if self.has_lidar:
+            raw = read_point_file(self.scan_files[i], len(self.fields))
+            keep = [k for k, f in enumerate(self.fields) if f != "time"]
+            points = np.ascontiguousarray(raw[:, keep[:4]])
+            if "time" in self.fields:
+                times = raw[:, self.fields.index("time")].astype(np.float64)
+        depth = read_depth_png(self.path / "depth" / frame_name(i, "png")) if self.has_depth else None
+        mask = None
+        if self.has_masks:
+            mask = read_image(self.path / "masks" / frame_name(i, "png"), gray=True) > 0
+        image = read_image(self.image_files[i])
+        if self.width and image.shape[:2] != (self.height, self.width):
+            raise DataError(
+                self.image_files[i], f"image is {image.shape[1]}x{image.shape[0]}, sequence.yaml says {self.width}x{self.height}"
+            )
+        return Frame(
+            index=i,
+            timestamp=float(self._times[i]),
+            image=image,
+            K=self.K,
+            T_cam_lidar=self.T_cam_lidar,
+            points=points,
+            point_times=times,
+            T_world_cam=None if self._poses is None else self._poses[i],
+            depth=depth,
+            moving_mask=mask,
+        )
+
+
+class NativeWriter:
+    """Stream frames into a native-format folder; `close()` writes the description last.
+
+    Frames must be written in order. Each file is written atomically; sequence.yaml appears only once
+    all frames are on disk, so a half-written folder is never mistaken for a complete sequence.
+    """
+
+    def __init__(
+        self,
+        out: str | Path,
+        name: str = "sequence",
+        rate_hz: float = 10.0,
+        camera_name: str = "camera",
+        lidar_name: str = "lidar",
+        extra: dict[str, Any] | None = None,
+    ) -> None:
+        self.out = Path(out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.name, self.rate_hz = name, rate_hz
+        self.camera_name, self.lidar_name = camera_name, lidar_name
+        self.extra = extra or {}
+        self.stamps: list[float] = []
+        self.poses: list[np.ndarray] = []
+        self.first: Frame | None = None
+        self.fields: list[str] = []
+
+    def write(self, frame: Frame) -> None:
+        i = len(self.stamps)
+        if self.first is None:
+            self.first = frame
+        write_image(self.out / "images" / frame_name(i, "png"), frame.image)
+        if frame.points is not None:
+            cols = [frame.points[:, :3]]
+            fields = ["x", "y", "z"]
+            if frame.points.shape[1] > 3:
+                cols.append(frame.points[:, 3:4])
+                fields.append("intensity")
+            if frame.point_times is not None:
+                cols.append(np.asarray(frame.point_times)[:, None])
+                fields.append("time")
+            if self.fields and fields != self.fields:
+                raise ValueError(f"frame {i}: LiDAR fields {fields} differ from the first frame's {self.fields}")
+            self.fields = fields
+            data = np.hstack(cols).astype(np.float32)
+            atomic_write(self.out / "lidar" / frame_name(i, "bin"), lambda tmp: data.tofile(tmp))
+        if frame.depth is not None:
+            write_depth_png(self.out / "depth" / frame_name(i, "png"), frame.depth)
+        if frame.moving_mask is not None:
+            write_image(self.out / "masks" / frame_name(i, "png"), frame.moving_mask.astype(np.uint8) * 255)
+        self.stamps.append(frame.timestamp)
+        if frame.T_world_cam is not None:
+            self.poses.append(frame.T_world_cam)
+
+    def close(self) -> Path:
+        if self.first is None:
+            raise ValueError("no frame was written")
+        f = self.first
+        stamps = np.array(self.stamps)
+        write_text(self.out / "timestamps.txt", "".join(f"{t:.6f}\n" for t in stamps))
+        if self.poses:
+            if len(self.poses) != len(stamps):
+                raise ValueError("either every frame or no frame must carry a pose")
+            write_tum_poses(self.out / "poses_tum.txt", stamps, np.stack(self.poses))
+        meta: dict[str, Any] = {
+            "format": FORMAT,
+            "version": VERSION,
+            "name": self.name,
+            "rate_hz": float(self.rate_hz),
+            "frames": len(stamps),
+            "camera": {
+                "name": self.camera_name,
+                "width": f.width,
+                "height": f.height,
+                "K": np.asarray(f.K, float).tolist(),
+            },
+        }
+        if self.fields:
+            meta["lidar"] = {
+                "name": self.lidar_name,
+                "fields": self.fields,
+                "T_cam_lidar": np.asarray(f.T_cam_lidar, float).tolist(),
+            }
+        meta.update(self.extra)
+        write_text(self.out / "sequence.yaml", yaml.safe_dump(meta, sort_keys=False))
+        return self.out
+
+
+def write_native(seq: Sequence, out: str | Path, name: str | None = None) -> Path:
+    """Copy any readable sequence into the native format."""
+    writer = NativeWriter(out, name=name or Path(seq.path).name, rate_hz=seq.rate_hz)
+    for frame in seq:
+        writer.write(frame)
+    return writer.close()

@@ -1,0 +1,97 @@
+"""Lazy sequences: a reader loads a frame only when it is asked for."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from leovr.data.records import Frame, SequenceInfo
+
+
+class Sequence(ABC):
+    """A recorded sequence with a length, integer indexing, slicing and a summary.
+
+    Subclasses implement `_num_frames` and `_load`; everything else is shared.
+    """
+
+    name: str = "sequence"
+    path: Path
+
+    @abstractmethod
+    def _num_frames(self) -> int: ...
+
+    @abstractmethod
+    def _load(self, i: int) -> Frame: ...
+
+    # optional capabilities, overridden by readers that know them without loading data
+    has_lidar: bool = False
+    has_poses: bool = False
+    has_depth: bool = False
+    rate_hz: float = 10.0
+
+    def __len__(self) -> int:
+        return self._num_frames()
+
+    def __getitem__(self, key: int | slice) -> Frame | "SequenceView":
+        if isinstance(key, slice):
+            return SequenceView(self, list(range(len(self)))[key])
+        n = len(self)
+        i = int(key)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"frame {key} out of range for {n} frames in {self.path}")
+        return self._load(i)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def timestamps(self) -> np.ndarray:
+        """Frame timestamps in seconds; readers override when they can avoid loading images."""
+        return np.array([f.timestamp for f in self])
+
+    def info(self) -> SequenceInfo:
+        """Summarise the sequence by loading its first frame only."""
+        first = self[0] if len(self) else None
+        pts = 0 if first is None or first.points is None else len(first.points)
+        return SequenceInfo(
+            reader=self.name,
+            path=str(self.path),
+            frames=len(self),
+            width=first.width if first is not None else 0,
+            height=first.height if first is not None else 0,
+            channels=1 if first is None or first.image.ndim == 2 else int(first.image.shape[2]),
+            rate_hz=float(self.rate_hz),
+            has_lidar=self.has_lidar,
+            points_per_scan=pts,
+            has_point_times=first is not None and first.point_times is not None,
+            has_poses=self.has_poses,
+            has_depth=self.has_depth,
+        )
+
+
+class SequenceView(Sequence):
+    """A slice of another sequence; frames keep their original index."""
+
+    def __init__(self, base: Sequence, indices: list[int]) -> None:
+        self.base = base
+        self.indices = indices
+        self.name = base.name
+        self.path = base.path
+        self.has_lidar = base.has_lidar
+        self.has_poses = base.has_poses
+        self.has_depth = base.has_depth
+        self.rate_hz = base.rate_hz
+
+    def _num_frames(self) -> int:
+        return len(self.indices)
+
+    def _load(self, i: int) -> Frame:
+        return self.base[self.indices[i]]
+
+    def timestamps(self) -> np.ndarray:
+        return self.base.timestamps()[self.indices]

@@ -1,0 +1,62 @@
+"""Rigid-body helpers on 4x4 homogeneous matrices (numpy, vectorized)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+
+def make_T(R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
+    """Build a 4x4 transform from a rotation matrix and a translation."""
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = R
+    if t is not None:
+        T[:3, 3] = np.asarray(t).ravel()
+    return T
+
+
+def invert_T(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform (or a stack of them, ... x 4 x 4)."""
+    R = T[..., :3, :3]
+    t = T[..., :3, 3:]
+    Ti = np.zeros_like(T)
+    Rt = np.swapaxes(R, -1, -2)
+    Ti[..., :3, :3] = Rt
+    Ti[..., :3, 3:] = -Rt @ t
+    Ti[..., 3, 3] = 1.0
+    return Ti
+
+
+def transform_points(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to N x 3 points."""
+    pts = np.asarray(pts)
+    return pts[:, :3] @ T[:3, :3].T + T[:3, 3]
+
+
+def pose_from_tum(tq: np.ndarray) -> np.ndarray:
+    """tx ty tz qx qy qz qw -> 4x4."""
+    return make_T(Rotation.from_quat(tq[3:7]).as_matrix(), tq[:3])
+
+
+def pose_to_tum(T: np.ndarray) -> np.ndarray:
+    """4x4 -> tx ty tz qx qy qz qw."""
+    return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_quat()])
+
+
+def interpolate_poses(T0: np.ndarray, T1: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Poses at fractions `s` (any shape, 0 -> T0, 1 -> T1): SLERP on rotation, linear on translation.
+
+    Returns an array of shape s.shape + (4, 4). Fractions outside [0, 1] extrapolate linearly in
+    translation and are clipped for rotation.
+    """
+    s = np.asarray(s, np.float64)
+    flat = s.ravel()
+    rots = Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]]))
+    R = Slerp([0.0, 1.0], rots)(np.clip(flat, 0.0, 1.0)).as_matrix()
+    t = T0[:3, 3][None] + flat[:, None] * (T1[:3, 3] - T0[:3, 3])[None]
+    out = np.zeros((len(flat), 4, 4))
+    out[:, :3, :3] = R
+    out[:, :3, 3] = t
+    out[:, 3, 3] = 1.0
+    return out.reshape(s.shape + (4, 4))
