@@ -48,9 +48,13 @@ def read_depth_png(path: Path, scale: float = 1000.0) -> np.ndarray:
 
 
 def depth_to_uint16(depth: np.ndarray, scale: float = 1000.0) -> np.ndarray:
-    """Metres to uint16 units (millimetres by default); invalid or out-of-range values become 0."""
+    """Metres to uint16 units (millimetres by default).
+
+    Non-finite or non-positive values become 0 (unknown); depths beyond the format's range
+    (65.535 m in millimetres) saturate at 65535 rather than being lost.
+    """
     d = np.nan_to_num(np.asarray(depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0) * scale
-    d = np.where((d > 0) & (d < 65535.5), np.round(d), 0)
+    d = np.where(d > 0, np.minimum(np.round(d), 65535), 0)
     return d.astype(np.uint16)
 
 

@@ -1,0 +1,1 @@
+"""Benchmarks: each writes a JSON file with the shape documented in docs/benchmarks.md."""

@@ -1,0 +1,120 @@
+"""The `leovr` command line: a thin layer over the library. Errors about data or configuration are
+printed as one line naming the file and the problem, never as a traceback."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from leovr.config import load_config, override
+from leovr.errors import LeovrError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="leovr: dense depth and drift-free poses from a camera and a cheap LiDAR.")
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks writing JSON results (see docs/benchmarks.md).")
+app.add_typer(bench_app, name="bench")
+
+ConfigOpt = typer.Option(None, "--config", "-c", help="YAML config file (see configs/default.yaml).")
+
+
+@app.command()
+def info(
+    path: Path = typer.Argument(..., help="Sequence folder."),
+    reader: Optional[str] = typer.Option(None, help="Force a reader: native, kitti_raw, kitti_odometry, tum_rgbd."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+) -> None:
+    """Summarise a sequence: reader, frames, resolution, points per scan, poses / depth present."""
+    from leovr.data import open_sequence
+
+    summary = open_sequence(path, reader).info().as_dict()
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2))
+        return
+    width = max(len(k) for k in summary)
+    for k, v in summary.items():
+        typer.echo(f"{k:<{width}}  {v}")
+
+
+@app.command()
+def complete(
+    seq: Path = typer.Argument(..., help="Sequence folder."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder (depth/NNNNNN.png, metrics.json)."),
+    method: Optional[str] = typer.Option(None, help="nearest | ipbasic"),
+    input: Optional[str] = typer.Option(None, "--input", help="Cheap input: vlp16 | mid40 | ratio:R | full"),
+    seed: Optional[int] = typer.Option(None, help="Seed for the ratio input."),
+    start: Optional[int] = typer.Option(None, help="First frame."),
+    end: Optional[int] = typer.Option(None, help="Stop before this frame."),
+    step: Optional[int] = typer.Option(None, help="Frame step."),
+    resume: bool = typer.Option(False, help="Reuse depth PNGs already in OUT."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Classical depth completion of a simulated cheap LiDAR input, scored on held-out points."""
+    from leovr.data import open_sequence
+    from leovr.pipeline.completion import run_completion
+
+    cfg = override(load_config(config).complete, method=method, input=input, seed=seed, start=start, end=end, step=step)
+    m = run_completion(open_sequence(seq), cfg, out, resume=resume)
+    typer.echo(f"MAE {m['mae_m']:.3f} m  RMSE {m['rmse_m']:.3f} m  delta1 {m['delta1']:.3f}  "
+               f"({m['n']} points, {m['frames']} frames) -> {out / 'metrics.json'}")
+
+
+@app.command()
+def convert(
+    seq: Path = typer.Argument(..., help="Sequence folder in any supported layout."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder in the native format."),
+) -> None:
+    """Copy a sequence into leovr's native format (docs/formats.md)."""
+    from leovr.data import open_sequence, write_native
+
+    typer.echo(f"wrote {write_native(open_sequence(seq), out)}")
+
+
+@app.command()
+def demo(
+    out: Path = typer.Option(Path("runs/demo"), "--out", "-o", help="Output folder."),
+    frames: Optional[int] = typer.Option(None, help="Number of frames."),
+    data: Optional[Path] = typer.Option(None, help="Sequence to run on (default: the shared KITTI raw clip)."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """The main job on the embedded default; writes metrics.json and report.md."""
+    from leovr.pipeline.demo import run_demo
+
+    cfg = override(load_config(config).demo, frames=frames)
+    run_demo(out, cfg, data)
+    typer.echo((out / "report.md").read_text())
+    typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, <method>/depth/*.png")
+
+
+@bench_app.command("baseline")
+def bench_baseline(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    quick: bool = typer.Option(False, help="Every 6th frame only (under 2 minutes)."),
+    data: Optional[Path] = typer.Option(None, help="KITTI raw clip (default: ../shared/data/kitti_raw)."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Nearest and IP-Basic completion on the KITTI raw clip with VLP-16 and Mid-40 inputs."""
+    from leovr.bench.baseline import run_baseline_bench
+    from leovr.paths import kitti_raw_dir
+
+    doc = run_baseline_bench(data or kitti_raw_dir(), out, load_config(config).bench_baseline, quick)
+    for key, methods in doc["results"].items():
+        for method, r in methods.items():
+            typer.echo(f"{key:14s} {method:8s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  {r['ms_per_frame']:.1f} ms/frame")
+    typer.echo(f"-> {out}")
+
+
+def main() -> None:
+    """Console entry point: run the app, turning user-facing errors into one line and exit code 2."""
+    try:
+        app()
+    except LeovrError as exc:
+        typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Depth completion: classical baselines (and, later, the learned generator)."""

@@ -1,0 +1,44 @@
+"""Motion compensation of a LiDAR sweep by interpolating the sensor pose over the sweep
+(LeoVR Sec. III-C-2, linear interpolation as in LOAM)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from leovr.geometry import interpolate_poses, invert_T
+
+
+def azimuth_times(points: np.ndarray, sweep_s: float = 0.1, start_azimuth: float = -np.pi) -> np.ndarray:
+    """Per-point time within the sweep for a spinning LiDAR whose azimuth grows with time from
+    `start_azimuth` (KITTI's HDL-64 starts behind the car, at -pi)."""
+    az = np.arctan2(points[:, 1], points[:, 0])
+    return np.mod(az - start_azimuth, 2 * np.pi) / (2 * np.pi) * sweep_s
+
+
+def deskew(
+    points: np.ndarray,
+    times: np.ndarray,
+    T_w_start: np.ndarray,
+    T_w_end: np.ndarray,
+    sweep_s: float,
+    t_ref: float | None = None,
+) -> np.ndarray:
+    """Express every point in the sensor frame at time `t_ref` (default: end of sweep).
+
+    `points` (N x >=3, extra columns kept) were each measured in the sensor frame at its own time
+    `times` (seconds from sweep start); `T_w_start` and `T_w_end` are the sensor poses (sensor to
+    world) at the start and end of the sweep, interpolated in between.
+    """
+    if len(points) == 0:
+        return points.copy()
+    if sweep_s <= 0:
+        raise ValueError("sweep_s must be positive")
+    t_ref = sweep_s if t_ref is None else t_ref
+    T_rel = invert_T(T_w_start) @ T_w_end  # end pose in the start frame
+    T_s = interpolate_poses(np.eye(4), T_rel, np.asarray(times, np.float64) / sweep_s)  # N x 4 x 4
+    T_ref_inv = invert_T(interpolate_poses(np.eye(4), T_rel, np.array(t_ref / sweep_s)))
+    M = T_ref_inv[None] @ T_s
+    xyz = np.einsum("nij,nj->ni", M[:, :3, :3], points[:, :3]) + M[:, :3, 3]
+    out = np.array(points, copy=True)
+    out[:, :3] = xyz
+    return out

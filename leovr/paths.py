@@ -1,0 +1,28 @@
+"""Where things live: the shared data folder beside the checkout, the user cache."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def shared_data_dir() -> Path:
+    """`$LEOVR_SHARED_DATA`, else `../shared/data` beside the checkout (or the working directory)."""
+    env = os.environ.get("LEOVR_SHARED_DATA")
+    if env:
+        return Path(env)
+    for base in (REPO_ROOT, Path.cwd()):
+        cand = (base.parent / "shared" / "data").resolve()
+        if cand.is_dir():
+            return cand
+    return (REPO_ROOT.parent / "shared" / "data").resolve()
+
+
+def kitti_raw_dir() -> Path:
+    return shared_data_dir() / "kitti_raw"
+
+
+def kitti_odometry_dir() -> Path:
+    return shared_data_dir() / "kitti_odometry" / "sequences" / "06"

@@ -1,0 +1,1 @@
+"""Pipelines that run over whole sequences and write outputs."""
