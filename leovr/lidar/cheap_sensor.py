@@ -67,7 +67,7 @@ def ring_ids(points: np.ndarray, n_rings: int = 64) -> np.ndarray:
     """
     az = np.arctan2(points[:, 1], points[:, 0])
     wraps = np.nonzero(np.diff(az) < -np.pi)[0]
-    if len(wraps) >= n_rings // 2:
+    if n_rings // 2 <= len(wraps) <= 2 * n_rings:  # about one wrap per ring: stored ring after ring
         ids = np.zeros(len(points), np.int64)
         ids[wraps + 1] = 1
         return np.cumsum(ids)

@@ -1,0 +1,17 @@
+# Two entry points: `make demo` (set up, run the main job) and `make test` (set up, run the tests).
+.PHONY: setup demo test bench-baseline clean
+
+setup:
+	@bash tools/setup.sh
+
+demo: setup
+	.venv/bin/leovr demo --out runs/demo
+
+test: setup
+	.venv/bin/python -m pytest -q
+
+bench-baseline: setup
+	.venv/bin/leovr bench baseline --out runs/bench_baseline.json
+
+clean:
+	rm -rf runs .pytest_cache

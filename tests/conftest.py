@@ -1,0 +1,62 @@
+"""Fixtures: paths to the shared KITTI clips (skipped when absent) and tiny generated datasets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from leovr.paths import shared_data_dir
+
+SHARED = shared_data_dir()
+KITTI_RAW = SHARED / "kitti_raw"
+KITTI_ODOM = SHARED / "kitti_odometry" / "sequences" / "06"
+
+needs_shared = pytest.mark.skipif(
+    not KITTI_RAW.is_dir() or not KITTI_ODOM.is_dir(),
+    reason=f"shared KITTI clips not found at {SHARED} (set LEOVR_SHARED_DATA or place ../shared/data)",
+)
+
+# KITTI-like axes: LiDAR x forward, y left, z up; camera x right, y down, z forward.
+R_CAM_LIDAR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+FX, CX, CY = 200.0, 80.0, 40.0
+W, H = 160, 80
+
+
+def ring_scan(n_rings: int = 64, per_ring: int = 360, radius: float = 10.0, seed: int = 0) -> np.ndarray:
+    """A spinning-LiDAR scan stored ring after ring (top ring first), azimuth rising from -pi."""
+    rng = np.random.default_rng(seed)
+    el = np.radians(np.linspace(2.0, -24.8, n_rings))
+    az = np.linspace(-np.pi, np.pi, per_ring, endpoint=False)
+    E, A = np.meshgrid(el, az, indexing="ij")
+    r = radius + 0.01 * rng.standard_normal(E.shape)
+    pts = np.stack([r * np.cos(E) * np.cos(A), r * np.cos(E) * np.sin(A), r * np.sin(E), np.full(E.shape, 0.5)], -1)
+    return pts.reshape(-1, 4).astype(np.float32)
+
+
+def write_kitti_raw(root: Path, frames: int = 3) -> Path:
+    """A minimal KITTI raw sync drive with calibration; returns the drive folder."""
+    date = root / "2011_01_01"
+    drive = date / "2011_01_01_drive_0001_sync"
+    (drive / "image_02" / "data").mkdir(parents=True)
+    (drive / "velodyne_points" / "data").mkdir(parents=True)
+    P = f"{FX} 0 {CX} 0 0 {FX} {CY} 0 0 0 1 0"
+    (date / "calib_cam_to_cam.txt").write_text(
+        "calib_time: 09-Jan-2012 13:57:47\n"
+        f"P_rect_02: {P}\nR_rect_00: 1 0 0 0 1 0 0 0 1\n"
+    )
+    R = " ".join(f"{v:g}" for v in R_CAM_LIDAR.ravel())
+    (date / "calib_velo_to_cam.txt").write_text(f"calib_time: 15-Mar-2012 11:37:16\nR: {R}\nT: 0 0 0\n")
+    rng = np.random.default_rng(1)
+    for i in range(frames):
+        img = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+        cv2.imwrite(str(drive / "image_02" / "data" / f"{i:010d}.png"), img)
+        ring_scan(seed=i).tofile(drive / "velodyne_points" / "data" / f"{i:010d}.bin")
+    return drive
+
+
+@pytest.fixture
+def kitti_raw_tiny(tmp_path: Path) -> Path:
+    return write_kitti_raw(tmp_path)

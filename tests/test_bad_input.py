@@ -1,0 +1,89 @@
+"""Bad input fails with a clear message naming the file (or is dropped with a warning)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import ring_scan
+from leovr.data import open_sequence
+from leovr.errors import DataError
+
+
+def test_missing_calibration_names_the_file(kitti_raw_tiny):
+    (kitti_raw_tiny.parent / "calib_velo_to_cam.txt").unlink()
+    with pytest.raises(DataError, match=r"calib_velo_to_cam\.txt: missing LiDAR-to-camera calibration"):
+        open_sequence(kitti_raw_tiny)
+
+
+def test_malformed_calibration_names_key_and_file(kitti_raw_tiny):
+    (kitti_raw_tiny.parent / "calib_cam_to_cam.txt").write_text("P_rect_02: 1 2 3\nR_rect_00: 1 0 0 0 1 0 0 0 1\n")
+    with pytest.raises(DataError, match=r"calib_cam_to_cam\.txt: missing or malformed 'P_rect_02'"):
+        open_sequence(kitti_raw_tiny)
+    (kitti_raw_tiny.parent / "calib_cam_to_cam.txt").write_text("P_rect_02: 1 2 x\n")
+    with pytest.raises(DataError, match=r"calib_cam_to_cam\.txt: line 1"):
+        open_sequence(kitti_raw_tiny)
+
+
+def test_corrupt_image_names_the_file(kitti_raw_tiny):
+    bad = kitti_raw_tiny / "image_02" / "data" / "0000000001.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n not really a png")
+    seq = open_sequence(kitti_raw_tiny)
+    seq[0]  # other frames still load
+    with pytest.raises(DataError, match=r"0000000001\.png: corrupt"):
+        seq[1]
+
+
+def test_bin_size_not_multiple_of_16(kitti_raw_tiny):
+    f = kitti_raw_tiny / "velodyne_points" / "data" / "0000000002.bin"
+    f.write_bytes(f.read_bytes()[:-6])
+    with pytest.raises(DataError, match=r"0000000002\.bin: size \d+ bytes is not a multiple of 16"):
+        open_sequence(kitti_raw_tiny)[2]
+
+
+def test_nan_and_inf_points_are_dropped_with_warning(kitti_raw_tiny):
+    pts = ring_scan()
+    pts[[3, 10], 0] = np.nan
+    pts[20, 2] = np.inf
+    pts.tofile(kitti_raw_tiny / "velodyne_points" / "data" / "0000000000.bin")
+    with pytest.warns(UserWarning, match=r"0000000000\.bin: dropped 3 NaN or infinite points"):
+        f = open_sequence(kitti_raw_tiny)[0]
+    assert len(f.points) == len(pts) - 3 and np.isfinite(f.points).all()
+
+
+def test_empty_scan_names_the_file(kitti_raw_tiny):
+    (kitti_raw_tiny / "velodyne_points" / "data" / "0000000001.bin").write_bytes(b"")
+    with pytest.raises(DataError, match=r"0000000001\.bin: empty LiDAR scan"):
+        open_sequence(kitti_raw_tiny)[1]
+
+
+def test_image_and_scan_counts_differ(kitti_raw_tiny):
+    (kitti_raw_tiny / "velodyne_points" / "data" / "0000000002.bin").unlink()
+    with pytest.raises(DataError, match=r"velodyne_points/data: 2 scans but 3 images"):
+        open_sequence(kitti_raw_tiny)
+
+
+def test_timestamps_going_backwards(kitti_raw_tiny):
+    (kitti_raw_tiny / "image_02" / "timestamps.txt").write_text(
+        "2011-09-26 13:02:25.100000000\n2011-09-26 13:02:25.200000000\n2011-09-26 13:02:25.150000000\n"
+    )
+    with pytest.raises(DataError, match=r"timestamps\.txt: timestamps go backwards .* at entry 2"):
+        open_sequence(kitti_raw_tiny)
+
+
+def test_native_description_errors(tmp_path):
+    (tmp_path / "images").mkdir()
+    (tmp_path / "sequence.yaml").write_text("format: leovr-native\nframes: 1\ncamera: {K: [[1, 0], [0, 1]]}\n")
+    with pytest.raises(DataError, match=r"sequence\.yaml: 'K' must be 3x3"):
+        open_sequence(tmp_path)
+    (tmp_path / "sequence.yaml").write_text("format: [unclosed\n")
+    with pytest.raises(DataError, match=r"sequence\.yaml: invalid YAML"):
+        open_sequence(tmp_path)
+
+
+def test_missing_folder_and_file_instead_of_folder(tmp_path):
+    with pytest.raises(DataError, match="no such file or folder"):
+        open_sequence(tmp_path / "nope")
+    (tmp_path / "f.txt").write_text("x")
+    with pytest.raises(DataError, match="a sequence is a folder"):
+        open_sequence(tmp_path / "f.txt")

@@ -1,0 +1,121 @@
+"""The command line end to end: info, complete (with resume and config), convert, errors, bench."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from conftest import KITTI_RAW, needs_shared
+from leovr.cli import app
+from leovr.config import LeovrConfig, load_config
+from leovr.errors import ConfigError
+from leovr.paths import REPO_ROOT
+
+runner = CliRunner()
+
+
+def test_default_yaml_matches_built_in_defaults():
+    assert load_config(REPO_ROOT / "configs" / "default.yaml") == LeovrConfig()
+
+
+def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
+    bad = tmp_path / "c.yaml"
+    bad.write_text("complete:\n  metod: nearest\n")
+    with pytest.raises(ConfigError, match="metod"):
+        load_config(bad)
+    bad.write_text("complete:\n  input: ratio:0.9\n")
+    with pytest.raises(ConfigError, match="outside"):
+        load_config(bad)
+
+
+def test_info_prints_summary(kitti_raw_tiny):
+    r = runner.invoke(app, ["info", str(kitti_raw_tiny), "--json"])
+    assert r.exit_code == 0, r.output
+    info = json.loads(r.output)
+    assert info["reader"] == "kitti_raw" and info["frames"] == 3 and info["points_per_scan"] == 64 * 360
+
+
+def test_complete_writes_uint16_png_metrics_and_resumes(kitti_raw_tiny, tmp_path):
+    out = tmp_path / "out"
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("complete:\n  method: nearest\n  input: vlp16\n")
+    r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "--out", str(out), "--config", str(cfg), "--end", "2"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["method"] == "nearest" and m["input"] == "vlp16" and m["frames"] == 2
+    png = cv2.imread(str(out / "depth" / "000001.png"), cv2.IMREAD_UNCHANGED)
+    assert png.dtype == np.uint16 and png.shape == (80, 160)
+    # the tiny world is a 10 m sphere: depth (camera z) lies in 9.1-10 m across this 44-degree view
+    assert png.min() > 9_100 and png.max() <= 10_050 and m["mae_m"] < 0.1
+    # option on the command line beats the config file
+    r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "-o", str(out / "b"), "-c", str(cfg), "--method", "ipbasic"])
+    assert json.loads((out / "b" / "metrics.json").read_text())["method"] == "ipbasic"
+    # resume: a frame already written is read back, not recomputed
+    marker = np.full_like(png, 12_345)
+    cv2.imwrite(str(out / "depth" / "000001.png"), marker)
+    r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "--out", str(out), "-c", str(cfg), "--end", "2", "--resume"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((out / "metrics.json").read_text())["mae_m"] > 1.0
+    assert (cv2.imread(str(out / "depth" / "000001.png"), cv2.IMREAD_UNCHANGED) == 12_345).all()
+
+
+def test_convert_then_info(kitti_raw_tiny, tmp_path):
+    r = runner.invoke(app, ["convert", str(kitti_raw_tiny), "--out", str(tmp_path / "n")])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["info", str(tmp_path / "n")])
+    assert "native" in r.output
+
+
+def test_user_errors_are_one_line_with_exit_code_2(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-c", "from leovr.cli import main; main()", "info", str(tmp_path / "missing")],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == f"error: {tmp_path / 'missing'}: no such file or folder"
+    assert "Traceback" not in proc.stderr
+
+
+def test_complete_refuses_sequence_without_lidar(tmp_path):
+    from leovr.data import Frame, NativeWriter
+
+    w = NativeWriter(tmp_path / "s")
+    w.write(Frame(0, 0.0, np.zeros((8, 8, 3), np.uint8), np.eye(3)))
+    w.close()
+    proc = subprocess.run(
+        [sys.executable, "-c", "from leovr.cli import main; main()", "complete", str(tmp_path / "s"), "-o", str(tmp_path / "o")],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 2 and "has no LiDAR" in proc.stderr
+
+
+@needs_shared
+def test_bench_baseline_quick_contract(tmp_path):
+    out = tmp_path / "b.json"
+    r = runner.invoke(app, ["bench", "baseline", "--quick", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    assert set(doc["results"]) == {"kitti_vlp16", "kitti_mid40"}
+    for per_input in doc["results"].values():
+        assert set(per_input) == {"nearest", "ipbasic"}
+        for r in per_input.values():
+            assert {"mae_m", "rmse_m", "absrel", "delta1", "ms_per_frame", "bins"} <= set(r)
+            assert 0.1 < r["mae_m"] < 10 and r["rmse_m"] >= r["mae_m"] and 0 < r["delta1"] <= 1
+            assert set(r["bins"]) == {"0-20", "20-40", "40-60", "60-80", ">80"}
+    # the denser VLP-16 input must beat Mid-40 (a narrow cone) for the same method
+    assert doc["results"]["kitti_vlp16"]["nearest"]["mae_m"] < doc["results"]["kitti_mid40"]["nearest"]["mae_m"]
+
+
+@needs_shared
+def test_demo_writes_report(tmp_path):
+    r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "2", "--data", str(KITTI_RAW)])
+    assert r.exit_code == 0, r.output
+    report = (tmp_path / "report.md").read_text()
+    assert "| ipbasic |" in report and "| nearest |" in report
+    assert len(list((tmp_path / "ipbasic" / "depth").glob("*.png"))) == 2

@@ -1,0 +1,113 @@
+"""Projection (hand-computed pixel), deskew, and cheap-sensor simulation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import KITTI_RAW, R_CAM_LIDAR, needs_shared, ring_scan
+from leovr.geometry import interpolate_poses, invert_T, make_T, transform_points
+from leovr.lidar import azimuth_times, deskew, parse_input, project_points, simulate_cheap_sensor, sparse_depth
+from leovr.lidar.cheap_sensor import MID40_FOV_DEG, ring_ids
+
+K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+T_CL = make_T(R_CAM_LIDAR, [0.1, 0.0, 0.0])
+
+
+def test_projection_hand_computed_pixel_and_nearest_wins():
+    # lidar (10, 2, -1) -> camera (-2 + 0.1, 1, 10) -> u = 500 * -0.19 + 320 = 225, v = 500 * 0.1 + 240 = 290
+    # lidar (20, 3.9, -2) -> camera (-3.8, 2, 20) -> the same pixel, farther: must lose
+    pts = np.array([[20, 3.9, -2], [10, 2, -1], [-5, 0, 0], [10, 50, 0]], np.float32)
+    proj = project_points(pts, K, T_CL, (480, 640))
+    assert list(proj.u) == [225] and list(proj.v) == [290] and list(proj.index) == [1]
+    d = proj.to_map()
+    assert d[290, 225] == pytest.approx(10.0) and (d > 0).sum() == 1
+    # order must not matter
+    assert sparse_depth(pts[::-1], K, T_CL, (480, 640))[290, 225] == pytest.approx(10.0)
+
+
+def test_azimuth_times_for_spinning_lidar():
+    pts = np.array([[-1.0, -1e-6, 0], [1.0, 0.0, 0], [0.0, 1.0, 0]])
+    np.testing.assert_allclose(azimuth_times(pts, 0.1), [0.0, 0.05, 0.075], atol=1e-6)
+
+
+def test_deskew_recovers_static_world_under_motion():
+    rng = np.random.default_rng(0)
+    world = rng.uniform(-20, 20, (500, 3))
+    T0 = np.eye(4)
+    T1 = make_T(np.array([[np.cos(0.1), -np.sin(0.1), 0], [np.sin(0.1), np.cos(0.1), 0], [0, 0, 1]]), [1.0, 0.2, 0.0])
+    times = rng.uniform(0, 0.1, len(world))
+    poses = interpolate_poses(T0, T1, times / 0.1)
+    measured = np.einsum("nij,nj->ni", invert_T(poses)[:, :3, :3], world) + invert_T(poses)[:, :3, 3]
+    fixed = deskew(np.hstack([measured, np.ones((500, 1))]), times, T0, T1, 0.1)
+    np.testing.assert_allclose(fixed[:, :3], transform_points(invert_T(T1), world), atol=1e-9)
+    assert np.allclose(fixed[:, 3], 1.0)
+    # without compensation the error is large, so the test can fail
+    assert np.abs(measured - transform_points(invert_T(T1), world)).max() > 0.5
+
+
+def test_vlp16_keeps_16_of_64_rings_ordered_and_shuffled():
+    scan = ring_scan()
+    split = simulate_cheap_sensor(scan, parse_input("vlp16"))
+    el = np.round(np.degrees(np.arctan2(split.kept[:, 2], np.hypot(split.kept[:, 0], split.kept[:, 1]))), 3)
+    assert len(np.unique(el)) == 16 and len(split.kept) == 16 * 360 and len(split.heldout) == 48 * 360
+    shuffled = scan[np.random.default_rng(0).permutation(len(scan))]
+    kept = simulate_cheap_sensor(shuffled, parse_input("vlp16")).kept
+    el2 = np.round(np.degrees(np.arctan2(kept[:, 2], np.hypot(kept[:, 0], kept[:, 1]))), 3)
+    assert len(np.unique(el2)) == 16
+
+
+@needs_shared
+def test_vlp16_on_real_hdl64_scan():
+    from leovr.data import open_sequence
+
+    f = open_sequence(KITTI_RAW)[0]
+    assert len(np.unique(ring_ids(f.points))) == 65  # 64 rings + the partial one KITTI scans start with
+    kept = simulate_cheap_sensor(f.points, parse_input("vlp16")).kept
+    assert len(np.unique(ring_ids(kept, n_rings=16))) == 16
+    assert 0.22 < len(kept) / len(f.points) < 0.28
+
+
+def _dense_forward_scan(step_deg: float = 0.12) -> np.ndarray:
+    a = np.radians(np.arange(-25, 25, step_deg))
+    A, E = np.meshgrid(a, a)
+    r = 20.0
+    return np.stack([r * np.cos(E) * np.cos(A), r * np.cos(E) * np.sin(A), r * np.sin(E)], -1).reshape(-1, 3)
+
+
+def test_mid40_cone_rosette_and_coverage_growth():
+    scan = _dense_forward_scan()
+    kept = [simulate_cheap_sensor(scan, parse_input("mid40"), frame_index=i).kept for i in range(6)]
+    for k in kept:
+        off_axis = np.degrees(np.arccos(k[:, 0] / np.linalg.norm(k, axis=1)))
+        assert off_axis.max() <= MID40_FOV_DEG / 2 + 0.3
+        assert 2000 < len(k) <= 10_000
+    # the rosette fills the whole cone, not a ring or a line
+    off_axis = np.degrees(np.arccos(kept[0][:, 0] / np.linalg.norm(kept[0], axis=1)))
+    assert off_axis.min() < 2 and off_axis.max() > 17
+    # non-repeating: consecutive frames differ; integrated coverage keeps growing
+    keys = [set(map(tuple, np.round(k, 4))) for k in kept]
+    assert len(keys[0] & keys[1]) < 0.5 * len(keys[0])
+    union = [len(set().union(*keys[: n + 1])) for n in range(6)]
+    assert all(b > a for a, b in zip(union, union[1:])) and union[-1] > 3 * union[0]
+
+
+def test_ratio_input_fraction_disjoint_and_seeded():
+    scan = _dense_forward_scan(0.5)
+    Kc = np.array([[300.0, 0, 200], [0, 300, 100], [0, 0, 1]])
+    args = dict(K=Kc, T_cam_lidar=make_T(R_CAM_LIDAR), shape=(200, 400))
+    s = simulate_cheap_sensor(scan, parse_input("ratio:0.1"), 3, 7, **args)
+    n = len(project_points(scan, Kc, args["T_cam_lidar"], (200, 400)).u)
+    assert len(s.kept) + len(s.heldout) == n
+    assert abs(len(s.kept) / n - 0.1) < 0.02
+    assert not set(map(tuple, s.kept)) & set(map(tuple, s.heldout))
+    again = simulate_cheap_sensor(scan, parse_input("ratio:0.1"), 3, 7, **args)
+    np.testing.assert_array_equal(s.kept, again.kept)
+    other = simulate_cheap_sensor(scan, parse_input("ratio:0.1"), 4, 7, **args)
+    assert not np.array_equal(s.kept, other.kept)
+
+
+@pytest.mark.parametrize("bad", ["ratio:0.5", "ratio:x", "vlp32", "ratio:0.001"])
+def test_parse_input_rejects_bad_specs(bad):
+    with pytest.raises(ValueError):
+        parse_input(bad)
