@@ -1,0 +1,1 @@
+"""Self-supervised training of the depth generator (to come: warping, losses, flow mask, trainer)."""
