@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import ring_scan
+
 from leovr.data import open_sequence
 from leovr.errors import DataError
 

@@ -9,9 +9,9 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from conftest import KITTI_RAW, needs_shared
 from typer.testing import CliRunner
 
-from conftest import KITTI_RAW, needs_shared
 from leovr.cli import app
 from leovr.config import LeovrConfig, load_config
 from leovr.errors import ConfigError

@@ -4,10 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import KITTI_RAW, R_CAM_LIDAR, needs_shared, ring_scan
+
 from leovr.geometry import interpolate_poses, invert_T, make_T, transform_points
-from leovr.lidar import azimuth_times, deskew, parse_input, project_points, simulate_cheap_sensor, sparse_depth
+from leovr.lidar import (
+    azimuth_times,
+    deskew,
+    parse_input,
+    project_points,
+    simulate_cheap_sensor,
+    sparse_depth,
+)
 from leovr.lidar.cheap_sensor import MID40_FOV_DEG, ring_ids
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])

@@ -7,11 +7,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import KITTI_ODOM, KITTI_RAW, needs_shared
 
-from conftest import KITTI_ODOM, KITTI_RAW, needs_shared, write_kitti_raw
 from leovr.data import open_sequence, write_native
-from leovr.data.kitti_odometry import read_odometry_calib
 from leovr.data.io import read_matrix_rows
+from leovr.data.kitti_odometry import read_odometry_calib
 from leovr.errors import DataError
 
 

@@ -136,6 +136,18 @@ def check_timestamps(t: np.ndarray, source: Path) -> np.ndarray:
     return t
 
 
+def read_timestamp_file(path: Path, frames: int) -> np.ndarray:
+    """One time in seconds per line; finite, increasing and one per frame."""
+    try:
+        t = np.loadtxt(path, ndmin=1)
+    except (OSError, ValueError) as exc:
+        raise DataError(path, f"unreadable timestamps: {exc}") from exc
+    check_timestamps(t, path)
+    if len(t) != frames:
+        raise DataError(path, f"{len(t)} timestamps for {frames} frames")
+    return t
+
+
 def read_matrix_rows(path: Path, what: str) -> dict[str, np.ndarray]:
     """Parse `key: v v v ...` calibration files (KITTI style) into float arrays."""
     require_file(path, what)

@@ -7,10 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.data.io import check_timestamps, read_image, read_point_file, require_file
+from leovr.data.io import read_timestamp_file, require_file
 from leovr.data.kitti_common import read_kitti_poses, split_projection
-from leovr.data.records import Frame
-from leovr.data.sequence import Sequence
+from leovr.data.sequence import FileSequence
 from leovr.errors import DataError
 from leovr.geometry import invert_T
 
@@ -47,7 +46,7 @@ def read_odometry_calib(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-class KittiOdometrySequence(Sequence):
+class KittiOdometrySequence(FileSequence):
     """A KITTI odometry sequence; prefers the colour camera (image_2) when present."""
 
     name = "kitti_odometry"
@@ -78,13 +77,7 @@ class KittiOdometrySequence(Sequence):
             self.T_cam_lidar = T_cam_cam0 @ T_cam0_velo
         times = path / "times.txt"
         if times.is_file():
-            try:
-                t = np.loadtxt(times, ndmin=1)
-            except ValueError as exc:
-                raise DataError(times, f"unreadable timestamps: {exc}") from exc
-            self._times = check_timestamps(t, times)
-            if len(t) != len(self.image_files):
-                raise DataError(times, f"{len(t)} timestamps for {len(self.image_files)} images")
+            self._times = read_timestamp_file(times, len(self.image_files))
         else:
             self._times = np.arange(len(self.image_files)) / self.rate_hz
         pose_file = path.parent.parent / "poses" / f"{path.name}.txt"
@@ -95,20 +88,3 @@ class KittiOdometrySequence(Sequence):
                 raise DataError(pose_file, f"{len(T0)} poses for {len(self.image_files)} images")
             self._poses = T0 @ invert_T(T_cam_cam0)
         self.has_poses = self._poses is not None
-
-    def _num_frames(self) -> int:
-        return len(self.image_files)
-
-    def timestamps(self) -> np.ndarray:
-        return self._times.copy()
-
-    def _load(self, i: int) -> Frame:
-        return Frame(
-            index=i,
-            timestamp=float(self._times[i]),
-            image=read_image(self.image_files[i]),
-            K=self.K,
-            T_cam_lidar=self.T_cam_lidar,
-            points=read_point_file(self.scan_files[i], 4) if self.has_lidar else None,
-            T_world_cam=None if self._poses is None else self._poses[i],
-        )

@@ -7,10 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.data.io import check_timestamps, read_image, read_matrix_rows, read_point_file
+from leovr.data.io import check_timestamps, read_matrix_rows
 from leovr.data.kitti_common import split_projection
-from leovr.data.records import Frame
-from leovr.data.sequence import Sequence
+from leovr.data.sequence import FileSequence
 from leovr.errors import DataError
 from leovr.geometry import invert_T, make_T
 
@@ -73,7 +72,7 @@ def oxts_poses(files: list[Path]) -> np.ndarray:
     return invert_T(T[0]) @ T
 
 
-class KittiRawSequence(Sequence):
+class KittiRawSequence(FileSequence):
     """One KITTI raw drive in "sync" layout; calibration is read from the date folder above it."""
 
     name = "kitti_raw"
@@ -136,20 +135,3 @@ class KittiRawSequence(Sequence):
             if "R" in i2v and "T" in i2v:
                 T_cam_imu = T_cam_lidar @ make_T(i2v["R"].reshape(3, 3), i2v["T"])
         return K, T_cam_lidar, T_cam_imu
-
-    def _num_frames(self) -> int:
-        return len(self.image_files)
-
-    def timestamps(self) -> np.ndarray:
-        return self._times.copy()
-
-    def _load(self, i: int) -> Frame:
-        return Frame(
-            index=i,
-            timestamp=float(self._times[i]),
-            image=read_image(self.image_files[i]),
-            K=self.K,
-            T_cam_lidar=self.T_cam_lidar,
-            points=read_point_file(self.scan_files[i], 4) if self.has_lidar else None,
-            T_world_cam=None if self._poses is None else self._poses[i],
-        )

@@ -10,10 +10,10 @@ import yaml
 
 from leovr.data.io import (
     atomic_write,
-    check_timestamps,
     read_depth_png,
     read_image,
     read_point_file,
+    read_timestamp_file,
     require_file,
     write_depth_png,
     write_image,
@@ -101,16 +101,7 @@ class NativeSequence(Sequence):
             if len(self.scan_files) != n:
                 raise DataError(path / "lidar", f"{len(self.scan_files)} scans but {n} images")
         ts = path / "timestamps.txt"
-        if ts.is_file():
-            try:
-                t = np.loadtxt(ts, ndmin=1)
-            except ValueError as exc:
-                raise DataError(ts, f"unreadable timestamps: {exc}") from exc
-            self._times = check_timestamps(t, ts)
-            if len(t) != n:
-                raise DataError(ts, f"{len(t)} timestamps for {n} frames")
-        else:
-            self._times = np.arange(n) / self.rate_hz
+        self._times = read_timestamp_file(ts, n) if ts.is_file() else np.arange(n) / self.rate_hz
         self._poses = None
         pose_file = path / "poses_tum.txt"
         if pose_file.is_file():

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from leovr.data.io import read_image, read_point_file
 from leovr.data.records import Frame, SequenceInfo
 
 
@@ -71,6 +72,38 @@ class Sequence(ABC):
             has_point_times=first is not None and first.point_times is not None,
             has_poses=self.has_poses,
             has_depth=self.has_depth,
+        )
+
+
+class FileSequence(Sequence):
+    """A sequence backed by per-frame image and scan files, timestamps and optional poses.
+
+    Readers fill `image_files`, `scan_files` (empty without LiDAR), `_times`, `_poses` (F x 4 x 4 or
+    None), `K` and `T_cam_lidar`; loading a frame is then the same for all of them.
+    """
+
+    image_files: list[Path]
+    scan_files: list[Path]
+    _times: np.ndarray
+    _poses: np.ndarray | None
+    K: np.ndarray
+    T_cam_lidar: np.ndarray
+
+    def _num_frames(self) -> int:
+        return len(self.image_files)
+
+    def timestamps(self) -> np.ndarray:
+        return self._times.copy()
+
+    def _load(self, i: int) -> Frame:
+        return Frame(
+            index=i,
+            timestamp=float(self._times[i]),
+            image=read_image(self.image_files[i]),
+            K=self.K,
+            T_cam_lidar=self.T_cam_lidar,
+            points=read_point_file(self.scan_files[i], 4) if self.scan_files else None,
+            T_world_cam=None if self._poses is None else self._poses[i],
         )
 
 

@@ -1,6 +1,11 @@
 """LiDAR utilities: projection into the image, motion compensation, cheap-sensor simulation."""
 
-from leovr.lidar.cheap_sensor import CheapSensor, ScanSplit, parse_input, simulate_cheap_sensor
+from leovr.lidar.cheap_sensor import (
+    CheapSensor,
+    ScanSplit,
+    parse_input,
+    simulate_cheap_sensor,
+)
 from leovr.lidar.deskew import azimuth_times, deskew
 from leovr.lidar.projection import Projection, project_points, sparse_depth
 
