@@ -83,8 +83,8 @@ def demo(
     """The main job on the embedded default; writes metrics.json and report.md."""
     from leovr.pipeline.demo import run_demo
 
-    cfg = override(load_config(config).demo, frames=frames)
-    run_demo(out, cfg, data)
+    cfg = override(load_config(config).demo, frames=frames, data=None if data is None else str(data))
+    run_demo(out, cfg)
     typer.echo((out / "report.md").read_text())
     typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, <method>/depth/*.png")
 
@@ -100,7 +100,8 @@ def bench_baseline(
     from leovr.bench.baseline import run_baseline_bench
     from leovr.paths import kitti_raw_dir
 
-    doc = run_baseline_bench(data or kitti_raw_dir(), out, load_config(config).bench_baseline, quick)
+    cfg = override(load_config(config).bench_baseline, data=None if data is None else str(data))
+    doc = run_baseline_bench(Path(cfg.data) if cfg.data else kitti_raw_dir(), out, cfg, quick)
     for key, methods in doc["results"].items():
         for method, r in methods.items():
             typer.echo(f"{key:14s} {method:8s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  {r['ms_per_frame']:.1f} ms/frame")

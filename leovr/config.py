@@ -47,6 +47,7 @@ class CompleteConfig(_Model):
 class BenchBaselineConfig(_Model):
     """`leovr bench baseline`."""
 
+    data: str | None = None  # KITTI raw clip; None = ../shared/data/kitti_raw
     inputs: list[str] = ["vlp16", "mid40"]
     methods: list[Literal["nearest", "ipbasic"]] = ["nearest", "ipbasic"]
     quick_step: int = 6  # --quick scores every 6th frame
@@ -56,6 +57,7 @@ class BenchBaselineConfig(_Model):
 class DemoConfig(_Model):
     """`leovr demo`."""
 
+    data: str | None = None  # sequence; None = the embedded default
     frames: int = 12
     input: str = "mid40"
 

@@ -19,9 +19,9 @@ def _fmt(v: float | None, digits: int = 3) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
-def run_demo(out: Path, cfg: DemoConfig, data: Path | None = None, progress: bool = True) -> dict:
+def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
     """Complete the first `cfg.frames` frames with each classical method; write metrics and a report."""
-    seq = open_sequence(data or kitti_raw_dir())
+    seq = open_sequence(Path(cfg.data) if cfg.data else kitti_raw_dir())
     results = {}
     for method in METHODS:
         ccfg = CompleteConfig(method=method, input=cfg.input, end=cfg.frames)
