@@ -110,6 +110,7 @@ class NativeSequence(Sequence):
                 raise DataError(pose_file, f"{len(self._poses)} poses for {n} frames")
         self.has_poses = self._poses is not None
         self.has_depth = (path / "depth").is_dir()
+        self.depth_scale = float(meta.get("depth_scale", 1000.0))  # PNG units per metre
         self.has_masks = (path / "masks").is_dir()
 
     def _num_frames(self) -> int:
@@ -126,7 +127,7 @@ class NativeSequence(Sequence):
             points = np.ascontiguousarray(raw[:, keep[:4]])
             if "time" in self.fields:
                 times = raw[:, self.fields.index("time")].astype(np.float64)
-        depth = read_depth_png(self.path / "depth" / frame_name(i, "png")) if self.has_depth else None
+        depth = read_depth_png(self.path / "depth" / frame_name(i, "png"), self.depth_scale) if self.has_depth else None
         mask = None
         if self.has_masks:
             mask = read_image(self.path / "masks" / frame_name(i, "png"), gray=True) > 0
@@ -164,12 +165,14 @@ class NativeWriter:
         camera_name: str = "camera",
         lidar_name: str = "lidar",
         extra: dict[str, Any] | None = None,
+        depth_scale: float = 1000.0,
     ) -> None:
         self.out = Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
         self.name, self.rate_hz = name, rate_hz
         self.camera_name, self.lidar_name = camera_name, lidar_name
         self.extra = extra or {}
+        self.depth_scale = depth_scale
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
         self.first: Frame | None = None
@@ -195,7 +198,7 @@ class NativeWriter:
             data = np.hstack(cols).astype(np.float32)
             atomic_write(self.out / "lidar" / frame_name(i, "bin"), lambda tmp: data.tofile(tmp))
         if frame.depth is not None:
-            write_depth_png(self.out / "depth" / frame_name(i, "png"), frame.depth)
+            write_depth_png(self.out / "depth" / frame_name(i, "png"), frame.depth, self.depth_scale)
         if frame.moving_mask is not None:
             write_image(self.out / "masks" / frame_name(i, "png"), frame.moving_mask.astype(np.uint8) * 255)
         self.stamps.append(frame.timestamp)
@@ -218,6 +221,7 @@ class NativeWriter:
             "name": self.name,
             "rate_hz": float(self.rate_hz),
             "frames": len(stamps),
+            "depth_scale": float(self.depth_scale),
             "camera": {
                 "name": self.camera_name,
                 "width": f.width,
