@@ -74,13 +74,34 @@ def convert(
 
 
 @app.command()
+def simulate(
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder (native format)."),
+    scenario: Optional[str] = typer.Option(None, help="city_loop | straight | dynamic"),
+    lidar: Optional[str] = typer.Option(None, help="vlp16 | hdl64 | mid40"),
+    frames: Optional[int] = typer.Option(None, help="Number of frames."),
+    seed: Optional[int] = typer.Option(None, help="World and noise seed."),
+    light: Optional[str] = typer.Option(None, help="day | dusk | night"),
+    speed_kmh: Optional[float] = typer.Option(None, "--speed-kmh", help="Ego speed."),
+    preview: bool = typer.Option(False, help="Also write preview.png (image, depth, LiDAR overlay)."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Render a sequence of the procedural city: images, LiDAR, poses, dense depth, moving masks."""
+    from leovr.sim.simulate import simulate as run_simulate
+
+    cfg = override(load_config(config).simulate, scenario=scenario, lidar=lidar, frames=frames, seed=seed,
+                   light=light, speed_kmh=speed_kmh)
+    r = run_simulate(cfg, out, preview=preview)
+    typer.echo(f"{cfg.frames} frames at {r['frames_per_s']:.1f} frames/s -> {out}")
+
+
+@app.command()
 def demo(
     out: Path = typer.Option(Path("runs/demo"), "--out", "-o", help="Output folder."),
     frames: Optional[int] = typer.Option(None, help="Number of frames."),
-    data: Optional[Path] = typer.Option(None, help="Sequence to run on (default: the shared KITTI raw clip)."),
+    data: Optional[Path] = typer.Option(None, help="A recorded sequence instead of the generated default."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
-    """The main job on the embedded default; writes metrics.json and report.md."""
+    """The main job on the embedded default (a generated Mid-40 sequence); writes report.md and metrics.json."""
     from leovr.pipeline.demo import run_demo
 
     cfg = override(load_config(config).demo, frames=frames, data=None if data is None else str(data))
@@ -105,6 +126,21 @@ def bench_baseline(
     for key, methods in doc["results"].items():
         for method, r in methods.items():
             typer.echo(f"{key:14s} {method:8s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  {r['ms_per_frame']:.1f} ms/frame")
+    typer.echo(f"-> {out}")
+
+
+@bench_app.command("simulate")
+def bench_simulate(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    frames: Optional[int] = typer.Option(None, help="Frames per LiDAR model."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Rendering speed (frames per second) at 448x256 for each LiDAR model."""
+    from leovr.bench.simulate import run_simulate_bench
+
+    doc = run_simulate_bench(out, override(load_config(config).bench_simulate, frames=frames))
+    for lidar, r in doc["per_lidar"].items():
+        typer.echo(f"{lidar:6s} {r['frames_per_s']:.2f} frames/s (render), {r['wall_s_per_frame_with_writing']:.3f} s/frame with writing")
     typer.echo(f"-> {out}")
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from leovr.errors import ConfigError
 from leovr.eval.depth_metrics import LEOVR_BINS
@@ -54,18 +54,50 @@ class BenchBaselineConfig(_Model):
     seed: int = 0
 
 
-class DemoConfig(_Model):
-    """`leovr demo`."""
+class SimulateConfig(_Model):
+    """`leovr simulate`: one rendered sequence of the procedural world."""
 
-    data: str | None = None  # sequence; None = the embedded default
-    frames: int = 12
-    input: str = "mid40"
+    scenario: Literal["city_loop", "straight", "dynamic"] = "city_loop"
+    lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"
+    frames: int = Field(20, ge=1)
+    seed: int = 0
+    light: Literal["day", "dusk", "night"] = "day"
+    speed_kmh: float = Field(30.0, ge=0.0)
+    rate_hz: float = Field(10.0, gt=0.0)
+    width: int = Field(448, ge=16)
+    height: int = Field(256, ge=16)
+    focal: float = Field(260.0, gt=0.0)
+
+
+class DemoConfig(_Model):
+    """`leovr demo`: by default a generated Mid-40 sequence (the embedded default)."""
+
+    data: str | None = None  # a recorded sequence instead of the generated one
+    frames: int = Field(12, ge=1)
+    scenario: Literal["city_loop", "straight", "dynamic"] = "city_loop"
+    lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"
+    seed: int = 0
+    input: str | None = None  # None: all of the generated scan, or mid40 on a recorded dense scan
+
+
+class BenchSimulateConfig(_Model):
+    """`leovr bench simulate`."""
+
+    frames: int = Field(10, ge=1)
+    lidars: list[Literal["vlp16", "hdl64", "mid40"]] = ["mid40", "vlp16", "hdl64"]
 
 
 class LeovrConfig(_Model):
     complete: CompleteConfig = CompleteConfig()
+    simulate: SimulateConfig = SimulateConfig()
+    bench_simulate: BenchSimulateConfig = BenchSimulateConfig()
     bench_baseline: BenchBaselineConfig = BenchBaselineConfig()
     demo: DemoConfig = DemoConfig()
+
+
+def _describe(exc: ValidationError) -> str:
+    """One line per invalid field: 'section.key: what is wrong'."""
+    return "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
 
 
 def load_config(path: str | Path | None = None) -> LeovrConfig:
@@ -84,7 +116,7 @@ def load_config(path: str | Path | None = None) -> LeovrConfig:
     try:
         return LeovrConfig.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{path}: {exc}") from exc
+        raise ConfigError(f"{path}: {_describe(exc)}") from exc
 
 
 def override(model: _Model, **options: Any) -> Any:
@@ -93,4 +125,4 @@ def override(model: _Model, **options: Any) -> Any:
     try:
         return model.model_validate({**model.model_dump(), **given})
     except ValidationError as exc:
-        raise ConfigError(str(exc)) from exc
+        raise ConfigError(f"invalid option: {_describe(exc)}") from exc

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 
 class Path2D:
-    """A polyline resampled every `step` metres; `pose(s)` gives position and heading at arc length s.
+    """A polyline resampled every `step` metres and smoothed over `smooth` metres; `pose(s)` gives
+    position and heading at arc length s.
 
     Closed paths wrap around; open paths either clamp at the ends or, with `pingpong`, walk back.
     """
 
-    def __init__(self, points: np.ndarray, closed: bool = False, step: float = 0.05) -> None:
+    def __init__(self, points: np.ndarray, closed: bool = False, step: float = 0.05, smooth: float = 0.5) -> None:
         pts = np.asarray(points, np.float64)
         if closed:
             pts = np.vstack([pts, pts[:1]])
@@ -20,10 +22,20 @@ class Path2D:
         self.length = float(s[-1])
         self.closed = closed
         self.s = np.arange(0.0, self.length, step)
-        self.xy = np.stack([np.interp(self.s, s, pts[:, 0]), np.interp(self.s, s, pts[:, 1])], 1)
-        nxt = np.roll(self.xy, -1, axis=0) if closed else np.vstack([self.xy[1:], 2 * self.xy[-1] - self.xy[-2]])
-        d = nxt - self.xy
-        self.yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+        xy = np.stack([np.interp(self.s, s, pts[:, 0]), np.interp(self.s, s, pts[:, 1])], 1)
+        # smooth along the arc so position and heading are continuous (a vehicle cannot turn in steps)
+        sigma = max(smooth / step, 1e-6)
+        pad = 0
+        if not closed and len(xy) > 1:  # extend straight beyond the ends so smoothing keeps them in place
+            pad = int(4 * sigma) + 1
+            k = np.arange(1, pad + 1)[:, None]
+            xy = np.vstack([xy[0] - k[::-1] * (xy[1] - xy[0]), xy, xy[-1] + k * (xy[-1] - xy[-2])])
+        mode = "wrap" if closed else "nearest"
+        sm = gaussian_filter1d(xy, sigma, axis=0, mode=mode)
+        d = gaussian_filter1d(xy, sigma, axis=0, order=1, mode=mode)
+        end = len(xy) - pad
+        self.xy = sm[pad:end]
+        self.yaw = np.unwrap(np.arctan2(d[pad:end, 1], d[pad:end, 0]))
 
     def pose(self, s: np.ndarray, pingpong: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(N x 2 positions, N headings in radians) at arc lengths s."""

@@ -9,7 +9,6 @@ KITTI's depth convention) because millimetres in 16 bits stop at 65.5 m and the 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
@@ -17,39 +16,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
+from leovr.config import SimulateConfig
 from leovr.data.io import write_image
 from leovr.data.native import NativeWriter
 from leovr.data.records import Frame
 from leovr.lidar.projection import project_points
 from leovr.sim.render import LIGHTS, build_scene, render_camera, scan_lidar
 from leovr.sim.sensors import LIDARS, T_VEHICLE_CAM, CameraModel
-from leovr.sim.world import SCENARIOS, World, build_world
+from leovr.sim.world import World, build_world
 
 GT_DEPTH_SCALE = 256.0
-
-
-@dataclass
-class SimConfig:
-    scenario: str = "city_loop"
-    lidar: str = "mid40"
-    frames: int = 20
-    seed: int = 0
-    light: str = "day"
-    speed_kmh: float = 30.0
-    rate_hz: float = 10.0
-    width: int = 448
-    height: int = 256
-    focal: float = 260.0
-
-    def validate(self) -> None:
-        if self.scenario not in SCENARIOS:
-            raise ValueError(f"unknown scenario '{self.scenario}' (choose {', '.join(SCENARIOS)})")
-        if self.lidar not in LIDARS:
-            raise ValueError(f"unknown LiDAR '{self.lidar}' (choose {', '.join(LIDARS)})")
-        if self.light not in LIGHTS:
-            raise ValueError(f"unknown light '{self.light}' (choose {', '.join(LIGHTS)})")
-        if self.frames < 1 or self.rate_hz <= 0 or self.speed_kmh < 0:
-            raise ValueError("frames must be >= 1, rate_hz > 0 and speed_kmh >= 0")
 
 
 def vehicle_poses(world: World, times: np.ndarray, speed: float) -> np.ndarray:
@@ -65,7 +41,7 @@ def vehicle_poses(world: World, times: np.ndarray, speed: float) -> np.ndarray:
     return T
 
 
-def render_frame(world: World, cfg: SimConfig, k: int, cam: CameraModel, cam_dirs: np.ndarray) -> Frame:
+def render_frame(world: World, cfg: SimulateConfig, k: int, cam: CameraModel, cam_dirs: np.ndarray) -> Frame:
     """Render camera, depth, moving mask and LiDAR sweep of frame k."""
     speed = cfg.speed_kmh / 3.6
     lidar = LIDARS[cfg.lidar]
@@ -102,15 +78,14 @@ def preview_image(frame: Frame) -> np.ndarray:
     return np.vstack([frame.image if frame.image.ndim == 3 else np.dstack([frame.image] * 3), depth_rgb, overlay])
 
 
-def simulate(cfg: SimConfig, out: Path, preview: bool = False, progress: bool = True) -> dict:
+def simulate(cfg: SimulateConfig, out: Path, preview: bool = False, progress: bool = True) -> dict:
     """Render `cfg.frames` frames into `out` (native format); returns timing figures."""
-    cfg.validate()
     world = build_world(cfg.scenario, cfg.seed, cfg.speed_kmh / 3.6)
     cam = CameraModel(cfg.width, cfg.height, cfg.focal, cfg.focal)
     cam_dirs = cam.ray_directions()
     writer = NativeWriter(
         out, name=f"{cfg.scenario}_{cfg.lidar}_{cfg.light}_s{cfg.seed}", rate_hz=cfg.rate_hz, lidar_name=cfg.lidar,
-        extra={"simulation": asdict(cfg)}, depth_scale=GT_DEPTH_SCALE,
+        extra={"simulation": cfg.model_dump()}, depth_scale=GT_DEPTH_SCALE,
     )
     times = []
     middle = None

@@ -170,11 +170,20 @@ def _build_city(rng, extent, xs, ys) -> MeshBuilder:
     return b
 
 
-def _traffic(rng, extent, xs, ys, ego_roads, n_cars: int, n_people: int) -> list[Mover]:
-    """Cars in lanes (on an ego road only against the ego's direction) and pedestrians on sidewalks."""
+def _traffic(rng, extent, xs, ys, ego_roads, centre: Path2D, n_cars: int, n_people: int, near: float) -> list[Mover]:
+    """Cars in lanes and pedestrians on sidewalks. A share `near` of them use the ego's own road
+    (cars in the oncoming lane) within the stretch the ego drives first; the rest roam the grid, on
+    an ego road only against the ego's direction so nobody drives through the ego car."""
     movers: list[Mover] = []
     roads = _road_paths(extent, xs, ys)
+    oncoming = centre.offset(LANE).reversed()
+    reach = min(centre.length, 500.0)
     for _ in range(n_cars):
+        color = _car_color(rng)
+        if rng.random() < near:
+            s0 = oncoming.length - rng.uniform(0, reach) if not centre.closed else rng.uniform(0, oncoming.length)
+            movers.append(Mover(car_template(color), oncoming, s0, rng.uniform(5, 12), 0.02, "car"))
+            continue
         axis, c, path = roads[int(rng.integers(len(roads)))]
         direction = 1 if rng.random() < 0.5 else -1
         for ax, cc, d in ego_roads:
@@ -185,12 +194,15 @@ def _traffic(rng, extent, xs, ys, ego_roads, n_cars: int, n_people: int) -> list
         p = path.offset(lateral)
         if direction < 0:
             p = p.reversed()
-        movers.append(Mover(car_template(_car_color(rng)), p, rng.uniform(0, p.length), rng.uniform(5, 12), 0.02, "car"))
+        movers.append(Mover(car_template(color), p, rng.uniform(0, p.length), rng.uniform(5, 12), 0.02, "car"))
     for _ in range(n_people):
-        axis, c, path = roads[int(rng.integers(len(roads)))]
         side = 1 if rng.random() < 0.5 else -1
-        p = path.offset(side * (ROAD_HALF + 1.8))
-        start = rng.uniform(0, max(p.length - 60, 1))
+        if rng.random() < near:
+            p, start = centre.offset(side * (ROAD_HALF + 1.8)), rng.uniform(0, reach)
+        else:
+            axis, c, path = roads[int(rng.integers(len(roads)))]
+            p = path.offset(side * (ROAD_HALF + 1.8))
+            start = rng.uniform(0, max(p.length - 60, 1))
         seg = Path2D(p.pose(np.array([start, start + rng.uniform(20, 60)]))[0])
         col = tuple(rng.uniform(0.1, 0.9, 3))
         movers.append(Mover(person_template(col), seg, rng.uniform(0, seg.length), rng.uniform(1.0, 1.6), KERB, "person", True))
@@ -207,7 +219,6 @@ def build_world(scenario: str, seed: int, ego_speed: float) -> World:
         xs = ys = [k * B for k in range(-3, 5)]
         extent = (-200.0, 260.0, -200.0, 260.0)
         centre = Path2D(rounded_rectangle(0, 0, B, B, 8.0), closed=True)
-        ego = centre.offset(-LANE)
         ego_roads = [(0, 0.0, 1), (1, B, 1), (0, B, -1), (1, 0.0, -1)]
         n_cars, n_people = 14, 12
     else:
@@ -215,11 +226,13 @@ def build_world(scenario: str, seed: int, ego_speed: float) -> World:
         xs = [k * B for k in range(-1, 19)]
         ys = [-B, 0.0, B]
         extent = (-160.0, 1560.0, -140.0, 140.0)
-        ego = Path2D(np.array([[-20.0, -LANE], [1500.0, -LANE]]))
+        centre = Path2D(np.array([[-20.0, 0.0], [1500.0, 0.0]]))
         ego_roads = [(0, 0.0, 1)]
         n_cars, n_people = (12, 10) if scenario == "straight" else (45, 40)
+    ego = centre.offset(-LANE)
     static = _build_city(rng, extent, xs, ys).build()
-    movers = _traffic(rng, extent, xs, ys, ego_roads, n_cars, n_people)
+    near = 0.8 if scenario == "dynamic" else 0.5
+    movers = _traffic(rng, extent, xs, ys, ego_roads, centre, n_cars, n_people, near)
     # traffic ahead in the ego's own lane, at the ego's speed so the gap stays constant
     for k in range(1 if scenario == "city_loop" else (1 if scenario == "straight" else 4)):
         movers.append(Mover(car_template(_car_color(rng)), ego, 18.0 + 25.0 * k + rng.uniform(0, 8), ego_speed, 0.02, "car"))
