@@ -119,3 +119,35 @@ def test_demo_writes_report(tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "| ipbasic |" in report and "| nearest |" in report
     assert len(list((tmp_path / "ipbasic" / "depth").glob("*.png"))) == 2
+
+
+def test_simulate_command_and_bad_option(tmp_path):
+    r = runner.invoke(app, ["simulate", "--out", str(tmp_path / "s"), "--frames", "2", "--lidar", "vlp16",
+                            "--scenario", "straight", "--preview"])
+    assert r.exit_code == 0, r.output
+    info = json.loads(runner.invoke(app, ["info", str(tmp_path / "s"), "--json"]).output)
+    assert info["frames"] == 2 and info["has_depth"] and info["has_poses"] and info["has_point_times"]
+    assert (info["width"], info["height"]) == (448, 256) and (tmp_path / "s" / "preview.png").is_file()
+    proc = subprocess.run(
+        [sys.executable, "-c", "from leovr.cli import main; main()", "simulate", "-o", str(tmp_path / "x"), "--light", "noon"],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 2 and proc.stderr.startswith("error: invalid option: light:")
+
+
+def test_bench_simulate_contract(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("bench_simulate:\n  frames: 1\n  lidars: [mid40]\n")
+    r = runner.invoke(app, ["bench", "simulate", "--out", str(tmp_path / "b.json"), "-c", str(cfg)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "b.json").read_text())
+    assert doc["lidar"] == "mid40" and (doc["width"], doc["height"]) == (448, 256) and doc["frames_per_s"] > 0
+
+
+def test_demo_on_generated_default(tmp_path):
+    r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "2"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["ipbasic"]["ground_truth"].startswith("dense") and m["ipbasic"]["frames"] == 2
+    assert m["ipbasic"]["n"] > 100_000  # dense ground truth: most of 2 x 448 x 256 pixels
+    assert (tmp_path / "sequence" / "preview.png").is_file()

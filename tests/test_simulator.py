@@ -10,8 +10,7 @@ import pytest
 
 from leovr.config import SimulateConfig
 from leovr.data import open_sequence
-from leovr.geometry import invert_T
-from leovr.lidar import deskew, project_points
+from leovr.lidar import deskew
 from leovr.sim.meshes import Mat, MeshBuilder
 from leovr.sim.render import LIGHTS, build_scene, render_camera
 from leovr.sim.sensors import LIDARS, SWEEP_S, T_VEHICLE_CAM, CameraModel
@@ -136,3 +135,21 @@ def test_night_is_darker_and_noisier(tmp_path):
     day, night = open_sequence(tmp_path / "day")[0].image, open_sequence(tmp_path / "night")[0].image
     assert night.mean() < 0.5 * day.mean()
     np.testing.assert_array_equal(open_sequence(tmp_path / "day")[0].depth, open_sequence(tmp_path / "night")[0].depth)
+
+
+def test_dataset_splits_use_disjoint_seeds_and_resume(tmp_path):
+    from leovr.sim.dataset import Recipe, make_dataset
+
+    recipe = Recipe("t", {"train": 2, "test": 1}, ("mid40",), ("day",), 2)
+    seeds = {split: {cfg.seed for s, cfg in recipe.items() if s == split} for split in ("train", "test")}
+    assert not seeds["train"] & seeds["test"]
+    root = make_dataset(recipe, tmp_path, progress=False)
+    import json
+
+    manifest = json.loads((root / "manifest.json").read_text())
+    assert len(manifest["sequences"]) == 3
+    first = root / manifest["sequences"][0]["path"] / "images" / "000000.png"
+    stamp = first.stat().st_mtime_ns
+    make_dataset(recipe, tmp_path, progress=False)  # complete sequences are not rendered again
+    assert first.stat().st_mtime_ns == stamp
+    assert len(open_sequence(root / manifest["sequences"][2]["path"])) == 2
