@@ -21,6 +21,7 @@ class Path2D:
         s = np.concatenate([[0.0], np.cumsum(seg)])
         self.length = float(s[-1])
         self.closed = closed
+        self.step = step
         self.s = np.arange(0.0, self.length, step)
         xy = np.stack([np.interp(self.s, s, pts[:, 0]), np.interp(self.s, s, pts[:, 1])], 1)
         # smooth along the arc so position and heading are continuous (a vehicle cannot turn in steps)
@@ -61,10 +62,15 @@ class Path2D:
     def offset(self, lateral: float) -> "Path2D":
         """A parallel path `lateral` metres to the left (negative: right) of this one."""
         normal = np.stack([-np.sin(self.yaw), np.cos(self.yaw)], 1)
-        return Path2D((self.xy + lateral * normal)[:: max(1, int(0.5 / 0.05))], self.closed)
+        return Path2D((self.xy + lateral * normal)[:: self._stride()], self.closed, self.step)
 
     def reversed(self) -> "Path2D":
-        return Path2D(self.xy[::-1][:: max(1, int(0.5 / 0.05))], self.closed)
+        """The same path driven the other way."""
+        return Path2D(self.xy[::-1][:: self._stride()], self.closed, self.step)
+
+    def _stride(self) -> int:
+        """Keep a vertex every 0.5 m when deriving a path (it is resampled and smoothed again)."""
+        return max(1, int(round(0.5 / self.step)))
 
 
 def rounded_rectangle(x0: float, y0: float, x1: float, y1: float, radius: float, n_arc: int = 24) -> np.ndarray:
