@@ -129,6 +129,28 @@ def bench_baseline(
     typer.echo(f"-> {out}")
 
 
+@app.command()
+def train(
+    out: Path = typer.Option(..., "--out", "-o", help="Run folder (checkpoints, log.jsonl)."),
+    mode: str = typer.Option("supervised", help="supervised (selfsup comes later)."),
+    config: Optional[Path] = ConfigOpt,
+    dataset: Optional[Path] = typer.Option(None, help="Dataset folder with manifest.json (tools/make_dataset.py)."),
+    epochs: Optional[int] = typer.Option(None),
+    batch_size: Optional[int] = typer.Option(None, "--batch-size"),
+    max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Cap on training frames."),
+    resume: bool = typer.Option(False, help="Continue from OUT/checkpoint_last.pt."),
+) -> None:
+    """Train the depth generator on simulator splits."""
+    from leovr.depth.train import train_supervised
+
+    if mode != "supervised":
+        raise typer.BadParameter("only --mode supervised exists so far", param_hint="--mode")
+    cfg = override(load_config(config).train, dataset=None if dataset is None else str(dataset), epochs=epochs,
+                   batch_size=batch_size, max_frames=max_frames)
+    r = train_supervised(cfg, out, resume=resume)
+    typer.echo(f"epoch {r.get('epoch')}: val MAE {r.get('val_mae_m', float('nan')):.3f} m -> {out}")
+
+
 @bench_app.command("simulate")
 def bench_simulate(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),

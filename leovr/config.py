@@ -87,12 +87,37 @@ class BenchSimulateConfig(_Model):
     lidars: list[Literal["vlp16", "hdl64", "mid40"]] = ["mid40", "vlp16", "hdl64"]
 
 
+class TrainConfig(_Model):
+    """`leovr train --mode supervised`: the depth generator on simulator splits (LeoVR Sec. V-A defaults)."""
+
+    dataset: str | None = None  # folder with manifest.json; None: the cached recipe below
+    recipe: str = "default"
+    epochs: int = Field(24, ge=1)
+    batch_size: int = Field(8, ge=1)
+    lr: float = Field(1e-4, gt=0)
+    lr_step_epochs: int = Field(6, ge=1)
+    lr_gamma: float = Field(0.5, gt=0, le=1)
+    sigma_epochs: int = Field(2, ge=0)  # second phase: uncertainty head only, depth path frozen
+    loss: Literal["l1", "l2"] = "l1"
+    smoothness: float = Field(0.0, ge=0)  # weight of edge-aware smoothness (optional)
+    ratio_min: float = 0.005
+    ratio_max: float = 0.30
+    native_prob: float = Field(0.5, ge=0, le=1)  # share of samples using the sequence's own LiDAR pattern
+    lidar_encoder: Literal["partial", "interp"] = "partial"
+    cross_attention: bool = True
+    channels: list[int] = [16, 32, 64, 128, 128]
+    blocks: list[int] = [3, 4, 6, 3]
+    max_frames: int | None = None  # cap on training frames (quick runs)
+    seed: int = 0
+
+
 class LeovrConfig(_Model):
     complete: CompleteConfig = CompleteConfig()
     simulate: SimulateConfig = SimulateConfig()
     bench_simulate: BenchSimulateConfig = BenchSimulateConfig()
     bench_baseline: BenchBaselineConfig = BenchBaselineConfig()
     demo: DemoConfig = DemoConfig()
+    train: TrainConfig = TrainConfig()
 
 
 def _describe(exc: ValidationError) -> str:

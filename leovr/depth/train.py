@@ -1,0 +1,143 @@
+"""Supervised training of the depth generator (LeoVR Sec. V-A): Adam, lr halved every 6 epochs, masked
+L1/L2 on valid ground truth, then the log-uncertainty head alone with the Gaussian NLL (all-day eq. 2).
+
+Every epoch writes `checkpoint_last.pt` atomically (model, optimiser, scheduler, epoch, config) and a
+line of `log.jsonl`; `best.pt` keeps the weights with the lowest validation MAE. `resume=True`
+continues from `checkpoint_last.pt`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+from tqdm import tqdm
+
+from leovr.config import TrainConfig
+from leovr.data.io import atomic_write
+from leovr.depth.dataset import DepthSamples, split_sequences
+from leovr.depth.layers import gaussian_nll
+from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.errors import DataError
+from leovr.sim.dataset import default_root
+
+
+def generator_config(cfg: TrainConfig) -> GeneratorConfig:
+    return GeneratorConfig(lidar_encoder=cfg.lidar_encoder, cross_attention=cfg.cross_attention,
+                           channels=tuple(cfg.channels), blocks=tuple(cfg.blocks))
+
+
+def depth_loss(pred: torch.Tensor, gt: torch.Tensor, kind: str) -> torch.Tensor:
+    valid = (gt > 0).float()
+    diff = (pred - gt).abs() if kind == "l1" else (pred - gt) ** 2
+    return (diff * valid).sum() / valid.sum().clamp(min=1.0)
+
+
+def edge_aware_smoothness(depth: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+    """First-order smoothness of mean-normalised inverse depth, down-weighted at image edges."""
+    inv = 1.0 / depth
+    inv = inv / inv.mean(dim=(2, 3), keepdim=True)
+    dx, dy = (inv[..., :, 1:] - inv[..., :, :-1]).abs(), (inv[..., 1:, :] - inv[..., :-1, :]).abs()
+    ix = (image[..., :, 1:] - image[..., :, :-1]).abs().mean(1, keepdim=True)
+    iy = (image[..., 1:, :] - image[..., :-1, :]).abs().mean(1, keepdim=True)
+    return (dx * torch.exp(-ix)).mean() + (dy * torch.exp(-iy)).mean()
+
+
+@torch.no_grad()
+def evaluate(model: DepthGenerator, loader: DataLoader) -> float:
+    """Mean absolute error (metres) over valid ground-truth pixels."""
+    model.eval()
+    err, n = 0.0, 0
+    for b in loader:
+        depth, _ = model(b["image"], b["sparse"])
+        valid = b["gt"] > 0
+        err += float((depth - b["gt"]).abs()[valid].sum())
+        n += int(valid.sum())
+    return err / max(n, 1)
+
+
+def _save(path: Path, state: dict) -> None:
+    atomic_write(path, lambda tmp: torch.save(state, tmp))
+
+
+def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
+    """Train; returns the last log record."""
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    root = Path(cfg.dataset) if cfg.dataset else default_root() / cfg.recipe
+    train_set = DepthSamples(split_sequences(root, "train"), (cfg.ratio_min, cfg.ratio_max), cfg.native_prob,
+                             cfg.max_frames, cfg.seed)
+    val_set = DepthSamples(split_sequences(root, "val"), max_frames=max(8, (cfg.max_frames or 64) // 4),
+                           seed=cfg.seed + 1, random_input=False)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    train_loader = DataLoader(train_set, cfg.batch_size, shuffle=True, generator=gen, drop_last=len(train_set) > cfg.batch_size)
+    val_loader = DataLoader(val_set, cfg.batch_size)
+    model = DepthGenerator(generator_config(cfg))
+    total = cfg.epochs + cfg.sigma_epochs
+    opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
+    sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
+    sigma_opt = torch.optim.Adam(model.sigma_head.parameters(), lr=cfg.lr)
+    out.mkdir(parents=True, exist_ok=True)
+    start, best = 0, float("inf")
+    last = out / "checkpoint_last.pt"
+    if resume:
+        if not last.is_file():
+            raise DataError(last, "nothing to resume from")
+        state = torch.load(last, map_location="cpu", weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        sigma_opt.load_state_dict(state["sigma_optimizer"])
+        start, best = state["epoch"] + 1, state["best_val_mae_m"]
+        gen.set_state(state["generator"])
+    record: dict = {}
+    for epoch in range(start, total):
+        depth_phase = epoch < cfg.epochs
+        train_set.epoch = epoch
+        model.train()
+        if not depth_phase:  # frozen depth path: BatchNorm statistics stay fixed too
+            model.eval()
+            model.sigma_head.train()
+        t0, losses = time.time(), []
+        bar = tqdm(train_loader, desc=f"epoch {epoch + 1}/{total} ({'depth' if depth_phase else 'sigma'})",
+                   unit="batch", disable=not progress)
+        for b in bar:
+            if depth_phase:
+                depth, _ = model(b["image"], b["sparse"])
+                loss = depth_loss(depth, b["gt"], cfg.loss)
+                if cfg.smoothness > 0:
+                    loss = loss + cfg.smoothness * edge_aware_smoothness(depth, b["image"])
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+            else:
+                with torch.no_grad():
+                    depth, _ = model(b["image"], b["sparse"])
+                _, log_sigma = model(b["image"], b["sparse"])
+                loss = gaussian_nll(depth, log_sigma, b["gt"], (b["gt"] > 0).float())
+                sigma_opt.zero_grad()
+                loss.backward()
+                sigma_opt.step()
+            losses.append(loss.item())
+            bar.set_postfix(loss=f"{losses[-1]:.3f}")
+        if depth_phase:
+            sched.step()
+        val_mae = evaluate(model, val_loader)
+        record = {"epoch": epoch + 1, "phase": "depth" if depth_phase else "sigma", "train_loss": float(np.mean(losses)),
+                  "val_mae_m": val_mae, "lr": opt.param_groups[0]["lr"], "seconds": round(time.time() - t0, 1)}
+        with open(out / "log.jsonl", "a") as fh:
+            fh.write(json.dumps(record) + "\n")
+        if depth_phase and val_mae < best:
+            best = val_mae
+        state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                 "sigma_optimizer": sigma_opt.state_dict(), "epoch": epoch, "best_val_mae_m": best,
+                 "generator": gen.get_state(), "config": cfg.model_dump(), "network": generator_config(cfg).__dict__}
+        _save(last, state)
+        if depth_phase and val_mae <= best or not depth_phase:
+            _save(out / "best.pt", {"model": model.state_dict(), "config": cfg.model_dump(),
+                                    "network": generator_config(cfg).__dict__, "epoch": epoch + 1, "val_mae_m": val_mae})
+    return record

@@ -1,0 +1,32 @@
+"""Supervised training: runs, checkpoints every epoch, resumes, then trains the uncertainty head."""
+
+from __future__ import annotations
+
+import json
+
+import torch
+
+from leovr.config import TrainConfig
+from leovr.depth.train import train_supervised
+from leovr.sim.dataset import Recipe, make_dataset
+
+
+def test_train_checkpoints_resume_and_sigma_phase(tmp_path):
+    root = make_dataset(Recipe("t", {"train": 1, "val": 1}, ("mid40",), ("day",), 3), tmp_path / "data", progress=False)
+    cfg = TrainConfig(dataset=str(root), epochs=2, sigma_epochs=1, batch_size=2, lr=1e-3,
+                      channels=[8, 8, 16, 16, 16], blocks=[1, 1, 1, 1])
+    out = tmp_path / "run"
+    train_supervised(cfg.model_copy(update={"epochs": 1, "sigma_epochs": 0}), out, progress=False)
+    first = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
+    assert len(first) == 1 and first[0]["phase"] == "depth"
+    state = torch.load(out / "checkpoint_last.pt", weights_only=False)
+    assert state["epoch"] == 0
+    head_before = {k: v.clone() for k, v in state["model"].items() if k.startswith("sigma_head")}
+    r = train_supervised(cfg, out, resume=True, progress=False)
+    log = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
+    assert [x["epoch"] for x in log] == [1, 2, 3] and [x["phase"] for x in log] == ["depth", "depth", "sigma"]
+    assert all(x["val_mae_m"] > 0 and x["train_loss"] == x["train_loss"] for x in log)  # finite
+    assert r["epoch"] == 3
+    final = torch.load(out / "checkpoint_last.pt", weights_only=False)["model"]
+    assert any(not torch.equal(final[k], v) for k, v in head_before.items())  # the sigma head was trained
+    assert (out / "best.pt").is_file()
