@@ -110,3 +110,36 @@ def test_generator_learns_a_scene_and_sigma_head_is_separate():
     assert losses[-1] < 0.3 * losses[0]
     head = {id(p) for p in m.sigma_head.parameters()}
     assert head and not head & {id(p) for p in m.depth_parameters()}
+
+
+def test_inference_loads_checkpoint_pads_any_size_and_rejects_bad_files(tmp_path):
+    import numpy as np
+
+    from leovr.depth.inference import load_generator, predict
+    from leovr.errors import DataError
+
+    torch.manual_seed(0)
+    cfg = GeneratorConfig(channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))
+    model = DepthGenerator(cfg).eval()
+    ckpt = tmp_path / "g.pt"
+    torch.save({"model": model.state_dict(), "network": cfg.__dict__}, ckpt)
+    loaded = load_generator(ckpt)
+    img = np.random.default_rng(0).integers(0, 255, (75, 124, 3), dtype=np.uint8)  # not a multiple of 32
+    sparse = np.zeros((75, 124), np.float32)
+    sparse[::5, ::5] = 12.0
+    d, s = predict(loaded, img, sparse)
+    assert d.shape == s.shape == (75, 124) and (d > 0).all()
+    db, _ = predict(loaded, np.stack([img, img]), np.stack([sparse, sparse]))
+    np.testing.assert_allclose(db[1], d, rtol=1e-5)
+    with pytest.raises(DataError, match="not found"):
+        load_generator(tmp_path / "missing.pt")
+    torch.save({"weights": 1}, tmp_path / "bad.pt")
+    with pytest.raises(DataError, match="not a leovr depth-generator checkpoint"):
+        load_generator(tmp_path / "bad.pt")
+    other = {**cfg.__dict__, "channels": (8, 8, 16, 16, 32)}
+    torch.save({"model": model.state_dict(), "network": other}, tmp_path / "mismatch.pt")
+    with pytest.raises(DataError, match="does not match"):
+        load_generator(tmp_path / "mismatch.pt")
+    (tmp_path / "corrupt.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(DataError, match="unreadable checkpoint"):
+        load_generator(tmp_path / "corrupt.pt")

@@ -1,0 +1,56 @@
+"""Run a trained depth generator on numpy inputs: image + sparse depth -> depth and log-sigma."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.errors import DataError
+
+
+def load_generator(path: str | Path) -> DepthGenerator:
+    """Load weights saved by the trainer (`best.pt` or `checkpoint_last.pt`); clear errors when the
+    file is missing, is not a leovr checkpoint, or does not match the network it describes."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(path, "depth-generator checkpoint not found")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises many types for corrupt files
+        raise DataError(path, f"unreadable checkpoint: {exc}") from exc
+    if not isinstance(state, dict) or "model" not in state or "network" not in state:
+        raise DataError(path, "not a leovr depth-generator checkpoint (needs 'model' and 'network')")
+    net = dict(state["network"])
+    net["channels"], net["blocks"] = tuple(net["channels"]), tuple(net["blocks"])
+    model = DepthGenerator(GeneratorConfig(**net))
+    try:
+        model.load_state_dict(state["model"])
+    except RuntimeError as exc:
+        raise DataError(path, f"checkpoint does not match the network it describes: {str(exc)[:300]}") from exc
+    return model.eval()
+
+
+@torch.no_grad()
+def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Depth (metres) and log-sigma for a batch (B x H x W x 3 uint8 or H x W x 3; sparse B x H x W or
+    H x W, metres, 0 = none). Any size: inputs are edge-padded to a multiple of 32 and cropped back."""
+    single = images.ndim == 3
+    if single:
+        images, sparse = images[None], sparse[None]
+    if images.shape[:3] != sparse.shape:
+        raise ValueError(f"images {images.shape} and sparse depth {sparse.shape} disagree")
+    if images.shape[-1] != 3:
+        raise ValueError("images must be B x H x W x 3 (RGB)")
+    h, w = sparse.shape[1:]
+    ph, pw = (-h) % 32, (-w) % 32
+    img = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255.0
+    sp = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[:, None]
+    img = F.pad(img, (0, pw, 0, ph), mode="replicate")
+    sp = F.pad(sp, (0, pw, 0, ph))
+    depth, log_sigma = model(img, sp)
+    d, s = depth[:, 0, :h, :w].numpy(), log_sigma[:, 0, :h, :w].numpy()
+    return (d[0], s[0]) if single else (d, s)
