@@ -43,7 +43,8 @@ def info(
 def complete(
     seq: Path = typer.Argument(..., help="Sequence folder."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (depth/NNNNNN.png, metrics.json)."),
-    method: Optional[str] = typer.Option(None, help="nearest | ipbasic"),
+    method: Optional[str] = typer.Option(None, help="nearest | ipbasic | generator"),
+    checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
     input: Optional[str] = typer.Option(None, "--input", help="Cheap input: vlp16 | mid40 | ratio:R | full"),
     seed: Optional[int] = typer.Option(None, help="Seed for the ratio input."),
     start: Optional[int] = typer.Option(None, help="First frame."),
@@ -56,7 +57,8 @@ def complete(
     from leovr.data import open_sequence
     from leovr.pipeline.completion import run_completion
 
-    cfg = override(load_config(config).complete, method=method, input=input, seed=seed, start=start, end=end, step=step)
+    cfg = override(load_config(config).complete, method=method, input=input, seed=seed, start=start, end=end, step=step,
+                   checkpoint=None if checkpoint is None else str(checkpoint))
     m = run_completion(open_sequence(seq), cfg, out, resume=resume)
     typer.echo(f"MAE {m['mae_m']:.3f} m  RMSE {m['rmse_m']:.3f} m  delta1 {m['delta1']:.3f}  "
                f"({m['n']} points, {m['frames']} frames) -> {out / 'metrics.json'}")

@@ -21,7 +21,8 @@ class _Model(BaseModel):
 class CompleteConfig(_Model):
     """`leovr complete`: classical completion of a cheap LiDAR input, scored on held-out points."""
 
-    method: Literal["nearest", "ipbasic"] = "ipbasic"
+    method: Literal["nearest", "ipbasic", "generator"] = "ipbasic"
+    checkpoint: str | None = None  # generator weights; None = the shipped checkpoint
     input: str = "mid40"
     seed: int = 0
     start: int = 0

@@ -26,3 +26,8 @@ def kitti_raw_dir() -> Path:
 
 def kitti_odometry_dir() -> Path:
     return shared_data_dir() / "kitti_odometry" / "sequences" / "06"
+
+
+def shipped_checkpoint() -> Path:
+    """The depth-generator weights committed with the package."""
+    return Path(__file__).resolve().parent / "depth" / "checkpoints" / "generator.pt"

@@ -151,3 +151,27 @@ def test_demo_on_generated_default(tmp_path):
     assert m["ipbasic"]["ground_truth"].startswith("dense") and m["ipbasic"]["frames"] == 2
     assert m["ipbasic"]["n"] > 100_000  # dense ground truth: most of 2 x 448 x 256 pixels
     assert (tmp_path / "sequence" / "preview.png").is_file()
+
+
+def test_complete_with_generator_checkpoint_and_missing_checkpoint(kitti_raw_tiny, tmp_path):
+    import torch
+
+    from leovr.depth.network import DepthGenerator, GeneratorConfig
+
+    torch.manual_seed(0)
+    cfg = GeneratorConfig(channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))
+    ckpt = tmp_path / "g.pt"
+    torch.save({"model": DepthGenerator(cfg).state_dict(), "network": cfg.__dict__}, ckpt)
+    r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "-o", str(tmp_path / "o"), "--method", "generator",
+                            "--checkpoint", str(ckpt), "--input", "vlp16", "--end", "1"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert m["method"] == "generator" and m["n"] > 0 and m["mae_m"] > 0
+    png = cv2.imread(str(tmp_path / "o" / "depth" / "000000.png"), cv2.IMREAD_UNCHANGED)
+    assert png.shape == (80, 160) and (png > 0).all()
+    proc = subprocess.run(
+        [sys.executable, "-c", "from leovr.cli import main; main()", "complete", str(kitti_raw_tiny), "-o",
+         str(tmp_path / "p"), "--method", "generator", "--checkpoint", str(tmp_path / "none.pt")],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 2 and "depth-generator checkpoint not found" in proc.stderr

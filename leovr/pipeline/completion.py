@@ -49,6 +49,23 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
     return EvalSample(frame, sparse, gt, "heldout")
 
 
+def depth_method(cfg: CompleteConfig):
+    """A function EvalSample -> dense depth for the configured method (the generator is loaded once)."""
+    if cfg.method != "generator":
+        return lambda sample: complete_depth(sample.sparse, cfg.method)
+    from leovr.depth.inference import load_generator, predict
+    from leovr.paths import shipped_checkpoint
+
+    model = load_generator(cfg.checkpoint or shipped_checkpoint())
+
+    def run(sample: EvalSample) -> np.ndarray:
+        img = sample.frame.image
+        rgb = img if img.ndim == 3 else np.repeat(img[..., None], 3, axis=2)
+        return predict(model, rgb, sample.sparse)[0]
+
+    return run
+
+
 def frame_indices(n: int, cfg: CompleteConfig) -> list[int]:
     indices = list(range(n))[cfg.start : cfg.end : cfg.step]
     if not indices:
@@ -79,6 +96,7 @@ def run_completion(
     """
     if not seq.has_lidar:
         raise DataError(seq.path, "sequence has no LiDAR; depth completion needs a range sensor input")
+    complete = depth_method(cfg)
     acc = DepthMetricAccumulator(cfg.bins)
     times: list[float] = []
     kinds: set[str] = set()
@@ -91,7 +109,7 @@ def run_completion(
             pred = read_depth_png(png)
         else:
             t0 = time.perf_counter()
-            pred = complete_depth(sample.sparse, cfg.method)
+            pred = complete(sample)
             times.append(time.perf_counter() - t0)
             if png is not None:
                 write_depth_png(png, pred)
