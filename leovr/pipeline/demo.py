@@ -11,10 +11,16 @@ from pathlib import Path
 from leovr.config import CompleteConfig, DemoConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.data.io import write_text
+from leovr.paths import shipped_checkpoint
 from leovr.pipeline.completion import run_completion
 from leovr.sim.simulate import simulate
 
-METHODS = ("nearest", "ipbasic")
+CLASSICAL = ("nearest", "ipbasic")
+
+
+def demo_methods() -> tuple[str, ...]:
+    """The classical methods, plus the learned generator when its checkpoint ships with the package."""
+    return CLASSICAL + (("generator",) if shipped_checkpoint().is_file() else ())
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
@@ -22,7 +28,7 @@ def _fmt(v: float | None, digits: int = 3) -> str:
 
 
 def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
-    """Complete `cfg.frames` frames with each classical method; write metrics.json and report.md."""
+    """Complete `cfg.frames` frames with each method; write metrics.json and report.md."""
     out = Path(out)
     if cfg.data:
         seq = open_sequence(cfg.data)
@@ -36,7 +42,7 @@ def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
         source = (f"generated `{cfg.scenario}` sequence, {cfg.lidar} LiDAR, seed {cfg.seed} "
                   f"(`{out / 'sequence'}`, preview in `sequence/preview.png`)")
     results = {}
-    for method in METHODS:
+    for method in demo_methods():
         ccfg = CompleteConfig(method=method, input=inp, end=cfg.frames)
         results[method] = run_completion(seq, ccfg, out / method, progress=progress)
     write_text(out / "metrics.json", json.dumps(results, indent=2) + "\n")
