@@ -42,7 +42,7 @@ def test_lidar_returns_lie_on_surfaces_and_deskew_matters(hdl_seq):
     cfg = SimulateConfig.model_validate(seq.meta["simulation"])
     world = build_world(cfg.scenario, cfg.seed, cfg.speed_kmh / 3.6)
     f = seq[2]
-    dyn, _ = world.dynamic_mesh(f.timestamp)
+    dyn = world.dynamic_mesh(f.timestamp)
     rc = o3d.t.geometry.RaycastingScene()
     for m in (world.static, dyn):
         rc.add_triangles(o3d.core.Tensor(m.vertices.astype(np.float32)), o3d.core.Tensor(m.triangles.astype(np.uint32)))

@@ -41,13 +41,6 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         return self.height, self.width
 
-    def points_in_camera(self) -> np.ndarray:
-        """LiDAR xyz transformed into the camera frame (N x 3)."""
-        if self.points is None:
-            return np.zeros((0, 3), np.float32)
-        xyz = self.points[:, :3].astype(np.float64)
-        return (xyz @ self.T_cam_lidar[:3, :3].T + self.T_cam_lidar[:3, 3]).astype(np.float32)
-
 
 @dataclass
 class SequenceInfo:

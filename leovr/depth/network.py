@@ -5,6 +5,7 @@ encoders at every scale, positive metric depth out and a log-uncertainty head.""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -121,8 +122,8 @@ class DepthGenerator(nn.Module):
             x = dec(torch.cat([x, f_rgb[i], f_lidar[i]], 1))
         x = F.interpolate(x, size=(h, w), mode="bilinear", align_corners=False)
         x = self.full(torch.cat([x, image, filled, (s > 0).to(s.dtype)], 1))
-        log_depth = self.depth_head(x) + torch.log(torch.tensor(DEPTH_NORM_M))
-        depth = torch.exp(log_depth.clamp(max=float(torch.log(torch.tensor(self.cfg.max_depth)))))
+        log_depth = self.depth_head(x) + math.log(DEPTH_NORM_M)
+        depth = torch.exp(log_depth.clamp(max=math.log(self.cfg.max_depth)))
         return depth, self.sigma_head(x)
 
 

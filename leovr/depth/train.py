@@ -131,13 +131,15 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
                   "val_mae_m": val_mae, "lr": opt.param_groups[0]["lr"], "seconds": round(time.time() - t0, 1)}
         with open(out / "log.jsonl", "a") as fh:
             fh.write(json.dumps(record) + "\n")
-        if depth_phase and val_mae < best:
+        # depth phase: keep the lowest validation MAE; sigma phase: depth is frozen, so every epoch improves best.pt
+        save_best = not depth_phase or val_mae < best
+        if depth_phase and save_best:
             best = val_mae
         state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
                  "sigma_optimizer": sigma_opt.state_dict(), "epoch": epoch, "best_val_mae_m": best,
                  "generator": gen.get_state(), "config": cfg.model_dump(), "network": generator_config(cfg).__dict__}
         _save(last, state)
-        if depth_phase and val_mae <= best or not depth_phase:
+        if save_best:
             _save(out / "best.pt", {"model": model.state_dict(), "config": cfg.model_dump(),
                                     "network": generator_config(cfg).__dict__, "epoch": epoch + 1, "val_mae_m": val_mae})
     return record

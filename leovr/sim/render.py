@@ -184,7 +184,7 @@ def scan_lidar(scene: Scene, T_world_sensor: np.ndarray, beams: np.ndarray, max_
     keep = np.isfinite(hits.t) & (hits.t <= max_range) & (rng.random(len(beams)) >= dropout)
     r = hits.t[keep] + rng_noise[keep]
     pts = beams[keep] * r[:, None]
-    mat, col, par = surface_attributes(scene, hits, keep)
+    _, col, _ = surface_attributes(scene, hits, keep)
     nrm = hits.normal[keep]
     cos_in = np.abs(np.sum(nrm * d[keep], 1))
     intensity = np.clip(col.mean(axis=1) * (0.3 + 0.7 * cos_in), 0.0, 1.0)

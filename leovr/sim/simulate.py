@@ -46,7 +46,7 @@ def render_frame(world: World, cfg: SimulateConfig, k: int, cam: CameraModel, ca
     speed = cfg.speed_kmh / 3.6
     lidar = LIDARS[cfg.lidar]
     t = k / cfg.rate_hz
-    dynamic, _ = world.dynamic_mesh(t)
+    dynamic = world.dynamic_mesh(t)
     scene = build_scene(world.static, dynamic)
     rng = np.random.default_rng([cfg.seed, k, 7])
     T_wc = vehicle_poses(world, np.array([t]), speed)[0] @ T_VEHICLE_CAM

@@ -53,15 +53,13 @@ class World:
     extent: tuple[float, float, float, float]
     ego_roads: list[tuple[int, float, int]] = field(default_factory=list)  # (axis, centre, direction)
 
-    def dynamic_mesh(self, t: float) -> tuple[Mesh, np.ndarray]:
-        """All movers at time t as one mesh, and the mover index of each triangle."""
+    def dynamic_mesh(self, t: float) -> Mesh:
+        """All movers at time t as one mesh."""
         b = MeshBuilder()
-        owner = []
-        for k, m in enumerate(self.movers):
+        for m in self.movers:
             xy, yaw = m.pose(t)
             b.add_mesh(m.template, yaw, (xy[0], xy[1], m.z))
-            owner.append(np.full(len(m.template.triangles), k))
-        return b.build(), (np.concatenate(owner) if owner else np.zeros(0, np.int64))
+        return b.build()
 
 
 def _pastel(rng: np.random.Generator) -> tuple[float, float, float]:
