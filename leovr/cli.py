@@ -131,6 +131,27 @@ def bench_baseline(
     typer.echo(f"-> {out}")
 
 
+@bench_app.command("depth")
+def bench_depth(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    quick: bool = typer.Option(False, help="A 4-frame rendered test set and every 6th KITTI frame."),
+    config: Optional[Path] = ConfigOpt,
+    checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
+) -> None:
+    """Nearest, IP-Basic and the generator on simulator test sequences and the KITTI raw clip."""
+    from leovr.bench.depth import run_depth_bench
+
+    cfg = override(load_config(config).bench_depth, checkpoint=None if checkpoint is None else str(checkpoint))
+    doc = run_depth_bench(out, cfg, quick)
+    for key, methods in doc["results"].items():
+        for method, r in methods.items():
+            extra = r.get("uncertainty", {}).get("spearman_error_sigma")
+            extra = "" if extra is None else f"  Spearman(|err|, sigma) {extra:.2f}"
+            typer.echo(f"{key:16s} {method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  "
+                       f"{r['ms_per_frame']:.1f} ms/frame{extra}")
+    typer.echo(f"-> {out}")
+
+
 @app.command()
 def train(
     out: Path = typer.Option(..., "--out", "-o", help="Run folder (checkpoints, log.jsonl)."),

@@ -23,6 +23,7 @@ class CompleteConfig(_Model):
 
     method: Literal["nearest", "ipbasic", "generator"] = "ipbasic"
     checkpoint: str | None = None  # generator weights; None = the shipped checkpoint
+    generator_focal_px: float | None = 260.0  # run the generator at this focal length (its training camera); None = native
     input: str = "mid40"
     seed: int = 0
     start: int = 0
@@ -88,6 +89,21 @@ class BenchSimulateConfig(_Model):
     lidars: list[Literal["vlp16", "hdl64", "mid40"]] = ["mid40", "vlp16", "hdl64"]
 
 
+class BenchDepthConfig(_Model):
+    """`leovr bench depth`: classical methods and the generator on simulator test sequences and the KITTI clip."""
+
+    dataset: str | None = None  # simulator dataset with a test split; None = the cached `default` recipe
+    kitti: str | None = None  # KITTI raw clip; None = ../shared/data/kitti_raw
+    checkpoint: str | None = None  # None = the shipped generator
+    generator_focal_px: float | None = 260.0
+    methods: list[Literal["nearest", "ipbasic", "generator"]] = ["nearest", "ipbasic", "generator"]
+    synthetic_lidars: list[Literal["mid40", "vlp16"]] = ["mid40", "vlp16"]
+    synthetic_step: int = Field(1, ge=1)  # every n-th test frame
+    kitti_inputs: list[str] = ["vlp16", "mid40"]
+    quick_step: int = Field(6, ge=1)  # --quick: every 6th KITTI frame and a 4-frame rendered test set
+    seed: int = 0
+
+
 class TrainConfig(_Model):
     """`leovr train --mode supervised`: the depth generator on simulator splits (LeoVR Sec. V-A defaults)."""
 
@@ -109,6 +125,7 @@ class TrainConfig(_Model):
     channels: list[int] = [16, 32, 64, 128, 128]
     blocks: list[int] = [3, 4, 6, 3]
     max_frames: int | None = None  # cap on training frames (quick runs)
+    init_checkpoint: str | None = None  # start from these weights (fine-tuning); the network must match
     seed: int = 0
 
 
@@ -117,6 +134,7 @@ class LeovrConfig(_Model):
     simulate: SimulateConfig = SimulateConfig()
     bench_simulate: BenchSimulateConfig = BenchSimulateConfig()
     bench_baseline: BenchBaselineConfig = BenchBaselineConfig()
+    bench_depth: BenchDepthConfig = BenchDepthConfig()
     demo: DemoConfig = DemoConfig()
     train: TrainConfig = TrainConfig()
 

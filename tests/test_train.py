@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
 import torch
 
 from leovr.config import TrainConfig
 from leovr.depth.train import train_supervised
+from leovr.errors import DataError
 from leovr.sim.dataset import Recipe, make_dataset
 
 
@@ -30,3 +32,20 @@ def test_train_checkpoints_resume_and_sigma_phase(tmp_path):
     final = torch.load(out / "checkpoint_last.pt", weights_only=False)["model"]
     assert any(not torch.equal(final[k], v) for k, v in head_before.items())  # the sigma head was trained
     assert (out / "best.pt").is_file()
+
+
+def test_fine_tuning_starts_from_init_checkpoint_and_rejects_other_networks(tmp_path):
+    root = make_dataset(Recipe("t", {"train": 1, "val": 1}, ("mid40",), ("day",), 2), tmp_path / "data", progress=False)
+    small = dict(dataset=str(root), epochs=1, sigma_epochs=0, batch_size=2, lr=1e-3, blocks=[1, 1, 1, 1])
+    cfg = TrainConfig(channels=[8, 8, 16, 16, 16], **small)
+    train_supervised(cfg, tmp_path / "a", progress=False)
+    base = torch.load(tmp_path / "a" / "best.pt", weights_only=False)["model"]
+    # lr 0 and the depth phase only: the fine-tuned weights must equal the initial ones (BN statistics aside)
+    tuned_cfg = cfg.model_copy(update={"init_checkpoint": str(tmp_path / "a" / "best.pt"), "lr": 1e-12})
+    train_supervised(tuned_cfg, tmp_path / "b", progress=False)
+    tuned = torch.load(tmp_path / "b" / "best.pt", weights_only=False)["model"]
+    weights = [k for k in base if k.endswith("weight") and "bn" not in k and base[k].dim() == 4]
+    assert weights and all(torch.allclose(base[k], tuned[k], atol=1e-6) for k in weights)
+    other = TrainConfig(channels=[8, 8, 16, 16, 32], init_checkpoint=str(tmp_path / "a" / "best.pt"), **small)
+    with pytest.raises(DataError, match="init checkpoint"):
+        train_supervised(other, tmp_path / "c", progress=False)

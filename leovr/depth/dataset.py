@@ -14,16 +14,24 @@ from leovr.errors import DataError
 from leovr.lidar.projection import sparse_depth
 
 
-def split_sequences(root: Path, split: str) -> list[Path]:
-    """Sequence folders of one split listed in `root/manifest.json`."""
+def split_entries(root: Path, split: str) -> list[dict]:
+    """Manifest records (scenario, lidar, light, seed, ...) of one split, with `path` made absolute."""
     manifest = root / "manifest.json"
     if not manifest.is_file():
         raise DataError(manifest, "missing dataset manifest (run tools/make_dataset.py)")
-    entries = json.loads(manifest.read_text())["sequences"]
-    paths = [root / e["path"] for e in entries if e["split"] == split]
-    if not paths:
+    try:
+        entries = json.loads(manifest.read_text())["sequences"]
+    except (ValueError, KeyError) as exc:
+        raise DataError(manifest, f"not a dataset manifest: {exc}") from exc
+    out = [{**e, "path": root / e["path"]} for e in entries if e.get("split") == split]
+    if not out:
         raise DataError(manifest, f"no sequences in split '{split}'")
-    return paths
+    return out
+
+
+def split_sequences(root: Path, split: str) -> list[Path]:
+    """Sequence folders of one split listed in `root/manifest.json`."""
+    return [e["path"] for e in split_entries(root, split)]
 
 
 class DepthSamples(Dataset):

@@ -54,3 +54,39 @@ def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray) -> tu
     depth, log_sigma = model(img, sp)
     d, s = depth[:, 0, :h, :w].numpy(), log_sigma[:, 0, :h, :w].numpy()
     return (d[0], s[0]) if single else (d, s)
+
+
+def rescale_sparse(sparse: np.ndarray, scale: float, shape: tuple[int, int]) -> np.ndarray:
+    """Move each return of an H x W sparse depth map to pixel round(scale * (u, v)) of a map of `shape`;
+    when several land on one pixel the nearest wins (as in projection)."""
+    v, u = np.nonzero(sparse > 0)
+    d = sparse[v, u]
+    uu = np.clip(np.floor(u * scale + 0.5).astype(np.int64), 0, shape[1] - 1)
+    vv = np.clip(np.floor(v * scale + 0.5).astype(np.int64), 0, shape[0] - 1)
+    out = np.full(shape, np.inf, np.float32)
+    np.minimum.at(out, (vv, uu), d)
+    out[np.isinf(out)] = 0.0
+    return out
+
+
+def predict_at_focal(model: DepthGenerator, image: np.ndarray, sparse: np.ndarray, focal_px: float,
+                     model_focal_px: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Depth and log-sigma of one frame, run at the focal length the model was trained with.
+
+    A network trained on one camera learns object sizes in pixels; resampling a frame from `focal_px`
+    to `model_focal_px` (e.g. KITTI's 721 px to the simulator's 260 px) removes that gap. The outputs
+    are resized back to the frame's size. `model_focal_px=None` runs at the native resolution.
+    """
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    scale = 1.0 if model_focal_px is None else model_focal_px / focal_px
+    if abs(scale - 1.0) < 0.05:
+        return predict(model, image, sparse)
+    import cv2
+
+    h, w = sparse.shape
+    shape = (max(8, int(round(h * scale))), max(8, int(round(w * scale))))
+    small = cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    depth, log_sigma = predict(model, small, rescale_sparse(sparse, scale, shape))
+    back = [cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) for x in (depth, log_sigma)]
+    return back[0], back[1]

@@ -60,6 +60,16 @@ def evaluate(model: DepthGenerator, loader: DataLoader) -> float:
     return err / max(n, 1)
 
 
+def _init_from(model: DepthGenerator, path: Path) -> None:
+    """Copy the weights of a trainer checkpoint into `model` (fine-tuning); the networks must match."""
+    from leovr.depth.inference import load_generator
+
+    source = load_generator(path)
+    if source.cfg != model.cfg:
+        raise DataError(path, f"init checkpoint describes {source.cfg}, the config asks for {model.cfg}")
+    model.load_state_dict(source.state_dict())
+
+
 def _save(path: Path, state: dict) -> None:
     atomic_write(path, lambda tmp: torch.save(state, tmp))
 
@@ -77,6 +87,8 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     train_loader = DataLoader(train_set, cfg.batch_size, shuffle=True, generator=gen, drop_last=len(train_set) > cfg.batch_size)
     val_loader = DataLoader(val_set, cfg.batch_size)
     model = DepthGenerator(generator_config(cfg))
+    if cfg.init_checkpoint and not resume:
+        _init_from(model, Path(cfg.init_checkpoint))
     total = cfg.epochs + cfg.sigma_epochs
     opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
@@ -99,6 +111,8 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
         depth_phase = epoch < cfg.epochs
         train_set.epoch = epoch
         model.train()
+        for p in model.depth_parameters():
+            p.requires_grad_(depth_phase)
         if not depth_phase:  # frozen depth path: BatchNorm statistics stay fixed too
             model.eval()
             model.sigma_head.train()
@@ -114,11 +128,9 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
-            else:
-                with torch.no_grad():
-                    depth, _ = model(b["image"], b["sparse"])
-                _, log_sigma = model(b["image"], b["sparse"])
-                loss = gaussian_nll(depth, log_sigma, b["gt"], (b["gt"] > 0).float())
+            else:  # one pass; the depth path has requires_grad off, so backward stops at the head
+                depth, log_sigma = model(b["image"], b["sparse"])
+                loss = gaussian_nll(depth.detach(), log_sigma, b["gt"], (b["gt"] > 0).float())
                 sigma_opt.zero_grad()
                 loss.backward()
                 sigma_opt.step()

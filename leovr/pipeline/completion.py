@@ -49,21 +49,26 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
     return EvalSample(frame, sparse, gt, "heldout")
 
 
-def depth_method(cfg: CompleteConfig):
-    """A function EvalSample -> dense depth for the configured method (the generator is loaded once)."""
-    if cfg.method != "generator":
-        return lambda sample: complete_depth(sample.sparse, cfg.method)
-    from leovr.depth.inference import load_generator, predict
+def generator_method(cfg: CompleteConfig):
+    """A function EvalSample -> (depth, log-sigma) running the configured generator (loaded once)."""
+    from leovr.depth.inference import load_generator, predict_at_focal
     from leovr.paths import shipped_checkpoint
 
     model = load_generator(cfg.checkpoint or shipped_checkpoint())
 
-    def run(sample: EvalSample) -> np.ndarray:
-        img = sample.frame.image
-        rgb = img if img.ndim == 3 else np.repeat(img[..., None], 3, axis=2)
-        return predict(model, rgb, sample.sparse)[0]
+    def run(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
+        f = sample.frame
+        return predict_at_focal(model, f.image, sample.sparse, float(f.K[0, 0]), cfg.generator_focal_px)
 
     return run
+
+
+def depth_method(cfg: CompleteConfig):
+    """A function EvalSample -> dense depth for the configured method."""
+    if cfg.method != "generator":
+        return lambda sample: complete_depth(sample.sparse, cfg.method)
+    run = generator_method(cfg)
+    return lambda sample: run(sample)[0]
 
 
 def frame_indices(n: int, cfg: CompleteConfig) -> list[int]:
