@@ -104,6 +104,47 @@ class BenchDepthConfig(_Model):
     seed: int = 0
 
 
+class RefineConfig(_Model):
+    """`leovr refine`: generator depth, visual-LiDAR front end and the sliding-window graph (LeoVR Sec. III)."""
+
+    input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
+    checkpoint: str | None = None  # generator weights; None = the shipped checkpoint
+    generator_focal_px: float | None = 260.0
+    seed: int = 0
+    start: int = 0
+    end: int | None = None
+    step: int = 1
+    window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
+    grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
+    grid_cols: int = Field(14, ge=2)
+    lm_iterations: int = Field(6, ge=1)
+    n_features: int = Field(1000, ge=50)  # ORB features per frame
+    assoc_radius_px: float = 5.0  # feature <-> projected LiDAR point (eq. 10)
+    assoc_max_rel_spread: float = 0.1  # reject when depths within the radius spread more than this
+    pnp_reproj_px: float = 2.0
+    pixel_sigma: float = 1.0  # reprojection factor (eq. 8), Huber
+    bearing_sigma_rad: float = 0.003  # LiDAR point factor (eq. 10)
+    range_sigma_m: float = 0.1
+    landmark_prior_rel: float = 0.3  # landmark prior from the depth it was initialised with, sigma / depth
+    odometry_sigma_rad: float = 0.05  # front-end motion between consecutive frames (weak)
+    odometry_sigma_m: float = 0.3
+    consistency_samples: int = Field(300, ge=10)  # pixels per depth-consistency factor, resampled each update
+    consistency_sigma_log: float = 0.05
+    lidar_depth_samples: int = Field(400, ge=0)  # own LiDAR returns on the correction field (0 = off)
+    lidar_depth_sigma_log: float = 0.03
+    prior_sigma_min: float = 0.02  # generator prior on the field: sigma / depth per cell, clipped
+    prior_sigma_max: float = 0.5
+    bins: list[float] = list(LEOVR_BINS)
+    parallax_window: int = 7
+    parallax_rel: float = 0.15
+
+    @field_validator("input")
+    @classmethod
+    def _check_input(cls, v: str) -> str:
+        parse_input(v)
+        return v
+
+
 class TrainConfig(_Model):
     """`leovr train --mode supervised`: the depth generator on simulator splits (LeoVR Sec. V-A defaults)."""
 
@@ -137,6 +178,7 @@ class LeovrConfig(_Model):
     bench_depth: BenchDepthConfig = BenchDepthConfig()
     demo: DemoConfig = DemoConfig()
     train: TrainConfig = TrainConfig()
+    refine: RefineConfig = RefineConfig()
 
 
 def _describe(exc: ValidationError) -> str:

@@ -1,2 +1,3 @@
-"""Visual-LiDAR odometry and the sliding-window factor graph (to come: features, LiDAR association,
-factors, fixed-lag smoother, loop closure)."""
+"""Visual-LiDAR odometry and the sliding-window factor graph of LeoVR Sec. III-C: ORB features,
+LiDAR association, initial poses (KISS-ICP or PnP), the depth correction field, factors and the
+fixed-lag smoother."""

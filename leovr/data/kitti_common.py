@@ -28,3 +28,11 @@ def read_kitti_poses(path: Path) -> np.ndarray:
     T = np.tile(np.eye(4), (len(rows), 1, 1))
     T[:, :3, :4] = rows.reshape(-1, 3, 4)
     return T
+
+
+def write_kitti_poses(path: Path, poses: np.ndarray) -> None:
+    """Write F x 4 x 4 poses as a KITTI pose file (3x4 row-major per line), atomically."""
+    from leovr.data.io import write_text
+
+    lines = [" ".join(f"{v:.9e}" for v in np.asarray(T)[:3, :4].ravel()) for T in poses]
+    write_text(path, "\n".join(lines) + ("\n" if lines else ""))

@@ -31,6 +31,7 @@ class EvalSample:
     sparse: np.ndarray
     gt: np.ndarray
     gt_kind: str  # "dense" or "heldout"
+    kept_points: np.ndarray | None = None  # the cheap input's points, LiDAR frame
 
 
 def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
@@ -42,11 +43,11 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
     )
     sparse = sparse_depth(split.kept, frame.K, frame.T_cam_lidar, frame.shape)
     if frame.depth is not None:
-        return EvalSample(frame, sparse, frame.depth, "dense")
+        return EvalSample(frame, sparse, frame.depth, "dense", split.kept)
     held = sparse_depth(split.heldout, frame.K, frame.T_cam_lidar, frame.shape)
     every = sparse_depth(frame.points, frame.K, frame.T_cam_lidar, frame.shape)
     gt = parallax_filter(held, every, cfg.parallax_window, cfg.parallax_rel)
-    return EvalSample(frame, sparse, gt, "heldout")
+    return EvalSample(frame, sparse, gt, "heldout", split.kept)
 
 
 def generator_method(cfg: CompleteConfig):

@@ -1,0 +1,176 @@
+"""`leovr refine`: generator depth per frame, the visual-LiDAR front end and the sliding-window graph,
+frame by frame as a live system would see them; refined depth, poses, metrics and timing written out.
+
+Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 mm), `depth_generator/` (the
+generator alone), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
+truth depth or LiDAR to hold out, and poses), `timing.json`, and `progress.json`, the state `--resume`
+continues from (a resumed run restarts the window at the first unfinished frame, anchored at the last
+finished pose).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from leovr.config import CompleteConfig, RefineConfig
+from leovr.data.io import read_depth_png, write_depth_png, write_text
+from leovr.data.kitti_common import write_kitti_poses
+from leovr.data.native import write_tum_poses
+from leovr.data.sequence import Sequence
+from leovr.depth.classical import complete_depth
+from leovr.errors import DataError
+from leovr.eval.depth_metrics import DepthMetricAccumulator
+from leovr.eval.trajectory import trajectory_metrics
+from leovr.geometry import invert_T
+from leovr.pipeline.completion import (
+    EvalSample,
+    frame_indices,
+    generator_method,
+    ground_truth_note,
+    prepare_sample,
+)
+
+
+def completion_config(cfg: RefineConfig) -> CompleteConfig:
+    return CompleteConfig(method="generator", checkpoint=cfg.checkpoint, generator_focal_px=cfg.generator_focal_px,
+                          input=cfg.input, seed=cfg.seed, bins=cfg.bins, parallax_window=cfg.parallax_window,
+                          parallax_rel=cfg.parallax_rel)
+
+
+def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig) -> EvalSample:
+    """The frame with its cheap LiDAR input and ground truth; without LiDAR an empty input."""
+    f = seq[i]
+    if f.points is not None and len(f.points):
+        return prepare_sample(f, ccfg)
+    gt = f.depth if f.depth is not None else np.zeros(f.shape, np.float32)
+    return EvalSample(f, np.zeros(f.shape, np.float32), gt, "dense" if f.depth is not None else "none", None)
+
+
+@dataclass
+class Progress:
+    """What has been finished: poses (camera to world) and the front end's choices, per frame index."""
+
+    poses: dict[int, list[float]] = field(default_factory=dict)
+    icp_poses: dict[int, list[float]] = field(default_factory=dict)
+    sources: dict[int, str] = field(default_factory=dict)
+    times: dict[str, list[float]] = field(default_factory=lambda: {"generator_ms": [], "frontend_ms": [], "graph_ms": []})
+
+    @classmethod
+    def load(cls, path: Path) -> "Progress":
+        try:
+            d = json.loads(path.read_text())
+            return cls({int(k): v for k, v in d["poses"].items()}, {int(k): v for k, v in d["icp_poses"].items()},
+                       {int(k): v for k, v in d["sources"].items()}, d["times"])
+        except (OSError, ValueError, KeyError) as exc:
+            raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
+
+    def save(self, path: Path) -> None:
+        write_text(path, json.dumps(self.__dict__) + "\n")
+
+
+def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
+    """Refine every selected frame; returns the metrics dictionary (also written to metrics.json)."""
+    from odometry.frontend import FrontEnd
+    from odometry.window_graph import WindowGraph
+
+    out = Path(out)
+    ccfg = completion_config(cfg)
+    indices = frame_indices(len(seq), ccfg.model_copy(update={"start": cfg.start, "end": cfg.end, "step": cfg.step}))
+    state_path = out / "progress.json"
+    state = Progress.load(state_path) if resume and state_path.is_file() else Progress()
+    todo = [i for i in indices if not (i in state.poses and (out / "depth" / f"{i:06d}.png").is_file())]
+    has_lidar = seq.has_lidar
+    generator = generator_method(ccfg)
+    first = seq[indices[0]]
+    K, shape = first.K, first.shape
+    # a resumed run re-enters the last finished frame first (outputs kept) so the new window starts at its pose
+    anchor = max((i for i in state.poses if todo and i < todo[0]), default=None)
+    T_start = np.array(state.poses[anchor]).reshape(4, 4) if anchor is not None else np.eye(4)
+    if anchor is not None:
+        todo = [anchor] + todo
+    front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar)
+    graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
+    pending: dict[int, np.ndarray] = {}
+
+    def finish(results) -> None:
+        for r in results:
+            gen_depth = pending.pop(r.index)
+            if r.index == anchor:
+                continue
+            refined = np.where(gen_depth > 0, gen_depth * np.exp(r.log_offset), 0.0)
+            write_depth_png(out / "depth_generator" / f"{r.index:06d}.png", gen_depth)
+            write_depth_png(out / "depth" / f"{r.index:06d}.png", refined)
+            state.poses[r.index] = (T_start @ r.T_world_cam).ravel().tolist()
+            state.save(state_path)
+
+    for i in tqdm(todo, desc=f"refine {cfg.input} (window {cfg.window})", unit="frame", disable=not progress):
+        sample = frame_sample(seq, i, ccfg)
+        if sample.frame.shape != shape:
+            raise DataError(seq.path, f"frame {i} is {sample.frame.shape}, the sequence started with {shape}")
+        t0 = time.perf_counter()
+        depth, log_sigma = generator(sample)
+        t1 = time.perf_counter()
+        fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
+                           sample.kept_points, graph)
+        t2 = time.perf_counter()
+        pending[i] = depth
+        finish(graph.add_frame(fi))
+        t3 = time.perf_counter()
+        if i == anchor:
+            continue
+        state.sources[i] = front.sources[-1]
+        if front.prev is not None and front.prev.T_icp is not None:
+            state.icp_poses[i] = (T_start @ front.prev.T_icp).ravel().tolist()
+        for k, dt in zip(("generator_ms", "frontend_ms", "graph_ms"), (t1 - t0, t2 - t1, t3 - t2)):
+            state.times[k].append(1000.0 * dt)
+    finish(graph.flush())
+    state.save(state_path)
+    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress)
+
+
+def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
+                  out: Path, has_lidar: bool, progress: bool) -> dict:
+    """Poses in KITTI and TUM form, timing, and depth / trajectory metrics from the written maps."""
+    poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
+    stamps = seq.timestamps()[indices]
+    write_kitti_poses(out / "poses_kitti.txt", poses)
+    write_tum_poses(out / "poses_tum.txt", stamps, poses)
+    counts = {s: list(state.sources.values()).count(s) for s in sorted(set(state.sources.values()))}
+    timing = {k: float(np.mean(v)) if v else None for k, v in state.times.items()}
+    timing.update({"frames_timed": len(state.times["graph_ms"]), "initial_pose_sources": counts})
+    write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
+    accs = {m: DepthMetricAccumulator(cfg.bins) for m in ("ipbasic", "generator", "refined")}
+    kinds, gt_poses = set(), []
+    for i in tqdm(indices, desc="score", unit="frame", disable=not progress):
+        sample = frame_sample(seq, i, ccfg)
+        gt_poses.append(sample.frame.T_world_cam)
+        if sample.gt_kind == "none":
+            continue
+        kinds.add(sample.gt_kind)
+        if has_lidar:
+            accs["ipbasic"].add(complete_depth(sample.sparse, "ipbasic"), sample.gt)
+        accs["generator"].add(read_depth_png(out / "depth_generator" / f"{i:06d}.png"), sample.gt)
+        accs["refined"].add(read_depth_png(out / "depth" / f"{i:06d}.png"), sample.gt)
+    metrics: dict = {
+        "sequence": str(seq.path), "reader": seq.name, "input": cfg.input if has_lidar else "none (no LiDAR)",
+        "frames": len(indices), "window": cfg.window,
+        "mode": "visual-LiDAR" if has_lidar else "vision and depth only (the sequence has no LiDAR)",
+        "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),
+        "depth": {m: a.result() for m, a in accs.items() if a._gt},
+        "timing": timing,
+    }
+    if all(T is not None for T in gt_poses) and len(indices) >= 3:
+        ref = np.stack([invert_T(gt_poses[0]) @ T for T in gt_poses])
+        align = "se3" if has_lidar else "sim3"
+        metrics["trajectory"] = {"leovr": trajectory_metrics(poses, ref, align)}
+        if len(state.icp_poses) == len(indices):
+            icp = np.stack([np.array(state.icp_poses[i]).reshape(4, 4) for i in indices])
+            metrics["trajectory"]["kiss_icp"] = trajectory_metrics(icp, ref, align)
+    write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+    return metrics

@@ -1,0 +1,73 @@
+"""The depth variable of a frame: a low-resolution field of log-depth offsets (default 8 x 14) on top
+of the generator's depth map, bilinearly upsampled: D(p) = G(p) * exp(B(p) c). Few unknowns per
+frame keep the graph small while still letting multi-view constraints bend the map."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CorrectionGrid:
+    """Grid geometry: `rows` x `cols` nodes spanning an H x W image corner to corner."""
+
+    rows: int
+    cols: int
+    height: int
+    width: int
+
+    @property
+    def size(self) -> int:
+        return self.rows * self.cols
+
+    def weights(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bilinear interpolation: node indices (N x 4) and weights (N x 4) for pixels (u, v)."""
+        gx = np.clip(np.asarray(u, np.float64) * (self.cols - 1) / max(self.width - 1, 1), 0, self.cols - 1)
+        gy = np.clip(np.asarray(v, np.float64) * (self.rows - 1) / max(self.height - 1, 1), 0, self.rows - 1)
+        x0 = np.minimum(np.floor(gx).astype(np.int64), self.cols - 2)
+        y0 = np.minimum(np.floor(gy).astype(np.int64), self.rows - 2)
+        fx, fy = gx - x0, gy - y0
+        idx = np.stack([y0 * self.cols + x0, y0 * self.cols + x0 + 1, (y0 + 1) * self.cols + x0, (y0 + 1) * self.cols + x0 + 1], 1)
+        w = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
+        return idx, w
+
+    def dense_weights(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """N x size matrix B with B @ c the interpolated offset at each pixel."""
+        idx, w = self.weights(u, v)
+        B = np.zeros((len(idx), self.size))
+        np.add.at(B, (np.repeat(np.arange(len(idx)), 4), idx.ravel()), w.ravel())
+        return B
+
+    def offsets(self, c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        idx, w = self.weights(u, v)
+        return (np.asarray(c)[idx] * w).sum(1)
+
+    def upsample(self, c: np.ndarray) -> np.ndarray:
+        """H x W map of log-depth offsets."""
+        v, u = np.mgrid[0 : self.height, 0 : self.width]
+        return self.offsets(c, u.ravel(), v.ravel()).reshape(self.height, self.width)
+
+    def cell_means(self, values: np.ndarray) -> np.ndarray:
+        """Mean of an H x W map over the pixels nearest each node (NaNs ignored) -> `size` vector."""
+        v, u = np.mgrid[0 : self.height, 0 : self.width]
+        gx = np.rint(u * (self.cols - 1) / max(self.width - 1, 1)).astype(np.int64)
+        gy = np.rint(v * (self.rows - 1) / max(self.height - 1, 1)).astype(np.int64)
+        node = (gy * self.cols + gx).ravel()
+        vals = values.ravel()
+        ok = np.isfinite(vals)
+        s = np.bincount(node[ok], vals[ok], self.size)
+        n = np.bincount(node[ok], minlength=self.size)
+        return np.where(n > 0, s / np.maximum(n, 1), np.nan)
+
+
+def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Sample an H x W map at real pixel positions (clamped at the border)."""
+    h, w = img.shape
+    u = np.clip(u, 0, w - 1.000001)
+    v = np.clip(v, 0, h - 1.000001)
+    x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    fx, fy = u - x0, v - y0
+    return ((img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx) * (1 - fy)
+            + (img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx) * fy)

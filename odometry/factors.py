@@ -1,0 +1,163 @@
+"""Factors of the sliding-window graph (LeoVR Sec. III-C).
+
+- visual reprojection (eq. 8): gtsam's built-in projection factor with a Huber kernel;
+- LiDAR point (eq. 10): the associated LiDAR point as a bearing + range measurement of the landmark
+  from the camera pose (built-in bearing-range factor);
+- depth geometric consistency (eqs. 11-13): one vectorized custom factor per frame pair over a sample
+  of pixels inside the trusted region, resampled before every smoother update;
+- the generator's depth as a prior on each frame's correction field (noise from its predicted sigma),
+  and the frame's own LiDAR returns as a linear factor on that field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from odometry.depth_field import CorrectionGrid, bilinear
+
+HUBER_K = 1.345
+
+
+def huber(sigma: float | np.ndarray, dim: int = 1, k: float = HUBER_K):
+    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)) if np.isscalar(sigma) else gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, float))
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k), base)
+
+
+def projection_factor(uv: np.ndarray, pose_key: int, point_key: int, cal: gtsam.Cal3_S2, sigma_px: float):
+    return gtsam.GenericProjectionFactorCal3_S2(np.asarray(uv, float), huber(sigma_px, 2), pose_key, point_key, cal)
+
+
+def lidar_point_factor(p_cam: np.ndarray, pose_key: int, point_key: int, sigma_bearing_rad: float, sigma_range_m: float):
+    """The landmark seen from the camera at `p_cam` (camera frame, metres), i.e. theta_i P_k = L_k."""
+    rng = float(np.linalg.norm(p_cam))
+    noise = huber(np.array([sigma_bearing_rad, sigma_bearing_rad, sigma_range_m]))
+    return gtsam.BearingRangeFactor3D(pose_key, point_key, gtsam.Unit3(np.asarray(p_cam, float)), rng, noise)
+
+
+def _robust_scale(r: np.ndarray, k: float = HUBER_K) -> np.ndarray:
+    """Per-residual square-root Huber weights for whitened residuals (IRLS inside one vector factor)."""
+    a = np.abs(r)
+    return np.sqrt(np.where(a <= k, 1.0, k / np.maximum(a, 1e-12)))
+
+
+@dataclass
+class FrameDepth:
+    """What the graph knows of one frame's depth: generator log-depth and its gradient, the grid."""
+
+    log_depth: np.ndarray  # H x W, log metres
+    grid: CorrectionGrid
+    grad_u: np.ndarray = field(init=False)
+    grad_v: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.grad_v, self.grad_u = np.gradient(self.log_depth)
+
+    def log_at(self, c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return bilinear(self.log_depth, u, v) + self.grid.offsets(c, u, v)
+
+
+class DepthConsistency:
+    """E_depth(D_i, D_j) over sampled pixels p of frame i (eqs. 11-13), in log depth:
+    r = log z_j(P) - log D_j(pi(T_ji P)),  P = D_i(p) K^-1 p,
+    i.e. the depth frame j should see at the reprojected pixel. Pixels leaving image j contribute 0."""
+
+    def __init__(self, di: FrameDepth, dj: FrameDepth, K: np.ndarray, sigma_log: float) -> None:
+        self.di, self.dj, self.K, self.sigma = di, dj, K, sigma_log
+        self.Kinv = np.linalg.inv(K)
+        self.u = np.zeros(0)
+        self.v = np.zeros(0)
+        self.dim = 0
+
+    def set_samples(self, u: np.ndarray, v: np.ndarray) -> None:
+        """Pixels of frame i to evaluate (a fresh sample each smoother update); the count stays fixed."""
+        if self.dim and len(u) != self.dim:
+            raise ValueError("sample count must stay the same once the factor exists")
+        self.u, self.v, self.dim = np.asarray(u, float), np.asarray(v, float), len(u)
+
+    def _residual(self, Ti: np.ndarray, Tj: np.ndarray, ci: np.ndarray, cj: np.ndarray, parts: bool = False):
+        h, w = self.dj.log_depth.shape
+        log_di = self.di.log_at(ci, self.u, self.v)
+        ray = (self.Kinv @ np.stack([self.u, self.v, np.ones_like(self.u)]))  # 3 x M
+        T_ji = np.linalg.inv(Tj) @ Ti
+        R, t = T_ji[:3, :3], T_ji[:3, 3]
+        Rray = R @ ray
+        D = np.exp(log_di)
+        Pj = Rray * D + t[:, None]
+        z = Pj[2]
+        ok = z > 0.1
+        zs = np.where(ok, z, 1.0)
+        qu = self.K[0, 0] * Pj[0] / zs + self.K[0, 2]
+        qv = self.K[1, 1] * Pj[1] / zs + self.K[1, 2]
+        ok &= (qu >= 0) & (qu <= w - 1) & (qv >= 0) & (qv <= h - 1)
+        r = np.where(ok, (np.log(zs) - self.dj.log_at(cj, qu, qv)) / self.sigma, 0.0)
+        if not parts:
+            return r
+        return r, dict(ok=ok, D=D, Rray=Rray, zs=zs, Pj=Pj, qu=qu, qv=qv)
+
+    def evaluate(self, Ti, Tj, ci, cj, jacobians: bool):
+        r, p = self._residual(Ti, Tj, ci, cj, parts=True)
+        s = _robust_scale(r)
+        if not jacobians:
+            return s * r, None
+        ok, D, Rray, zs, Pj, qu, qv = (p[k] for k in ("ok", "D", "Rray", "zs", "Pj", "qu", "qv"))
+        # d r / d log D_i: depth seen from j, plus the move of the reprojected pixel over D_j's gradient
+        dP = Rray * D  # d Pj / d log D_i
+        dqu = self.K[0, 0] * (dP[0] / zs - Pj[0] * dP[2] / zs**2)
+        dqv = self.K[1, 1] * (dP[1] / zs - Pj[1] * dP[2] / zs**2)
+        gu, gv = bilinear(self.dj.grad_u, qu, qv), bilinear(self.dj.grad_v, qu, qv)
+        a = np.where(ok, (dP[2] / zs - (gu * dqu + gv * dqv)) / self.sigma, 0.0)
+        Bi = self.di.grid.dense_weights(self.u, self.v)
+        Bj = self.dj.grid.dense_weights(qu, qv)
+        J_ci = (s * a)[:, None] * Bi
+        J_cj = -(s * np.where(ok, 1.0 / self.sigma, 0.0))[:, None] * Bj
+        return s * r, (J_ci, J_cj)
+
+
+class LidarDepth:
+    """The frame's own LiDAR returns on its correction field: r = (log G(p) + B(p) c - log z) / sigma."""
+
+    def __init__(self, fd: FrameDepth, u: np.ndarray, v: np.ndarray, z: np.ndarray, sigma_log: float) -> None:
+        self.B = fd.grid.dense_weights(u, v)
+        self.b = (np.log(z) - bilinear(fd.log_depth, u, v)) / sigma_log
+        self.B = self.B / sigma_log
+
+    def factor(self, key: int):
+        def err(this, values, H):
+            c = values.atVector(this.keys()[0])
+            r = self.B @ c - self.b
+            s = _robust_scale(r)
+            if H is not None:
+                H[0] = s[:, None] * self.B
+            return s * r
+
+        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(len(self.b)), [key], err)
+
+
+def consistency_factor(dc: DepthConsistency, keys: list[int], eps: float = 1e-6):
+    """gtsam custom factor on (pose_i, pose_j, field_i, field_j); pose Jacobians by finite differences
+    through Pose3.retract (the optimiser's own chart), the field Jacobians analytic."""
+
+    def err(this, values, H):
+        ki, kj, kci, kcj = this.keys()
+        Pi, Pj = values.atPose3(ki), values.atPose3(kj)
+        ci, cj = values.atVector(kci), values.atVector(kcj)
+        Ti, Tj = Pi.matrix(), Pj.matrix()
+        r, J = dc.evaluate(Ti, Tj, ci, cj, H is not None)
+        if H is not None:
+            s = _robust_scale(dc._residual(Ti, Tj, ci, cj))
+            for slot, pose, other in ((0, Pi, "i"), (1, Pj, "j")):
+                Jp = np.zeros((len(r), 6))
+                for k in range(6):
+                    d = np.zeros(6)
+                    d[k] = eps
+                    Tp = pose.retract(d).matrix()
+                    rp = dc._residual(Tp, Tj, ci, cj) if other == "i" else dc._residual(Ti, Tp, ci, cj)
+                    Jp[:, k] = s * (rp - r / np.maximum(s, 1e-12)) / eps
+                H[slot] = Jp
+            H[2], H[3] = J
+        return r
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(dc.dim), keys, err)

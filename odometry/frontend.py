@@ -1,0 +1,117 @@
+"""The visual-LiDAR front end: per new frame, ORB features matched to the previous frame, LiDAR depth
+associated to features, an initial pose (KISS-ICP or PnP, by a reprojection quality test, or constant
+velocity), landmarks from consistent matches, and the trusted region for the depth factor: the convex
+hull of the matches that agree with the camera motion (features on moving objects do not)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from leovr.config import RefineConfig
+from leovr.geometry import invert_T
+from odometry.features import Features, detect, match
+from odometry.initial_pose import (
+    LidarOdometry,
+    choose_pose,
+    pnp_pose,
+    reprojection_inliers,
+)
+from odometry.lidar_assoc import associate
+from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
+
+
+@dataclass
+class _Prev:
+    index: int
+    feats: Features
+    cam_pts: np.ndarray  # N x 3 feature points in the camera frame (LiDAR depth, else generator depth)
+    lidar_cam: list  # per feature: camera-frame LiDAR point or None
+    landmark: np.ndarray  # per feature: landmark id or -1
+    T_icp: np.ndarray | None
+
+
+@dataclass
+class FrontEnd:
+    cfg: RefineConfig
+    K: np.ndarray
+    shape: tuple[int, int]
+    T_cam_lidar: np.ndarray
+    use_lidar: bool = True
+    prev: _Prev | None = None
+    next_landmark: int = 0
+    velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
+    sources: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.icp = LidarOdometry(self.T_cam_lidar) if self.use_lidar else None
+
+    def _feature_points(self, feats: Features, depth: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, list]:
+        uv = feats.uv
+        ui = np.clip(np.rint(uv[:, 0]).astype(int), 0, self.shape[1] - 1)
+        vi = np.clip(np.rint(uv[:, 1]).astype(int), 0, self.shape[0] - 1)
+        z = depth[vi, ui].astype(np.float64)
+        lidar_z = np.full(len(uv), np.nan)
+        if self.use_lidar and sparse is not None:
+            lv, lu = np.nonzero(sparse > 0)
+            lidar_z = associate(uv, np.stack([lu, lv], 1).astype(float), sparse[lv, lu], self.cfg.assoc_radius_px,
+                                self.cfg.assoc_max_rel_spread)
+        z = np.where(np.isfinite(lidar_z), lidar_z, z)
+        rays = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(self.K).T
+        pts = rays * z[:, None]
+        lidar_cam = [pts[k] if np.isfinite(lidar_z[k]) else None for k in range(len(uv))]
+        return pts, lidar_cam
+
+    def process(self, index: int, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray,
+                sparse: np.ndarray | None, scan: np.ndarray | None, graph: WindowGraph) -> FrameInput:
+        """Build the graph input of a new frame (`depth`: generator depth; `sparse`: the LiDAR input
+        as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP)."""
+        cfg = self.cfg
+        feats = detect(image, cfg.n_features)
+        cam_pts, lidar_cam = self._feature_points(feats, depth, sparse)
+        T_icp = self.icp.register(scan) if self.icp is not None and scan is not None else None
+        landmark = np.full(len(feats), -1, np.int64)
+        observations: list[Observation] = []
+        new_landmarks: dict[int, np.ndarray] = {}
+        trusted = None
+        if self.prev is None:
+            T_init, source, T_rel = np.eye(4), "first", None
+        else:
+            p = self.prev
+            T_prev = graph.pose(p.index)
+            ia, ib = match(p.feats, feats)
+            obj = cam_pts_world = (p.cam_pts[ia] @ T_prev[:3, :3].T + T_prev[:3, 3]) if len(ia) else np.zeros((0, 3))
+            img = feats.uv[ib].astype(np.float64)
+            cands: dict[str, np.ndarray | None] = {}
+            if T_icp is not None and p.T_icp is not None:
+                cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
+            cands["pnp"] = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
+            guess = choose_pose(cands, obj, img, self.K, cfg.pnp_reproj_px)
+            if guess is None or guess.inliers < 6 and "icp" not in cands:
+                T_init, source = T_prev @ self.velocity, "constant_velocity"
+            else:
+                T_init, source = guess.T_world_cam, guess.source
+            T_rel = invert_T(T_prev) @ T_init
+            inl = reprojection_inliers(T_init, cam_pts_world, img, self.K, cfg.pnp_reproj_px) if len(ia) else np.zeros(0, bool)
+            if inl.sum() >= 6:
+                trusted = convex_hull_mask(img[inl], self.shape) & (depth > 0)
+            for a, b in zip(ia[inl], ib[inl]):
+                k = int(p.landmark[a])
+                if k < 0 or not graph.has_landmark(k):
+                    k = self.next_landmark
+                    self.next_landmark += 1
+                    new_landmarks[k] = obj[np.nonzero(ia == a)[0][0]]
+                    observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
+                landmark[b] = k
+                observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b]))
+            self.velocity = T_rel
+        self.sources.append(source)
+        lidar_uvz = None
+        if sparse is not None and self.use_lidar:
+            lv, lu = np.nonzero(sparse > 0)
+            lidar_uvz = np.stack([lu, lv, sparse[lv, lu]], 1).astype(float)
+        rel_sigma = np.exp(log_sigma) / np.maximum(depth, 1e-3)
+        self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
+        return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
+                          trusted, lidar_uvz, T_rel)

@@ -1,0 +1,203 @@
+"""The sliding-window factor graph (LeoVR Sec. III-C, Fig. 6): per frame a Pose3 and a depth
+correction field, ORB landmarks as Point3, tied by reprojection, LiDAR point, depth-consistency and
+depth-prior factors; gtsam's BatchFixedLagSmoother marginalises frames that leave the window.
+
+Frames enter one at a time (`add_frame`); each call returns the frames that just left the window with
+their final pose and field. Batch (not incremental) smoothing because the consistency factors draw a
+fresh pixel sample before every update, which a cached linearisation (iSAM2) would not see.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import gtsam
+import numpy as np
+
+from leovr.config import RefineConfig
+from leovr.geometry import invert_T
+from odometry.depth_field import CorrectionGrid
+from odometry.factors import (
+    DepthConsistency,
+    FrameDepth,
+    LidarDepth,
+    consistency_factor,
+    lidar_point_factor,
+    projection_factor,
+)
+
+
+def X(i: int) -> int:
+    return gtsam.symbol("x", i)
+
+
+def C(i: int) -> int:
+    return gtsam.symbol("c", i)
+
+
+def L(k: int) -> int:
+    return gtsam.symbol("l", k)
+
+
+@dataclass
+class Observation:
+    """A landmark seen in a frame: pixel, and the associated LiDAR point in the camera frame if any."""
+
+    landmark: int
+    frame: int
+    uv: np.ndarray
+    lidar_cam: np.ndarray | None = None
+
+
+@dataclass
+class FrameInput:
+    """What the front end hands the graph for one new frame."""
+
+    index: int
+    T_init: np.ndarray  # camera to world
+    log_depth: np.ndarray  # generator depth, log metres
+    rel_sigma: np.ndarray  # generator sigma / depth per pixel
+    observations: list[Observation]
+    new_landmarks: dict[int, np.ndarray]  # landmark id -> initial world position
+    trusted: np.ndarray | None  # H x W bool: where depth consistency may be sampled
+    lidar_uvz: np.ndarray | None  # M x 3: the frame's own LiDAR returns (u, v, depth)
+    T_prev_rel: np.ndarray | None = None  # front-end motion from the previous frame
+
+
+@dataclass
+class FrameResult:
+    index: int
+    T_world_cam: np.ndarray
+    log_offset: np.ndarray  # H x W log-depth correction
+
+
+@dataclass
+class _Pair:
+    i: int
+    j: int
+    dc: DepthConsistency
+    trusted_uv: tuple[np.ndarray, np.ndarray]
+
+
+@dataclass
+class WindowGraph:
+    cfg: RefineConfig
+    K: np.ndarray
+    shape: tuple[int, int]
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+
+    def __post_init__(self) -> None:
+        lm = gtsam.LevenbergMarquardtParams()
+        lm.setMaxIterations(self.cfg.lm_iterations)
+        self.smoother = gtsam.BatchFixedLagSmoother(self.cfg.window - 0.5, lm)
+        self.grid = CorrectionGrid(self.cfg.grid_rows, self.cfg.grid_cols, *self.shape)
+        self.cal = gtsam.Cal3_S2(self.K[0, 0], self.K[1, 1], 0.0, self.K[0, 2], self.K[1, 2])
+        self.depths: dict[int, FrameDepth] = {}
+        self.poses: dict[int, np.ndarray] = {}
+        self.fields: dict[int, np.ndarray] = {}
+        self.landmarks: dict[int, np.ndarray] = {}
+        self.pairs: list[_Pair] = []
+        self.last: int | None = None
+
+    # ----------------------------------------------------------------- factors of one new frame
+    def _frame_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        cfg = self.cfg
+        values.insert(X(f.index), gtsam.Pose3(f.T_init))
+        if self.last is None:
+            graph.add(gtsam.PriorFactorPose3(X(f.index), gtsam.Pose3(f.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
+        else:
+            rel = f.T_prev_rel if f.T_prev_rel is not None else invert_T(self.poses[self.last]) @ f.T_init
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, cfg.odometry_sigma_rad), np.full(3, cfg.odometry_sigma_m)])
+            graph.add(gtsam.BetweenFactorPose3(X(self.last), X(f.index), gtsam.Pose3(rel), noise))
+        fd = FrameDepth(f.log_depth, self.grid)
+        self.depths[f.index] = fd
+        values.insert(C(f.index), np.zeros(self.grid.size))
+        sig = self.grid.cell_means(f.rel_sigma)
+        sig = np.clip(np.nan_to_num(sig, nan=cfg.prior_sigma_max), cfg.prior_sigma_min, cfg.prior_sigma_max)
+        graph.add(gtsam.PriorFactorVector(C(f.index), np.zeros(self.grid.size), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        if f.lidar_uvz is not None and len(f.lidar_uvz) and cfg.lidar_depth_samples > 0:
+            uvz = f.lidar_uvz
+            if len(uvz) > cfg.lidar_depth_samples:
+                uvz = uvz[self.rng.choice(len(uvz), cfg.lidar_depth_samples, replace=False)]
+            graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], cfg.lidar_depth_sigma_log).factor(C(f.index)))
+        for k, P in f.new_landmarks.items():
+            values.insert(L(k), np.asarray(P, float))
+            self.landmarks[k] = np.asarray(P, float)
+            # the depth it was initialised from (generator or LiDAR) keeps a landmark determined when the baseline is short
+            depth = max(1.0, float(np.linalg.norm(P - self.poses.get(self.last, f.T_init)[:3, 3])))
+            graph.add(gtsam.PriorFactorPoint3(L(k), np.asarray(P, float),
+                                              gtsam.noiseModel.Isotropic.Sigma(3, cfg.landmark_prior_rel * depth)))
+        for o in f.observations:
+            graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, cfg.pixel_sigma))
+            if o.lidar_cam is not None:
+                graph.add(lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), cfg.bearing_sigma_rad, cfg.range_sigma_m))
+        if f.trusted is not None and self.last is not None and f.trusted.any():
+            v, u = np.nonzero(f.trusted)
+            dc = DepthConsistency(fd, self.depths[self.last], self.K, cfg.consistency_sigma_log)
+            pair = _Pair(f.index, self.last, dc, (u.astype(float), v.astype(float)))
+            self._resample(pair)
+            self.pairs.append(pair)
+            graph.add(consistency_factor(dc, [X(f.index), X(self.last), C(f.index), C(self.last)]))
+
+    def _resample(self, pair: _Pair) -> None:
+        u, v = pair.trusted_uv
+        pick = self.rng.choice(len(u), self.cfg.consistency_samples, replace=len(u) < self.cfg.consistency_samples)
+        pair.dc.set_samples(u[pick], v[pick])
+
+    # ----------------------------------------------------------------------------- public API
+    def add_frame(self, f: FrameInput) -> list[FrameResult]:
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for p in self.pairs:  # a fresh pixel sample for every consistency factor still in the window
+            self._resample(p)
+        self._frame_factors(f, graph, values)
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        stamps.insert((X(f.index), float(f.index)))
+        stamps.insert((C(f.index), float(f.index)))
+        for k in {o.landmark for o in f.observations}:
+            stamps.insert((L(k), float(f.index)))
+        self.smoother.update(graph, values, stamps)
+        self.last = f.index
+        return self._collect()
+
+    def _collect(self) -> list[FrameResult]:
+        est = self.smoother.calculateEstimate()
+        live = {i for i in self.poses} | {self.last}
+        done = []
+        for i in sorted(live):
+            if est.exists(X(i)):
+                self.poses[i] = est.atPose3(X(i)).matrix()
+                self.fields[i] = est.atVector(C(i))
+            else:
+                done.append(self._finish(i))
+        for k in list(self.landmarks):
+            if est.exists(L(k)):
+                self.landmarks[k] = est.atPoint3(L(k))
+            else:
+                del self.landmarks[k]
+        self.pairs = [p for p in self.pairs if est.exists(X(p.i)) and est.exists(X(p.j))]
+        return done
+
+    def _finish(self, i: int) -> FrameResult:
+        T, c = self.poses.pop(i), self.fields.pop(i)
+        self.depths.pop(i, None)
+        return FrameResult(i, T, self.grid.upsample(c))
+
+    def flush(self) -> list[FrameResult]:
+        """Every frame still in the window, with its current estimate (end of sequence)."""
+        return [self._finish(i) for i in sorted(self.poses)]
+
+    def pose(self, i: int) -> np.ndarray:
+        return self.poses[i]
+
+    def has_landmark(self, k: int) -> bool:
+        return k in self.landmarks
+
+
+def convex_hull_mask(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Pixels inside the convex hull of the points (the trusted region); empty with fewer than 3."""
+    mask = np.zeros(shape, np.uint8)
+    if len(uv) >= 3:
+        hull = cv2.convexHull(np.round(uv).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 1)
+    return mask.astype(bool)
