@@ -153,6 +153,55 @@ def bench_depth(
 
 
 @app.command()
+def refine(
+    data: Path = typer.Argument(..., help="Sequence folder (KITTI raw/odometry, TUM RGB-D or native)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
+    config: Optional[Path] = ConfigOpt,
+    checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
+    window: Optional[int] = typer.Option(None, help="Frames in the sliding window."),
+    input: Optional[str] = typer.Option(None, "--input", help="Cheap LiDAR input: full, vlp16, mid40, ratio:R."),
+    start: Optional[int] = typer.Option(None),
+    end: Optional[int] = typer.Option(None),
+    resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
+) -> None:
+    """Generator depth refined with poses and landmarks in the sliding-window factor graph."""
+    from leovr.data import open_sequence
+    from leovr.pipeline.refine import run_refine
+
+    cfg = override(load_config(config).refine, checkpoint=None if checkpoint is None else str(checkpoint),
+                   window=window, input=input, start=start, end=end)
+    seq = open_sequence(data)
+    m = run_refine(seq, cfg, out, resume=resume)
+    typer.echo(m["mode"])
+    for method, r in m["depth"].items():
+        typer.echo(f"{method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
+    for name, t in m.get("trajectory", {}).items():
+        typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m ({t['align']} aligned)")
+    t = m["timing"]
+    typer.echo(f"per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
+               f"graph {t['graph_ms']:.0f} ms -> {out}")
+
+
+@bench_app.command("refine")
+def bench_refine(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    quick: bool = typer.Option(False, help="8-frame rendered test sequences and 8 KITTI frames."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Depth (IP-Basic, generator, refined), trajectories (KISS-ICP, LeoVR), timing and window ablation."""
+    from leovr.bench.refine import run_refine_bench
+
+    doc = run_refine_bench(out, load_config(config).bench_refine, quick)
+    for key, methods in doc["results"].items():
+        line = "  ".join(f"{m} {r['mae_m']:.3f}" for m, r in methods.items() if isinstance(r, dict) and "mae_m" in r)
+        typer.echo(f"{key:16s} MAE (m): {line}")
+    for key, t in doc["trajectory"].items():
+        typer.echo(f"{key:16s} ATE (m): " + "  ".join(f"{n} {v['ate_m']:.3f}" for n, v in t.items()))
+    typer.echo("timing (ms/frame): " + ", ".join(f"{k} {v:.0f}" for k, v in doc["timing"].items()))
+    typer.echo(f"-> {out}")
+
+
+@app.command()
 def train(
     out: Path = typer.Option(..., "--out", "-o", help="Run folder (checkpoints, log.jsonl)."),
     mode: str = typer.Option("supervised", help="supervised (selfsup comes later)."),

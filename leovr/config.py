@@ -145,6 +145,21 @@ class RefineConfig(_Model):
         return v
 
 
+class BenchRefineConfig(_Model):
+    """`leovr bench refine`: depth, trajectory and timing of the refinement on simulator and KITTI clips."""
+
+    dataset: str | None = None  # simulator dataset with a test split; None = the cached default recipe
+    kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
+    kitti_odometry: str | None = None  # None = the shared KITTI odometry clip (skipped when absent)
+    checkpoint: str | None = None
+    window: int = Field(4, ge=2)
+    windows: list[int] = [2, 3, 4, 6]  # window-length ablation on the first Mid-40 test sequence
+    synthetic_lidars: list[Literal["mid40", "vlp16"]] = ["mid40", "vlp16"]
+    kitti_inputs: list[str] = ["vlp16", "mid40"]
+    frames: int | None = None  # frames per sequence (None = all)
+    quick_frames: int = Field(8, ge=3)  # --quick: 8-frame rendered test sequences, first 8 KITTI frames
+
+
 class TrainConfig(_Model):
     """`leovr train --mode supervised`: the depth generator on simulator splits (LeoVR Sec. V-A defaults)."""
 
@@ -179,6 +194,7 @@ class LeovrConfig(_Model):
     demo: DemoConfig = DemoConfig()
     train: TrainConfig = TrainConfig()
     refine: RefineConfig = RefineConfig()
+    bench_refine: BenchRefineConfig = BenchRefineConfig()
 
 
 def _describe(exc: ValidationError) -> str:

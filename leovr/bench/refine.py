@@ -1,0 +1,100 @@
+"""`leovr bench refine`: IP-Basic, the generator and the refined depth, LeoVR's trajectory against
+KISS-ICP's, the time per stage and a window-length ablation, on simulator test sequences (Mid-40 and
+VLP-16, city loop, straight avenue and the dynamic scenario), the shared KITTI raw clip (simulated
+cheap inputs) and the KITTI odometry clip (no LiDAR: ATE after Sim(3) alignment)."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from leovr.bench.common import depth_entry, write_bench
+from leovr.config import BenchRefineConfig, RefineConfig
+from leovr.data import open_sequence
+from leovr.depth.dataset import split_entries
+from leovr.paths import kitti_odometry_dir, kitti_raw_dir
+from leovr.pipeline.refine import run_refine
+from leovr.sim.dataset import Recipe, default_root, make_dataset
+
+QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
+DEPTH_METHODS = ("ipbasic", "generator", "refined")
+TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
+
+
+def _pool(runs: list[dict]) -> dict:
+    """Frame-weighted means of the depth metrics over several sequences (pixels pooled per run)."""
+    out = {}
+    for m in DEPTH_METHODS:
+        rs = [r["depth"][m] for r in runs if m in r["depth"]]
+        if not rs:
+            continue
+        n = np.array([r["n"] for r in rs], float)
+        e = {k: float(np.average([r[k] for r in rs], weights=n)) for k in ("mae_m", "absrel", "delta1")}
+        e["rmse_m"] = float(np.sqrt(np.average([r["rmse_m"] ** 2 for r in rs], weights=n)))
+        e["n"] = int(n.sum())
+        e["per_sequence_mae_m"] = [r["mae_m"] for r in rs]
+        out[m] = e
+    return out
+
+
+def _traj(runs: list[dict]) -> dict:
+    out = {}
+    for name in ("kiss_icp", "leovr"):
+        rs = [r["trajectory"][name] for r in runs if name in r.get("trajectory", {})]
+        if rs:
+            out[name] = {"ate_m": float(np.mean([r["ate_m"] for r in rs])), "rpe_m": float(np.mean([r["rpe_m"] for r in rs])),
+                         "per_sequence": [{k: r[k] for k in TRAJ_KEYS} for r in rs]}
+    return out
+
+
+def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, progress: bool = True) -> dict:
+    started = time.time()
+    base = RefineConfig(checkpoint=cfg.checkpoint, window=cfg.window)
+    if quick:
+        root = make_dataset(QUICK_RECIPE, Path(cfg.dataset) if cfg.dataset else None, progress=progress)
+    else:
+        root = Path(cfg.dataset) if cfg.dataset else default_root() / "default"
+    frames = cfg.quick_frames if quick else cfg.frames
+    results, trajectory, timing, windows = {}, {}, {}, {}
+    all_runs: list[dict] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+
+        def refine(seq_path: Path, rcfg: RefineConfig, tag: str) -> dict:
+            seq = open_sequence(seq_path)
+            end = min(len(seq), frames) if frames else None
+            m = run_refine(seq, rcfg.model_copy(update={"end": end}), work / tag, progress=progress)
+            all_runs.append(m)
+            return m
+
+        entries = [e for e in split_entries(root, "test") if e["light"] == "day"]
+        for lidar in cfg.synthetic_lidars:
+            runs = [refine(e["path"], base.model_copy(update={"input": "full"}), f"{lidar}_{e['scenario']}")
+                    for e in entries if e["lidar"] == lidar]
+            results[f"synthetic_{lidar}"] = _pool(runs)
+            results[f"synthetic_{lidar}"]["sequences"] = [r["sequence"] for r in runs]
+            trajectory[f"synthetic_{lidar}"] = _traj(runs)
+        ablate = next(e for e in entries if e["lidar"] == "mid40")
+        for w in cfg.windows:
+            m = refine(ablate["path"], base.model_copy(update={"input": "full", "window": w}), f"window{w}")
+            windows[str(w)] = {"refined_mae_m": m["depth"]["refined"]["mae_m"], "generator_mae_m": m["depth"]["generator"]["mae_m"],
+                               "ate_m": m["trajectory"]["leovr"]["ate_m"], "graph_ms": m["timing"]["graph_ms"]}
+        raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
+        if raw.exists():
+            for inp in cfg.kitti_inputs:
+                m = refine(raw, base.model_copy(update={"input": inp}), f"kitti_{inp}")
+                results[f"kitti_{inp}"] = {k: depth_entry({**v, "ms_per_frame": None}) for k, v in m["depth"].items()}
+        odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
+        if odo.exists():
+            m = refine(odo, base, "kitti_odometry")
+            trajectory["kitti_odometry"] = {"leovr": {k: m["trajectory"]["leovr"][k] for k in TRAJ_KEYS}}
+    for k in ("generator_ms", "frontend_ms", "graph_ms"):
+        timing[k] = float(np.mean([r["timing"][k] for r in all_runs]))
+    body = {"quick": quick, "synthetic_dataset": str(root), "frames_per_sequence": frames, "window": cfg.window,
+            "results": results, "trajectory": trajectory, "timing": timing,
+            "window_ablation": {"sequence": str(ablate["path"]), "results": windows}}
+    return write_bench(out, "refine", body, started)
+

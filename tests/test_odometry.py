@@ -1,0 +1,88 @@
+"""Front end and graph pieces: correction field, LiDAR association, PnP / pose choice, and the
+depth-consistency residual with its analytic Jacobians."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from leovr.geometry import make_T
+from odometry.depth_field import CorrectionGrid, bilinear
+from odometry.factors import DepthConsistency, FrameDepth
+from odometry.initial_pose import choose_pose, pnp_pose
+from odometry.lidar_assoc import associate
+from scipy.spatial.transform import Rotation
+
+K = np.array([[200.0, 0, 79.5], [0, 200.0, 59.5], [0, 0, 1]])
+SHAPE = (120, 160)
+
+
+def test_correction_grid_interpolates_nodes_and_constants():
+    g = CorrectionGrid(4, 5, *SHAPE)
+    c = np.arange(g.size, dtype=float)
+    # node (row 1, col 2) sits at pixel (u, v) = (2 * 159 / 4, 1 * 119 / 3)
+    assert np.isclose(g.offsets(c, np.array([2 * 159 / 4]), np.array([119 / 3]))[0], 1 * 5 + 2)
+    assert np.allclose(g.upsample(np.full(g.size, 0.3)), 0.3)
+    u, v = np.random.default_rng(0).uniform(0, 159, 50), np.random.default_rng(1).uniform(0, 119, 50)
+    assert np.allclose(g.dense_weights(u, v) @ c, g.offsets(c, u, v))
+    assert np.allclose(g.dense_weights(u, v).sum(1), 1.0)
+
+
+def test_lidar_association_nearest_within_radius_and_rejects_discontinuities():
+    lidar_uv = np.array([[10.0, 10.0], [50.0, 50.0], [52.0, 50.0], [100.0, 100.0]])
+    depth = np.array([5.0, 8.0, 20.0, 12.0])  # 50/52: an edge between 8 m and 20 m
+    uv = np.array([[11.0, 12.0], [51.0, 50.0], [100.0, 106.0], [300.0, 300.0]])
+    z = associate(uv, lidar_uv, depth, radius_px=5.0, max_rel_spread=0.1)
+    assert z[0] == 5.0 and np.isnan(z[1]) and np.isnan(z[2]) and np.isnan(z[3])
+
+
+def test_pnp_recovers_pose_and_choice_prefers_the_consistent_candidate():
+    rng = np.random.default_rng(0)
+    T = make_T(Rotation.from_rotvec([0.02, -0.05, 0.01]).as_matrix(), [0.3, -0.1, 1.2])
+    cam = np.c_[rng.uniform(-8, 8, 80), rng.uniform(-4, 4, 80), rng.uniform(6, 40, 80)]
+    world = cam @ T[:3, :3].T + T[:3, 3]
+    uv = (cam @ K.T)[:, :2] / cam[:, 2:]
+    uv[:10] += 30.0  # outliers
+    est, inl = pnp_pose(world, uv, K)
+    assert est is not None and np.allclose(est, T, atol=1e-3) and not inl[:10].any() and inl[10:].all()
+    guess = choose_pose({"icp": make_T(t=[1.0, 0, 0]) @ T, "pnp": est}, world, uv, K)
+    assert guess.source == "pnp" and guess.inliers == 70
+
+
+def _plane_depth(T_world_cam: np.ndarray, n=np.array([0.0, -0.2, -1.0]), d=30.0) -> np.ndarray:
+    """Depth of the plane n.X + d = 0 (world) seen from the camera."""
+    v, u = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]]
+    rays = np.stack([u, v, np.ones_like(u)], -1).reshape(-1, 3) @ np.linalg.inv(K).T
+    R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    s = -(n @ t + d) / (rays @ R.T @ n)
+    return s.reshape(SHAPE)
+
+
+def test_depth_consistency_vanishes_for_true_geometry_and_jacobians_match_numeric():
+    Ti = make_T(t=[0.0, 0.0, 1.0])
+    Tj = np.eye(4)
+    g = CorrectionGrid(4, 5, *SHAPE)
+    di, dj = FrameDepth(np.log(_plane_depth(Ti)), g), FrameDepth(np.log(_plane_depth(Tj)), g)
+    dc = DepthConsistency(di, dj, K, 0.05)
+    rng = np.random.default_rng(0)
+    dc.set_samples(rng.uniform(20, 140, 200), rng.uniform(20, 100, 200))
+    zero = np.zeros(g.size)
+    r, _ = dc.evaluate(Ti, Tj, zero, zero, False)
+    assert np.abs(r).max() < 0.05  # bilinear sampling only
+    r_bad, _ = dc.evaluate(make_T(t=[0.0, 0.0, 2.0]), Tj, zero, zero, False)
+    assert np.abs(r_bad).mean() > 0.5
+    ci, cj = rng.normal(0, 0.02, g.size), rng.normal(0, 0.02, g.size)
+    r0, (Ji, Jj) = dc.evaluate(Ti, Tj, ci, cj, True)
+    s = r0 / np.where(r0 == 0, 1, dc._residual(Ti, Tj, ci, cj))  # robust scale per pixel
+    eps = 1e-5
+    for k in (0, 7, 13):
+        e = np.zeros(g.size)
+        e[k] = eps
+        num_i = s * (dc._residual(Ti, Tj, ci + e, cj) - dc._residual(Ti, Tj, ci - e, cj)) / (2 * eps)
+        num_j = s * (dc._residual(Ti, Tj, ci, cj + e) - dc._residual(Ti, Tj, ci, cj - e)) / (2 * eps)
+        assert np.allclose(Ji[:, k], num_i, atol=0.05 * np.abs(num_i).max() + 1e-6)
+        assert np.allclose(Jj[:, k], num_j, atol=1e-4)
+
+
+def test_bilinear_matches_linear_ramp():
+    img = np.add.outer(np.arange(5.0), 10 * np.arange(6.0))  # v + 10 u
+    assert np.allclose(bilinear(img, np.array([2.5, 0.0]), np.array([1.25, 3.0])), [1.25 + 25, 3.0])
