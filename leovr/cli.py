@@ -163,6 +163,7 @@ def refine(
     start: Optional[int] = typer.Option(None),
     end: Optional[int] = typer.Option(None),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
+    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also write a Rerun recording of the run (.rrd)."),
 ) -> None:
     """Generator depth refined with poses and landmarks in the sliding-window factor graph."""
     from leovr.data import open_sequence
@@ -180,6 +181,23 @@ def refine(
     t = m["timing"]
     typer.echo(f"per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
                f"graph {t['graph_ms']:.0f} ms -> {out}")
+    if rerun is not None:
+        from leovr.viz.recording import write_recording
+
+        typer.echo(f"recording -> {write_recording(out, rerun)['path']}")
+
+
+@app.command()
+def viz(
+    target: Path = typer.Argument(..., help="A `leovr refine` output folder or a sequence folder."),
+    out: Path = typer.Option(..., "--out", "-o", help="Recording file (.rrd); open it with `rerun FILE.rrd`."),
+    max_frames: Optional[int] = typer.Option(None, "--max-frames"),
+) -> None:
+    """Write a Rerun recording: trajectories, landmarks, LiDAR, camera, image, depth maps and error."""
+    from leovr.viz.recording import write_recording
+
+    r = write_recording(target, out, max_frames)
+    typer.echo(f"{r['frames']} frames, trajectories: {', '.join(r['trajectories']) or 'none'} -> {r['path']}")
 
 
 @bench_app.command("refine")

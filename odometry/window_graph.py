@@ -97,6 +97,7 @@ class WindowGraph:
         self.poses: dict[int, np.ndarray] = {}
         self.fields: dict[int, np.ndarray] = {}
         self.landmarks: dict[int, np.ndarray] = {}
+        self.retired_landmarks: dict[int, np.ndarray] = {}  # last estimate of landmarks marginalised out
         self.pairs: list[_Pair] = []
         self.last: int | None = None
 
@@ -174,7 +175,7 @@ class WindowGraph:
             if est.exists(L(k)):
                 self.landmarks[k] = est.atPoint3(L(k))
             else:
-                del self.landmarks[k]
+                self.retired_landmarks[k] = self.landmarks.pop(k)
         self.pairs = [p for p in self.pairs if est.exists(X(p.i)) and est.exists(X(p.j))]
         return done
 
@@ -186,6 +187,11 @@ class WindowGraph:
     def flush(self) -> list[FrameResult]:
         """Every frame still in the window, with its current estimate (end of sequence)."""
         return [self._finish(i) for i in sorted(self.poses)]
+
+    def all_landmarks(self) -> np.ndarray:
+        """N x 3 world positions of every landmark so far (final estimates, then live ones)."""
+        pts = list(self.retired_landmarks.values()) + list(self.landmarks.values())
+        return np.array(pts, float).reshape(-1, 3)
 
     def pose(self, i: int) -> np.ndarray:
         return self.poses[i]

@@ -4,13 +4,13 @@ depth-consistency residual with its analytic Jacobians."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from leovr.geometry import make_T
 from odometry.depth_field import CorrectionGrid, bilinear
 from odometry.factors import DepthConsistency, FrameDepth
 from odometry.initial_pose import choose_pose, pnp_pose
 from odometry.lidar_assoc import associate
-from scipy.spatial.transform import Rotation
 
 K = np.array([[200.0, 0, 79.5], [0, 200.0, 59.5], [0, 0, 1]])
 SHAPE = (120, 160)

@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 for v in full no_attention interp; do
   out=runs/ablation_$v
   if [ -f "$out/checkpoint_last.pt" ]; then resume=--resume; else resume=; fi
-  if [ "$(wc -l < "$out/log.jsonl" 2>/dev/null || echo 0)" -lt 3 ]; then
+  if [ "$(wc -l < "$out/log.jsonl" 2>/dev/null || echo 0)" -lt 2 ]; then
     .venv/bin/leovr train --mode supervised --config configs/ablation/$v.yaml --out "$out" $resume
   fi
 done

@@ -3,7 +3,7 @@ frame by frame as a live system would see them; refined depth, poses, metrics an
 
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 mm), `depth_generator/` (the
 generator alone), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
-truth depth or LiDAR to hold out, and poses), `timing.json`, and `progress.json`, the state `--resume`
+truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), and `progress.json`, the state `--resume`
 continues from (a resumed run restarts the window at the first unfinished frame, anchored at the last
 finished pose).
 """
@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from leovr.config import CompleteConfig, RefineConfig
-from leovr.data.io import read_depth_png, write_depth_png, write_text
+from leovr.data.io import atomic_write, read_depth_png, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.sequence import Sequence
@@ -27,7 +27,7 @@ from leovr.depth.classical import complete_depth
 from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.trajectory import trajectory_metrics
-from leovr.geometry import invert_T
+from leovr.geometry import invert_T, transform_points
 from leovr.pipeline.completion import (
     EvalSample,
     frame_indices,
@@ -131,6 +131,10 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             state.times[k].append(1000.0 * dt)
     finish(graph.flush())
     state.save(state_path)
+    landmarks = graph.all_landmarks()
+    if len(landmarks):
+        landmarks = transform_points(T_start, landmarks)
+    atomic_write(out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress)
 
 

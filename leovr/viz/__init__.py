@@ -1,0 +1,1 @@
+"""Rerun recordings of sequences and refinement runs."""

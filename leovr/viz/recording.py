@@ -1,0 +1,124 @@
+"""Write a Rerun recording (.rrd) of a sequence, or of a `leovr refine` run over its sequence, with a
+`frame` timeline: trajectories (ground truth, KISS-ICP, leovr) as line strips, landmarks, the LiDAR
+input coloured by range, and under the camera pinhole the image, generator and refined depth (uint16
+depth images, so the viewer back-projects them) and the error map against ground truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from leovr.data import open_sequence
+from leovr.data.io import read_depth_png
+from leovr.data.kitti_common import read_kitti_poses
+from leovr.errors import DataError
+from leovr.geometry import invert_T, transform_points
+
+COLOURS = {"ground_truth": (40, 200, 80), "leovr": (255, 140, 0), "kiss_icp": (60, 120, 255)}
+
+
+def blueprint() -> rrb.Blueprint:
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="world"),
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="world/camera/image", contents=["$origin/rgb"], name="image"),
+                rrb.Spatial2DView(origin="world/camera/image", contents=["$origin/depth_refined"], name="refined depth"),
+                rrb.Spatial2DView(origin="world/camera/image", contents=["$origin/depth_generator"], name="generator depth"),
+                rrb.Spatial2DView(origin="world/camera/error", name="|error| vs ground truth"),
+            ),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+def _range_colours(d: np.ndarray, max_range: float = 80.0) -> np.ndarray:
+    x = np.clip(d / max_range * 255, 0, 255).astype(np.uint8)
+    return cv2.applyColorMap(x[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
+
+
+def _error_image(pred: np.ndarray, gt: np.ndarray, max_err: float = 5.0) -> np.ndarray:
+    """RGB heat map of |pred - gt| where ground truth exists (dilated so sparse points show), black elsewhere."""
+    valid = gt > 0
+    err = np.where(valid, np.abs(pred - gt), 0.0)
+    img = cv2.applyColorMap(np.clip(err / max_err * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_INFERNO)[..., ::-1]
+    if valid.mean() < 0.2:
+        grow = cv2.dilate(valid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        img = cv2.dilate(np.where(valid[..., None], img, 0).astype(np.uint8), np.ones((3, 3), np.uint8))
+        valid = grow
+    return np.where(valid[..., None], img, 0).astype(np.uint8)
+
+
+def _depth_u16(d: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(d * 1000.0), 0, 65535).astype(np.uint16)
+
+
+def write_recording(target: str | Path, out: str | Path, max_frames: int | None = None) -> dict:
+    """`target` is a refine run folder (with metrics.json) or a sequence folder. Returns a summary."""
+    target, out = Path(target), Path(out)
+    run = target if (target / "metrics.json").is_file() and (target / "poses_kitti.txt").is_file() else None
+    if run is not None:
+        seq = open_sequence(json.loads((run / "metrics.json").read_text())["sequence"])
+        poses = read_kitti_poses(run / "poses_kitti.txt")
+        progress = json.loads((run / "progress.json").read_text()) if (run / "progress.json").is_file() else {}
+        indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
+    else:
+        seq, poses, progress = open_sequence(target), None, {}
+        indices = list(range(len(seq)))
+    if max_frames is not None:
+        indices = indices[:max_frames]
+    if not indices:
+        raise DataError(target, "nothing to record")
+    rec = rr.RecordingStream("leovr")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".part")
+    rec.save(tmp, default_blueprint=blueprint())
+    rec.log("world", rr.ViewCoordinates.RDF, static=True)  # the first camera's axes: x right, y down, z forward
+    gt = [seq[i].T_world_cam for i in indices] if seq.info().has_poses else None
+    strips = {}
+    if gt is not None and all(T is not None for T in gt):
+        T0 = invert_T(gt[0])
+        strips["ground_truth"] = np.stack([(T0 @ T)[:3, 3] for T in gt])
+    if poses is not None:
+        strips["leovr"] = poses[: len(indices), :3, 3]
+    icp = progress.get("icp_poses", {})
+    if icp and all(str(i) in icp for i in indices):
+        strips["kiss_icp"] = np.stack([np.array(icp[str(i)]).reshape(4, 4)[:3, 3] for i in indices])
+    for name, xyz in strips.items():
+        rec.log(f"world/trajectory/{name}", rr.LineStrips3D([xyz], colors=[COLOURS[name]], radii=0.08), static=True)
+    if run is not None and (run / "landmarks.npy").is_file():
+        rec.log("world/landmarks", rr.Points3D(np.load(run / "landmarks.npy"), colors=[(230, 230, 230)], radii=0.05), static=True)
+    for n, i in enumerate(indices):
+        f = seq[i]
+        rec.set_time("frame", sequence=i)
+        if poses is not None:
+            T = poses[n]
+        else:
+            T = invert_T(gt[0]) @ gt[n] if "ground_truth" in strips else np.eye(4)
+        rec.log("world/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        rec.log("world/camera/image", rr.Pinhole(image_from_camera=f.K, resolution=[f.width, f.height],
+                                                 camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=2.0))
+        rec.log("world/camera/image/rgb", rr.Image(f.image))
+        if f.points is not None and len(f.points):
+            cam = transform_points(f.T_cam_lidar, f.points[:, :3])
+            rec.log("world/lidar", rr.Points3D(transform_points(T, cam), colors=_range_colours(np.linalg.norm(f.points[:, :3], axis=1)), radii=0.04))
+        ref = f.depth
+        for kind in ("generator", "refined"):
+            png = run / ("depth_generator" if kind == "generator" else "depth") / f"{i:06d}.png" if run else None
+            if png is not None and png.is_file():
+                d = read_depth_png(png)
+                rec.log(f"world/camera/image/depth_{kind}", rr.DepthImage(_depth_u16(d), meter=1000.0, colormap="turbo"))
+                if kind == "refined" and ref is not None:
+                    rec.log("world/camera/error", rr.Image(_error_image(d, ref)))
+        if run is None and ref is not None:
+            rec.log("world/camera/image/depth_ground_truth", rr.DepthImage(_depth_u16(ref), meter=1000.0, colormap="turbo"))
+    rec.flush()
+    rec.disconnect()
+    tmp.replace(out)
+    return {"frames": len(indices), "trajectories": sorted(strips), "path": str(out)}

@@ -1,0 +1,43 @@
+"""Rerun recordings, read back with Rerun's own reader: entities and frame count."""
+
+from __future__ import annotations
+
+import pyarrow.compute as pc
+import rerun as rr
+
+from leovr.config import RefineConfig, SimulateConfig
+from leovr.data import open_sequence
+from leovr.pipeline.refine import run_refine
+from leovr.sim.simulate import simulate
+from leovr.viz.recording import write_recording
+
+
+def _read(path):
+    entities, frames = set(), set()
+    for chunk in rr.chunk.RrdReader(path).stream():
+        entities.add(str(chunk.entity_path))
+        if "frame" in chunk.timeline_names:
+            col = chunk.to_record_batch().column("frame")
+            frames.update(int(x) for x in pc.cast(col, "int64").to_pylist())
+    return entities, frames
+
+
+def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
+    simulate(SimulateConfig(lidar="mid40", frames=4, seed=7), tmp_path / "seq", progress=False)
+    run_refine(open_sequence(tmp_path / "seq"), RefineConfig(input="full"), tmp_path / "run", progress=False)
+    summary = write_recording(tmp_path / "run", tmp_path / "r.rrd")
+    assert summary["trajectories"] == ["ground_truth", "kiss_icp", "leovr"]
+    entities, frames = _read(tmp_path / "r.rrd")
+    for e in ("/world/trajectory/ground_truth", "/world/trajectory/leovr", "/world/trajectory/kiss_icp", "/world/landmarks",
+              "/world/camera", "/world/camera/image", "/world/camera/image/rgb", "/world/camera/image/depth_generator",
+              "/world/camera/image/depth_refined", "/world/camera/error", "/world/lidar"):
+        assert e in entities, e
+    assert frames == {0, 1, 2, 3}
+    assert not (tmp_path / "r.rrd.part").exists()
+
+
+def test_sequence_recording_without_a_run(tmp_path):
+    simulate(SimulateConfig(lidar="vlp16", frames=2, seed=8), tmp_path / "seq", progress=False)
+    write_recording(tmp_path / "seq", tmp_path / "s.rrd")
+    entities, frames = _read(tmp_path / "s.rrd")
+    assert "/world/camera/image/depth_ground_truth" in entities and frames == {0, 1}
