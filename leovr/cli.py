@@ -103,13 +103,13 @@ def demo(
     data: Optional[Path] = typer.Option(None, help="A recorded sequence instead of the generated default."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
-    """The main job on the embedded default (a generated Mid-40 sequence); writes report.md and metrics.json."""
+    """The main job on the embedded default: a generated Mid-40 sequence refined end to end; report, plots, recording."""
     from leovr.pipeline.demo import run_demo
 
     cfg = override(load_config(config).demo, frames=frames, data=None if data is None else str(data))
     run_demo(out, cfg)
     typer.echo((out / "report.md").read_text())
-    typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, <method>/depth/*.png")
+    typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, mae_by_distance.png, trajectory.png, demo.rrd, refine/")
 
 
 @bench_app.command("baseline")

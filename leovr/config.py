@@ -115,6 +115,7 @@ class RefineConfig(_Model):
     end: int | None = None
     step: int = 1
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
+    deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
     grid_cols: int = Field(14, ge=2)
     lm_iterations: int = Field(6, ge=1)

@@ -114,11 +114,11 @@ def test_bench_baseline_quick_contract(tmp_path):
 
 @needs_shared
 def test_demo_writes_report(tmp_path):
-    r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "2", "--data", str(KITTI_RAW)])
+    r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "3", "--data", str(KITTI_RAW)])
     assert r.exit_code == 0, r.output
     report = (tmp_path / "report.md").read_text()
-    assert "| ipbasic |" in report and "| nearest |" in report
-    assert len(list((tmp_path / "ipbasic" / "depth").glob("*.png"))) == 2
+    assert "| ipbasic |" in report and "| refined |" in report and "held-out" in report
+    assert len(list((tmp_path / "refine" / "depth").glob("*.png"))) == 3
 
 
 def test_simulate_command_and_bad_option(tmp_path):
@@ -145,12 +145,15 @@ def test_bench_simulate_contract(tmp_path):
 
 
 def test_demo_on_generated_default(tmp_path):
-    r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "2"])
+    r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "3"])
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "metrics.json").read_text())
-    assert m["ipbasic"]["ground_truth"].startswith("dense") and m["ipbasic"]["frames"] == 2
-    assert m["ipbasic"]["n"] > 100_000  # dense ground truth: most of 2 x 448 x 256 pixels
-    assert (tmp_path / "sequence" / "preview.png").is_file()
+    assert m["ground_truth"].startswith("dense") and m["frames"] == 3
+    assert list(m["depth"]) == ["raw", "ipbasic", "generator", "refined"]
+    assert m["depth"]["refined"]["n"] > 150_000  # dense ground truth: most of 3 x 448 x 256 pixels
+    assert set(m["trajectory"]) == {"leovr", "kiss_icp"}
+    for f in ("sequence/preview.png", "mae_by_distance.png", "trajectory.png", "demo.rrd", "report.md"):
+        assert (tmp_path / f).is_file(), f
 
 
 def test_complete_with_generator_checkpoint_and_missing_checkpoint(kitti_raw_tiny, tmp_path):

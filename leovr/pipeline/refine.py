@@ -2,7 +2,7 @@
 frame by frame as a live system would see them; refined depth, poses, metrics and timing written out.
 
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 mm), `depth_generator/` (the
-generator alone), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
+generator alone), `depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
 truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), and `progress.json`, the state `--resume`
 continues from (a resumed run restarts the window at the first unfinished frame, anchored at the last
 finished pose).
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,12 +22,14 @@ from leovr.config import CompleteConfig, RefineConfig
 from leovr.data.io import atomic_write, read_depth_png, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
+from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.trajectory import trajectory_metrics
-from leovr.geometry import invert_T, transform_points
+from leovr.geometry import interpolate_poses, invert_T, transform_points
+from leovr.lidar.deskew import deskew
 from leovr.pipeline.completion import (
     EvalSample,
     frame_indices,
@@ -43,9 +45,24 @@ def completion_config(cfg: RefineConfig) -> CompleteConfig:
                           parallax_rel=cfg.parallax_rel)
 
 
-def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig) -> EvalSample:
-    """The frame with its cheap LiDAR input and ground truth; without LiDAR an empty input."""
-    f = seq[i]
+def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Frame:
+    """The frame with its scan motion-compensated to the camera time (LeoVR Sec. III-C-2): each point
+    moved by the camera motion predicted over its offset in the sweep (constant velocity, the last
+    frame-to-frame motion `motion_cam`, linearly interpolated). Unchanged without point times or motion."""
+    if f.points is None or f.point_times is None or motion_cam is None or not len(f.points):
+        return f
+    T_cl = f.T_cam_lidar
+    motion_lidar = invert_T(T_cl) @ motion_cam @ T_cl  # per frame interval, LiDAR frame
+    sweep = max(float(np.max(f.point_times)), 1e-3)
+    T_end = interpolate_poses(np.eye(4), motion_lidar, np.array(sweep / frame_dt))
+    return replace(f, points=deskew(f.points, f.point_times, np.eye(4), T_end, sweep, t_ref=0.0))
+
+
+def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.ndarray | None = None,
+                 frame_dt: float = 0.1) -> EvalSample:
+    """The frame with its cheap LiDAR input (deskewed when a motion is given) and ground truth; without
+    LiDAR an empty input."""
+    f = deskew_frame(seq[i], motion_cam, frame_dt)
     if f.points is not None and len(f.points):
         return prepare_sample(f, ccfg)
     gt = f.depth if f.depth is not None else np.zeros(f.shape, np.float32)
@@ -97,6 +114,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar)
     graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
     pending: dict[int, np.ndarray] = {}
+    stamps = seq.timestamps()
+    frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
     def finish(results) -> None:
         for r in results:
@@ -110,7 +129,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             state.save(state_path)
 
     for i in tqdm(todo, desc=f"refine {cfg.input} (window {cfg.window})", unit="frame", disable=not progress):
-        sample = frame_sample(seq, i, ccfg)
+        sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt)
         if sample.frame.shape != shape:
             raise DataError(seq.path, f"frame {i} is {sample.frame.shape}, the sequence started with {shape}")
         t0 = time.perf_counter()
@@ -120,6 +139,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                            sample.kept_points, graph)
         t2 = time.perf_counter()
         pending[i] = depth
+        if has_lidar and i != anchor:  # the classical baseline on the very same input, for the metrics
+            write_depth_png(out / "depth_ipbasic" / f"{i:06d}.png", complete_depth(sample.sparse, "ipbasic"))
         finish(graph.add_frame(fi))
         t3 = time.perf_counter()
         if i == anchor:
@@ -158,7 +179,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
             continue
         kinds.add(sample.gt_kind)
         if has_lidar:
-            accs["ipbasic"].add(complete_depth(sample.sparse, "ipbasic"), sample.gt)
+            accs["ipbasic"].add(read_depth_png(out / "depth_ipbasic" / f"{i:06d}.png"), sample.gt)
         accs["generator"].add(read_depth_png(out / "depth_generator" / f"{i:06d}.png"), sample.gt)
         accs["refined"].add(read_depth_png(out / "depth" / f"{i:06d}.png"), sample.gt)
     metrics: dict = {
