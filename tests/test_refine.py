@@ -70,3 +70,25 @@ def test_refine_without_lidar_runs_on_vision_and_depth(tmp_path):
     assert "no LiDAR" in m["mode"] and m["trajectory"]["leovr"]["align"] == "sim3"
     assert "kiss_icp" not in m["trajectory"] and "refined" not in m["depth"]  # no depth ground truth there
     assert len((tmp_path / "o" / "poses_kitti.txt").read_text().splitlines()) == 5
+
+
+def test_refine_cli_survives_frames_without_usable_features(kitti_raw_tiny, tmp_path):
+    """Random-noise images: ORB matches are meaningless, so poses come from KISS-ICP or constant velocity."""
+    from typer.testing import CliRunner
+
+    from leovr.cli import app
+
+    r = CliRunner().invoke(app, ["refine", str(kitti_raw_tiny), "--out", str(tmp_path / "o"), "--input", "vlp16"])
+    assert r.exit_code == 0, r.output
+    timing = json.loads((tmp_path / "o" / "timing.json").read_text())
+    assert set(timing["initial_pose_sources"]) <= {"first", "icp", "constant_velocity", "pnp"}
+    assert len(list((tmp_path / "o" / "depth").glob("*.png"))) == 3
+
+
+def test_refine_resume_from_a_corrupt_progress_file_names_it(refined, tmp_path):
+    from leovr.errors import DataError
+
+    seq_dir, _, _ = refined
+    (tmp_path / "progress.json").write_text("{not json")
+    with pytest.raises(DataError, match="progress.json"):
+        run_refine(open_sequence(seq_dir), RefineConfig(input="full"), tmp_path, resume=True, progress=False)
