@@ -15,6 +15,7 @@ from leovr.bench.common import depth_entry, write_bench
 from leovr.config import BenchRefineConfig, RefineConfig
 from leovr.data import open_sequence
 from leovr.depth.dataset import split_entries
+from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.paths import kitti_odometry_dir, kitti_raw_dir
 from leovr.pipeline.refine import run_refine
 from leovr.sim.dataset import Recipe, default_root, make_dataset
@@ -22,22 +23,6 @@ from leovr.sim.dataset import Recipe, default_root, make_dataset
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
 DEPTH_METHODS = ("ipbasic", "generator", "refined")
 TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
-
-
-def _pool(runs: list[dict]) -> dict:
-    """Frame-weighted means of the depth metrics over several sequences (pixels pooled per run)."""
-    out = {}
-    for m in DEPTH_METHODS:
-        rs = [r["depth"][m] for r in runs if m in r["depth"]]
-        if not rs:
-            continue
-        n = np.array([r["n"] for r in rs], float)
-        e = {k: float(np.average([r[k] for r in rs], weights=n)) for k in ("mae_m", "absrel", "delta1")}
-        e["rmse_m"] = float(np.sqrt(np.average([r["rmse_m"] ** 2 for r in rs], weights=n)))
-        e["n"] = int(n.sum())
-        e["per_sequence_mae_m"] = [r["mae_m"] for r in rs]
-        out[m] = e
-    return out
 
 
 def _traj(runs: list[dict]) -> dict:
@@ -63,19 +48,22 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
 
-        def refine(seq_path: Path, rcfg: RefineConfig, tag: str) -> dict:
+        def refine(seq_path: Path, rcfg: RefineConfig, tag: str, pool: dict | None = None) -> dict:
             seq = open_sequence(seq_path)
             end = min(len(seq), frames) if frames else None
-            m = run_refine(seq, rcfg.model_copy(update={"end": end}), work / tag, progress=progress)
+            m = run_refine(seq, rcfg.model_copy(update={"end": end}), work / tag, progress=progress, pool=pool)
             all_runs.append(m)
             return m
 
         entries = [e for e in split_entries(root, "test") if e["light"] == "day"]
         for lidar in cfg.synthetic_lidars:
-            runs = [refine(e["path"], base.model_copy(update={"input": "full"}), f"{lidar}_{e['scenario']}")
+            pool = {m: DepthMetricAccumulator(base.bins) for m in DEPTH_METHODS}
+            runs = [refine(e["path"], base.model_copy(update={"input": "full"}), f"{lidar}_{e['scenario']}", pool)
                     for e in entries if e["lidar"] == lidar]
-            results[f"synthetic_{lidar}"] = _pool(runs)
-            results[f"synthetic_{lidar}"]["sequences"] = [r["sequence"] for r in runs]
+            results[f"synthetic_{lidar}"] = {m: depth_entry({**a.result(), "ms_per_frame": None}) for m, a in pool.items()}
+            for m in DEPTH_METHODS:
+                results[f"synthetic_{lidar}"][m]["per_sequence_mae_m"] = {
+                    Path(r["sequence"]).name: r["depth"][m]["mae_m"] for r in runs}
             trajectory[f"synthetic_{lidar}"] = _traj(runs)
         ablate = next(e for e in entries if e["lidar"] == "mid40")
         for w in cfg.windows:

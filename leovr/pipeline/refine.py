@@ -91,8 +91,10 @@ class Progress:
         write_text(path, json.dumps(self.__dict__) + "\n")
 
 
-def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
-    """Refine every selected frame; returns the metrics dictionary (also written to metrics.json)."""
+def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True,
+               pool: dict[str, DepthMetricAccumulator] | None = None) -> dict:
+    """Refine every selected frame; returns the metrics dictionary (also written to metrics.json).
+    `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences."""
     from odometry.frontend import FrontEnd
     from odometry.window_graph import WindowGraph
 
@@ -156,11 +158,11 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     if len(landmarks):
         landmarks = transform_points(T_start, landmarks)
     atomic_write(out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
-    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress)
+    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool)
 
 
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
-                  out: Path, has_lidar: bool, progress: bool) -> dict:
+                  out: Path, has_lidar: bool, progress: bool, pool: dict | None = None) -> dict:
     """Poses in KITTI and TUM form, timing, and depth / trajectory metrics from the written maps."""
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
     stamps = seq.timestamps()[indices]
@@ -178,10 +180,13 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         if sample.gt_kind == "none":
             continue
         kinds.add(sample.gt_kind)
-        if has_lidar:
-            accs["ipbasic"].add(read_depth_png(out / "depth_ipbasic" / f"{i:06d}.png"), sample.gt)
-        accs["generator"].add(read_depth_png(out / "depth_generator" / f"{i:06d}.png"), sample.gt)
-        accs["refined"].add(read_depth_png(out / "depth" / f"{i:06d}.png"), sample.gt)
+        for method, folder in (("ipbasic", "depth_ipbasic"), ("generator", "depth_generator"), ("refined", "depth")):
+            if method == "ipbasic" and not has_lidar:
+                continue
+            pred = read_depth_png(out / folder / f"{i:06d}.png")
+            for target in (accs, pool or {}):
+                if method in target:
+                    target[method].add(pred, sample.gt)
     metrics: dict = {
         "sequence": str(seq.path), "reader": seq.name, "input": cfg.input if has_lidar else "none (no LiDAR)",
         "frames": len(indices), "window": cfg.window,

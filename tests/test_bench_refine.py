@@ -1,0 +1,23 @@
+"""`leovr bench refine` contract on a small configuration (rendered test sequences, no KITTI)."""
+
+from __future__ import annotations
+
+import json
+
+from leovr.bench.refine import run_refine_bench
+from leovr.config import BenchRefineConfig
+
+
+def test_bench_refine_contract(tmp_path):
+    cfg = BenchRefineConfig(dataset=str(tmp_path / "data"), synthetic_lidars=["mid40"], kitti_inputs=[], windows=[2, 3],
+                            kitti_odometry=str(tmp_path / "absent"), quick_frames=4)
+    doc = run_refine_bench(tmp_path / "r.json", cfg, quick=True, progress=False)
+    assert json.loads((tmp_path / "r.json").read_text())["benchmark"] == "refine"
+    res = doc["results"]["synthetic_mid40"]
+    assert set(res) == {"ipbasic", "generator", "refined"}
+    for r in res.values():
+        assert r["n"] > 3 * 4 * 100_000 and set(r["bins"]) and len(r["per_sequence_mae_m"]) == 3  # 3 scenarios
+    traj = doc["trajectory"]["synthetic_mid40"]
+    assert traj["leovr"]["ate_m"] > 0 and traj["kiss_icp"]["ate_m"] > 0
+    assert set(doc["timing"]) == {"generator_ms", "frontend_ms", "graph_ms"}
+    assert set(doc["window_ablation"]["results"]) == {"2", "3"}
