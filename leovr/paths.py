@@ -31,3 +31,8 @@ def kitti_odometry_dir() -> Path:
 def shipped_checkpoint() -> Path:
     """The depth-generator weights committed with the package."""
     return Path(__file__).resolve().parent / "depth" / "checkpoints" / "generator.pt"
+
+
+def shipped_vocabulary() -> Path:
+    """The ORB bag-of-words vocabulary committed with the package (tools/train_vocabulary.py)."""
+    return Path(__file__).resolve().parent.parent / "odometry" / "loop" / "vocabulary.npz"

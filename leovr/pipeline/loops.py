@@ -1,0 +1,60 @@
+"""The loop-closure pass over a refined run (LeoVR Sec. IV-B): bag-of-words detection with the
+co-visibility rule, geometric validation, and a global pose graph that corrects the poses.
+
+Runs after `run_refine` on its outputs (images from the sequence, refined depth from `depth/`), so it
+also works on resumed runs. Writes `loops.json`; returns the corrected poses and the loop records."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from leovr.data.io import read_depth_png, write_text
+from leovr.data.sequence import Sequence
+from leovr.paths import shipped_vocabulary
+from odometry.features import detect
+from odometry.loop.detector import LoopDetector
+from odometry.loop.pose_graph import optimise_pose_graph
+from odometry.loop.validate import validate_loop
+from odometry.loop.vocabulary import Vocabulary
+
+
+def feature_points(feats, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """3D camera points of the features from a depth map (NaN where the depth is 0)."""
+    h, w = depth.shape
+    u = np.clip(np.rint(feats.uv[:, 0]).astype(int), 0, w - 1)
+    v = np.clip(np.rint(feats.uv[:, 1]).astype(int), 0, h - 1)
+    z = depth[v, u].astype(np.float64)
+    z[z <= 0] = np.nan
+    rays = np.c_[feats.uv, np.ones(len(feats))] @ np.linalg.inv(K).T
+    return rays * z[:, None]
+
+
+def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, min_gap: int = 30,
+              vocabulary: str | Path | None = None) -> tuple[np.ndarray, list[dict], float]:
+    """Detect, validate and close loops; returns (corrected poses, loop records, ms per query)."""
+    voc = Vocabulary.load(vocabulary or shipped_vocabulary())
+    det = LoopDetector(min_gap=min_gap)
+    feats, pts, records, loops, t_query = {}, {}, [], [], []
+    for n, i in enumerate(indices):
+        f = seq[i]
+        feats[n] = detect(f.image)
+        pts[n] = feature_points(feats[n], read_depth_png(run / "depth" / f"{i:06d}.png"), f.K)
+        t0 = time.perf_counter()
+        cand = det.add(n, voc.bow(feats[n].desc))
+        t_query.append(time.perf_counter() - t0)
+        if cand is None:
+            continue
+        j, s = cand
+        check = validate_loop(feats[n], pts[n], feats[j], pts[j], f.K)
+        records.append({"frame": i, "candidate": indices[j], "score": round(float(s), 4), "inliers": check.inliers,
+                        "reprojection_px": round(float(check.reprojection_px), 3), "accepted": check.accepted})
+        if check.accepted:
+            loops.append((n, j, check.T_j_i))
+    corrected = optimise_pose_graph(poses, loops) if loops else poses
+    ms = 1000.0 * float(np.mean(t_query)) if t_query else 0.0
+    write_text(run / "loops.json", json.dumps({"ms_per_query": ms, "vocabulary_words": voc.words, "loops": records}, indent=2) + "\n")
+    return corrected, records, ms
