@@ -164,15 +164,37 @@ def refine(
     end: Optional[int] = typer.Option(None),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also write a Rerun recording of the run (.rrd)."),
+    loop_closure: Optional[bool] = typer.Option(None, "--loop-closure/--no-loop-closure", help="Close loops afterwards."),
 ) -> None:
     """Generator depth refined with poses and landmarks in the sliding-window factor graph."""
+    cfg = override(load_config(config).refine, checkpoint=None if checkpoint is None else str(checkpoint),
+                   window=window, input=input, start=start, end=end, loop_closure=loop_closure)
+    _run_refine(data, out, cfg, resume, rerun)
+
+
+@app.command()
+def poses(
+    data: Path = typer.Argument(..., help="Sequence folder."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
+    config: Optional[Path] = ConfigOpt,
+    loop_closure: bool = typer.Option(True, "--loop-closure/--no-loop-closure", help="Close loops (default on)."),
+    input: Optional[str] = typer.Option(None, "--input", help="Cheap LiDAR input: full, vlp16, mid40, ratio:R."),
+    resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
+) -> None:
+    """The offline pose pass the self-supervised trainer uses: window odometry, then loop closure."""
+    cfg = override(load_config(config).refine, loop_closure=loop_closure, input=input)
+    _run_refine(data, out, cfg, resume, None)
+
+
+def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path]) -> None:
     from leovr.data import open_sequence
     from leovr.pipeline.refine import run_refine
 
-    cfg = override(load_config(config).refine, checkpoint=None if checkpoint is None else str(checkpoint),
-                   window=window, input=input, start=start, end=end)
     seq = open_sequence(data)
     m = run_refine(seq, cfg, out, resume=resume)
+    if cfg.loop_closure:
+        loops = json.loads((out / "loops.json").read_text())["loops"]
+        typer.echo(f"loops: {sum(r['accepted'] for r in loops)} accepted of {len(loops)} candidates (loops.json)")
     typer.echo(m["mode"])
     for method, r in m["depth"].items():
         typer.echo(f"{method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
@@ -216,6 +238,23 @@ def bench_refine(
     for key, t in doc["trajectory"].items():
         typer.echo(f"{key:16s} ATE (m): " + "  ".join(f"{n} {v['ate_m']:.3f}" for n, v in t.items()))
     typer.echo("timing (ms/frame): " + ", ".join(f"{k} {v:.0f}" for k, v in doc["timing"].items()))
+    typer.echo(f"-> {out}")
+
+
+@bench_app.command("loop")
+def bench_loop(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    quick: bool = typer.Option(False, help="One LiDAR, one city loop."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Loop closure: ATE with and without, true / false / missed loops, query time."""
+    from leovr.bench.loop import run_loop_bench
+
+    doc = run_loop_bench(out, load_config(config).bench_loop, quick)
+    for key, r in doc["results"].items():
+        ate = f"ATE {r['ate_no_loop_m']:.3f} -> {r['ate_loop_m']:.3f} m  " if "ate_loop_m" in r else ""
+        typer.echo(f"{key:22s} {ate}loops true {r['loops_true']} false {r['loops_false']} missed {r['loops_missed']}"
+                   f"  {r['ms_per_query']:.1f} ms/query")
     typer.echo(f"-> {out}")
 
 

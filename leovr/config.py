@@ -116,6 +116,9 @@ class RefineConfig(_Model):
     step: int = 1
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
+    loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
+    loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
+    vocabulary: str | None = None  # ORB vocabulary (.npz); None = the shipped one
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
     grid_cols: int = Field(14, ge=2)
     lm_iterations: int = Field(3, ge=1)  # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
@@ -161,6 +164,19 @@ class BenchRefineConfig(_Model):
     quick_frames: int = Field(8, ge=3)  # --quick: 8-frame rendered test sequences, first 8 KITTI frames
 
 
+class BenchLoopConfig(_Model):
+    """`leovr bench loop`: loop closure on simulated city loops and the shared real clips."""
+
+    lidars: list[Literal["mid40", "vlp16"]] = ["mid40", "vlp16"]
+    seeds: list[int] = [3000, 3001]  # test seeds (never used for training)
+    frames: int = Field(130, ge=10)  # at 80 km/h a lap of the city loop is about 110 frames
+    quick_frames: int = Field(120, ge=10)  # --quick: one LiDAR, one seed
+    speed_kmh: float = 80.0
+    loop_min_gap: int = 30
+    kitti_raw: str | None = None
+    kitti_odometry: str | None = None
+
+
 class TrainConfig(_Model):
     """`leovr train --mode supervised`: the depth generator on simulator splits (LeoVR Sec. V-A defaults)."""
 
@@ -196,6 +212,7 @@ class LeovrConfig(_Model):
     train: TrainConfig = TrainConfig()
     refine: RefineConfig = RefineConfig()
     bench_refine: BenchRefineConfig = BenchRefineConfig()
+    bench_loop: BenchLoopConfig = BenchLoopConfig()
 
 
 def _describe(exc: ValidationError) -> str:

@@ -51,7 +51,8 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
         j, s = cand
         check = validate_loop(feats[n], pts[n], feats[j], pts[j], f.K)
         records.append({"frame": i, "candidate": indices[j], "score": round(float(s), 4), "inliers": check.inliers,
-                        "reprojection_px": round(float(check.reprojection_px), 3), "accepted": check.accepted})
+                        "reprojection_px": round(float(check.reprojection_px), 3), "accepted": check.accepted,
+                        "T_j_i": None if check.T_j_i is None else np.round(check.T_j_i, 6).tolist()})
         if check.accepted:
             loops.append((n, j, check.T_j_i))
     corrected = optimise_pose_graph(poses, loops) if loops else poses

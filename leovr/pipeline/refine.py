@@ -76,6 +76,7 @@ class Progress:
     poses: dict[int, list[float]] = field(default_factory=dict)
     icp_poses: dict[int, list[float]] = field(default_factory=dict)
     sources: dict[int, str] = field(default_factory=dict)
+    poses_no_loop: dict[int, list[float]] = field(default_factory=dict)  # before loop closure, when it ran
     times: dict[str, list[float]] = field(default_factory=lambda: {"generator_ms": [], "frontend_ms": [], "graph_ms": []})
 
     @classmethod
@@ -83,7 +84,8 @@ class Progress:
         try:
             d = json.loads(path.read_text())
             return cls({int(k): v for k, v in d["poses"].items()}, {int(k): v for k, v in d["icp_poses"].items()},
-                       {int(k): v for k, v in d["sources"].items()}, d["times"])
+                       {int(k): v for k, v in d["sources"].items()}, d.get("poses_no_loop") and
+                       {int(k): v for k, v in d["poses_no_loop"].items()} or {}, d["times"])
         except (OSError, ValueError, KeyError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
 
@@ -153,6 +155,13 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         for k, dt in zip(("generator_ms", "frontend_ms", "graph_ms"), (t1 - t0, t2 - t1, t3 - t2)):
             state.times[k].append(1000.0 * dt)
     finish(graph.flush())
+    if cfg.loop_closure:
+        from leovr.pipeline.loops import loop_pass
+
+        before = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
+        corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary)
+        state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
+        state.poses = {i: T.ravel().tolist() for i, T in zip(indices, corrected)}
     state.save(state_path)
     landmarks = graph.all_landmarks()
     if len(landmarks):
@@ -199,6 +208,9 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         ref = np.stack([invert_T(gt_poses[0]) @ T for T in gt_poses])
         align = "se3" if has_lidar else "sim3"
         metrics["trajectory"] = {"leovr": trajectory_metrics(poses, ref, align)}
+        if state.poses_no_loop and all(i in state.poses_no_loop for i in indices):
+            before = np.stack([np.array(state.poses_no_loop[i]).reshape(4, 4) for i in indices])
+            metrics["trajectory"]["leovr_no_loop"] = trajectory_metrics(before, ref, align)
         if len(state.icp_poses) == len(indices):
             icp = np.stack([np.array(state.icp_poses[i]).reshape(4, 4) for i in indices])
             metrics["trajectory"]["kiss_icp"] = trajectory_metrics(icp, ref, align)

@@ -1,0 +1,92 @@
+"""`leovr bench loop`: loop closure on simulator `city_loop` drives long enough to come round (Mid-40 and
+VLP-16, 80 km/h so a lap fits in about 110 frames) and on the shared real clips (no revisits: every
+accepted loop there is a false one).
+
+An accepted loop is true when its measured relative pose agrees with the ground truth (translation
+within 1 m, rotation within 5 degrees), false otherwise. Revisit frames are frames with a ground-truth
+camera within 5 m and 30 degrees of heading at least `loop_min_gap` frames earlier; a revisit frame with
+no accepted loop within 5 frames counts as missed."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from leovr.bench.common import write_bench
+from leovr.config import BenchLoopConfig, RefineConfig, SimulateConfig
+from leovr.data import open_sequence
+from leovr.geometry import invert_T
+from leovr.paths import kitti_odometry_dir, kitti_raw_dir
+from leovr.pipeline.refine import run_refine
+from leovr.sim.simulate import simulate
+
+
+def _angle(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
+def loop_truth(run: Path, gt: list[np.ndarray] | None, min_gap: int) -> dict:
+    """Count true / false / missed loops of a run from its loops.json and ground-truth poses."""
+    doc = json.loads((run / "loops.json").read_text())
+    accepted = [r for r in doc["loops"] if r["accepted"]]
+    out = {"loops_accepted": len(accepted), "ms_per_query": doc["ms_per_query"]}
+    if gt is None:  # the real clips: no revisits, so any accepted loop is false
+        out.update(loops_true=0, loops_false=len(accepted), loops_missed=0, revisit_frames=0)
+        return out
+    true = 0
+    for r in accepted:
+        i, j = r["frame"], r["candidate"]
+        T_gt = invert_T(gt[j]) @ gt[i]
+        T_est = np.array(r["T_j_i"])
+        dT = invert_T(T_gt) @ T_est
+        true += int(np.linalg.norm(dT[:3, 3]) < 1.0 and _angle(dT[:3, :3]) < 5.0)
+    pos = np.stack([T[:3, 3] for T in gt])
+    fwd = np.stack([T[:3, 2] for T in gt])
+    revisit = [i for i in range(len(gt)) if any(
+        np.linalg.norm(pos[i] - pos[j]) < 5.0 and fwd[i] @ fwd[j] > np.cos(np.radians(30)) for j in range(i - min_gap + 1))]
+    covered = {r["frame"] for r in accepted}
+    missed = sum(not any(abs(i - c) <= 5 for c in covered) for i in revisit)
+    out.update(loops_true=true, loops_false=len(accepted) - true, loops_missed=missed, revisit_frames=len(revisit))
+    return out
+
+
+def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progress: bool = True) -> dict:
+    started = time.time()
+    results = {}
+    frames = cfg.quick_frames if quick else cfg.frames
+    lidars = cfg.lidars[:1] if quick else cfg.lidars
+    seeds = cfg.seeds[:1] if quick else cfg.seeds
+    base = RefineConfig(input="full", loop_closure=True, loop_min_gap=cfg.loop_min_gap)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+
+        def one(seq, rcfg: RefineConfig, tag: str) -> dict:
+            m = run_refine(seq, rcfg, work / tag, progress=progress)
+            gt = [seq[i].T_world_cam for i in range(m["frames"])]
+            gt = gt if all(T is not None for T in gt) else None
+            r = loop_truth(work / tag, gt, rcfg.loop_min_gap)
+            t = m.get("trajectory", {})
+            if "leovr" in t:
+                r["ate_loop_m"] = t["leovr"]["ate_m"]
+                r["ate_no_loop_m"] = t.get("leovr_no_loop", t["leovr"])["ate_m"]
+            return r
+
+        for lidar in lidars:
+            for seed in seeds:
+                sim = SimulateConfig(scenario="city_loop", lidar=lidar, frames=frames, seed=seed, speed_kmh=cfg.speed_kmh)
+                simulate(sim, work / f"seq_{lidar}_{seed}", progress=progress)
+                results[f"synthetic_{lidar}_s{seed}"] = one(open_sequence(work / f"seq_{lidar}_{seed}"), base,
+                                                            f"{lidar}_{seed}")
+        raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
+        if raw.exists():
+            results["kitti_raw_vlp16"] = one(open_sequence(raw), base.model_copy(update={"input": "vlp16"}), "kitti_raw")
+        odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
+        if odo.exists():
+            results["kitti_odometry"] = one(open_sequence(odo), base, "kitti_odometry")
+    body = {"quick": quick, "frames_per_synthetic_sequence": frames, "speed_kmh": cfg.speed_kmh,
+            "loop_min_gap": cfg.loop_min_gap, "results": results}
+    return write_bench(out, "loop", body, started)

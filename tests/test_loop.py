@@ -1,0 +1,96 @@
+"""Loop closure: vocabulary, detection rule, geometric validation, pose graph (end to end: `leovr bench loop`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from leovr.errors import DataError
+from leovr.geometry import make_T
+from odometry.features import Features
+from odometry.loop.detector import LoopDetector
+from odometry.loop.pose_graph import optimise_pose_graph
+from odometry.loop.validate import validate_loop
+from odometry.loop.vocabulary import Vocabulary
+
+K = np.array([[200.0, 0, 160], [0, 200.0, 120], [0, 0, 1]])
+
+
+def _clustered(rng, centers: np.ndarray, n: int, flips: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Descriptors near given 256-bit centres (a few bits flipped); returns packed descriptors, labels."""
+    label = rng.integers(len(centers), size=n)
+    bits = centers[label].copy()
+    for r in range(n):
+        bits[r, rng.choice(256, flips, replace=False)] ^= 1
+    return np.packbits(bits, axis=1), label
+
+
+def test_vocabulary_separates_clusters_and_round_trips(tmp_path):
+    rng = np.random.default_rng(0)
+    centers = rng.integers(0, 2, (9, 256)).astype(np.uint8)
+    desc, label = _clustered(rng, centers, 900)
+    voc = Vocabulary.train(desc, k=4, levels=2, docs=[desc[:300], desc[300:600], desc[600:]])
+    words = voc.words_of(desc)
+    # each cluster lands (almost) entirely in one word, and different clusters in different words
+    main = [np.bincount(words[label == c], minlength=16).argmax() for c in range(9)]
+    purity = np.mean([np.mean(words[label == c] == main[c]) for c in range(9)])
+    assert purity > 0.95 and len(set(main)) >= 8
+    voc.save(tmp_path / "v.npz")
+    again = Vocabulary.load(tmp_path / "v.npz")
+    assert np.array_equal(again.words_of(desc), words) and np.allclose(again.idf, voc.idf)
+    (tmp_path / "bad.npz").write_bytes(b"nonsense")
+    with pytest.raises(DataError, match="bad.npz"):
+        Vocabulary.load(tmp_path / "bad.npz")
+
+
+def test_detector_needs_a_consistent_revisit():
+    rng = np.random.default_rng(1)
+    bows = [(np.sort(rng.choice(10_000, 60, replace=False)), np.full(60, 1 / 60, np.float32)) for _ in range(60)]
+    det = LoopDetector(min_gap=20)
+    # consecutive frames share half their words (co-visibility sets the bar)
+    for f in range(1, 60):
+        bows[f] = (np.unique(np.r_[bows[f][0][:30], bows[f - 1][0][:30]]), None)
+        bows[f] = (bows[f][0], np.full(len(bows[f][0]), 1 / len(bows[f][0]), np.float32))
+    found = [det.add(f, bows[f]) for f in range(40)]
+    assert all(x is None for x in found)  # no revisit yet
+    found = [det.add(40 + k, bows[5 + k]) for k in range(8)]  # frames 40.. revisit 5..
+    hits = [x for x in found if x is not None]
+    assert found[:3] == [None, None, None]  # accepted only after more than three consistent frames
+    assert hits and all(5 <= j <= 12 for j, _ in hits)
+    assert all(5 <= j <= 12 for j, _ in hits)
+
+
+def test_validation_recovers_the_relative_pose_and_rejects_unrelated_frames():
+    rng = np.random.default_rng(2)
+    n = 120
+    pts_i = np.c_[rng.uniform(-6, 6, n), rng.uniform(-2, 2, n), rng.uniform(5, 30, n)]
+    T_j_i = make_T(Rotation.from_rotvec([0, 0.1, 0]).as_matrix(), [0.5, 0, -2.0])
+    pts_j = pts_i @ T_j_i[:3, :3].T + T_j_i[:3, 3]
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    uv_i = (pts_i @ K.T)[:, :2] / pts_i[:, 2:]
+    uv_j = (pts_j @ K.T)[:, :2] / pts_j[:, 2:]
+    check = validate_loop(Features(uv_i.astype(np.float32), desc), pts_i, Features(uv_j.astype(np.float32), desc), pts_j, K)
+    assert check.accepted and check.inliers == n and np.allclose(check.T_j_i, T_j_i, atol=1e-6)
+    other = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    bad = validate_loop(Features(uv_i.astype(np.float32), desc), pts_i, Features(uv_j.astype(np.float32), other), pts_j, K)
+    assert not bad.accepted
+
+
+def test_pose_graph_pulls_a_drifted_loop_closed():
+    # a square drive of 40 poses; odometry with a small yaw drift; the last pose revisits the first
+    gt = [make_T(Rotation.from_euler("y", 90 * (k // 10), degrees=True).as_matrix()) for k in range(40)]
+    pos = np.zeros(3)
+    for k in range(40):
+        gt[k][:3, 3] = pos
+        pos = pos + gt[k][:3, :3] @ np.array([0, 0, 2.0])
+    drift = make_T(Rotation.from_euler("y", 1.0, degrees=True).as_matrix())
+    est = [gt[0]]
+    for k in range(1, 40):
+        est.append(est[-1] @ drift @ np.linalg.inv(gt[k - 1]) @ gt[k])
+    est = np.stack(est)
+    loop = (39, 0, np.linalg.inv(gt[0]) @ gt[39])
+    fixed = optimise_pose_graph(est, [loop])
+    err = lambda P: np.mean([np.linalg.norm(P[k][:3, 3] - gt[k][:3, 3]) for k in range(40)])  # noqa: E731
+    assert err(fixed) < 0.5 * err(est)
+
