@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pyarrow.compute as pc
 import rerun as rr
 
@@ -25,12 +27,14 @@ def _read(path):
 def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
     simulate(SimulateConfig(lidar="mid40", frames=4, seed=7), tmp_path / "seq", progress=False)
     run_refine(open_sequence(tmp_path / "seq"), RefineConfig(input="full"), tmp_path / "run", progress=False)
+    loop = {"frame": 3, "candidate": 0, "accepted": True}  # an accepted loop is drawn as an edge
+    (tmp_path / "run" / "loops.json").write_text(json.dumps({"loops": [loop, {**loop, "frame": 2, "accepted": False}]}))
     summary = write_recording(tmp_path / "run", tmp_path / "r.rrd")
     assert summary["trajectories"] == ["ground_truth", "kiss_icp", "leovr"]
     entities, frames = _read(tmp_path / "r.rrd")
     for e in ("/world/trajectory/ground_truth", "/world/trajectory/leovr", "/world/trajectory/kiss_icp", "/world/landmarks",
               "/world/camera", "/world/camera/image", "/world/camera/image/rgb", "/world/camera/image/depth_generator",
-              "/world/camera/image/depth_refined", "/world/camera/error", "/world/lidar"):
+              "/world/camera/image/depth_refined", "/world/camera/error", "/world/lidar", "/world/loops"):
         assert e in entities, e
     assert frames == {0, 1, 2, 3}
     assert not (tmp_path / "r.rrd.part").exists()

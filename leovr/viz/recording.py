@@ -1,5 +1,5 @@
 """Write a Rerun recording (.rrd) of a sequence, or of a `leovr refine` run over its sequence, with a
-`frame` timeline: trajectories (ground truth, KISS-ICP, leovr) as line strips, landmarks, the LiDAR
+`frame` timeline: trajectories (ground truth, KISS-ICP, leovr) as line strips, accepted loops as edges, landmarks, the LiDAR
 input coloured by range, and under the camera pinhole the image, generator and refined depth (uint16
 depth images, so the viewer back-projects them) and the error map against ground truth."""
 
@@ -92,6 +92,13 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
         strips["kiss_icp"] = np.stack([np.array(icp[str(i)]).reshape(4, 4)[:3, 3] for i in indices])
     for name, xyz in strips.items():
         rec.log(f"world/trajectory/{name}", rr.LineStrips3D([xyz], colors=[COLOURS[name]], radii=0.08), static=True)
+    if run is not None and poses is not None and (run / "loops.json").is_file():
+        at = {i: n for n, i in enumerate(indices)}
+        pairs = [(at[r["frame"]], at[r["candidate"]]) for r in json.loads((run / "loops.json").read_text())["loops"]
+                 if r["accepted"] and r["frame"] in at and r["candidate"] in at]
+        if pairs:
+            rec.log("world/loops", rr.LineStrips3D([poses[[a, b], :3, 3] for a, b in pairs], colors=[(220, 40, 200)], radii=0.1),
+                    static=True)
     if run is not None and (run / "landmarks.npy").is_file():
         rec.log("world/landmarks", rr.Points3D(np.load(run / "landmarks.npy"), colors=[(230, 230, 230)], radii=0.05), static=True)
     for n, i in enumerate(indices):
