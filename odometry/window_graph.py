@@ -98,6 +98,7 @@ class WindowGraph:
         self.fields: dict[int, np.ndarray] = {}
         self.landmarks: dict[int, np.ndarray] = {}
         self.retired_landmarks: dict[int, np.ndarray] = {}  # last estimate of landmarks marginalised out
+        self.landmark_frame: dict[int, int] = {}  # the latest frame that observed each landmark
         self.pairs: list[_Pair] = []
         self.last: int | None = None
 
@@ -157,6 +158,7 @@ class WindowGraph:
         stamps.insert((C(f.index), float(f.index)))
         for k in {o.landmark for o in f.observations}:
             stamps.insert((L(k), float(f.index)))
+            self.landmark_frame[k] = f.index
         self.smoother.update(graph, values, stamps)
         self.last = f.index
         return self._collect()
@@ -188,10 +190,12 @@ class WindowGraph:
         """Every frame still in the window, with its current estimate (end of sequence)."""
         return [self._finish(i) for i in sorted(self.poses)]
 
-    def all_landmarks(self) -> np.ndarray:
-        """N x 3 world positions of every landmark so far (final estimates, then live ones)."""
-        pts = list(self.retired_landmarks.values()) + list(self.landmarks.values())
-        return np.array(pts, float).reshape(-1, 3)
+    def all_landmarks(self) -> tuple[np.ndarray, np.ndarray]:
+        """World positions (N x 3) of every landmark so far (final estimates, then live ones) and the
+        latest frame that observed each (N), so a later pose correction can move them with that frame."""
+        items = list(self.retired_landmarks.items()) + list(self.landmarks.items())
+        pts = np.array([p for _, p in items], float).reshape(-1, 3)
+        return pts, np.array([self.landmark_frame.get(k, -1) for k, _ in items], np.int64)
 
     def pose(self, i: int) -> np.ndarray:
         return self.poses[i]

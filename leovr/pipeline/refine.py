@@ -155,6 +155,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         for k, dt in zip(("generator_ms", "frontend_ms", "graph_ms"), (t1 - t0, t2 - t1, t3 - t2)):
             state.times[k].append(1000.0 * dt)
     finish(graph.flush())
+    landmarks, seen_by = graph.all_landmarks()
+    if len(landmarks):
+        landmarks = transform_points(T_start, landmarks)
     if cfg.loop_closure:
         from leovr.pipeline.loops import loop_pass
 
@@ -162,10 +165,12 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary)
         state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         state.poses = {i: T.ravel().tolist() for i, T in zip(indices, corrected)}
+        # landmarks move with the frame that last observed them
+        at = {i: n for n, i in enumerate(indices)}
+        for n, f in enumerate(seen_by):
+            if f in at:
+                landmarks[n] = transform_points(corrected[at[f]] @ invert_T(before[at[f]]), landmarks[n][None])[0]
     state.save(state_path)
-    landmarks = graph.all_landmarks()
-    if len(landmarks):
-        landmarks = transform_points(T_start, landmarks)
     atomic_write(out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool)
 
