@@ -18,13 +18,12 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
 
-class CompleteConfig(_Model):
-    """`leovr complete`: classical completion of a cheap LiDAR input, scored on held-out points."""
+class FrameSelection(_Model):
+    """What depth jobs share: the generator, the cheap LiDAR input, the frames and how they are scored."""
 
-    method: Literal["nearest", "ipbasic", "generator"] = "ipbasic"
     checkpoint: str | None = None  # generator weights; None = the shipped checkpoint
     generator_focal_px: float | None = 260.0  # run the generator at this focal length (its training camera); None = native
-    input: str = "mid40"
+    input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
     seed: int = 0
     start: int = 0
     end: int | None = None
@@ -44,6 +43,12 @@ class CompleteConfig(_Model):
         if v < 1:
             raise ValueError("step must be at least 1")
         return v
+
+
+class CompleteConfig(FrameSelection):
+    """`leovr complete`: classical completion of a cheap LiDAR input, scored on held-out points."""
+
+    method: Literal["nearest", "ipbasic", "generator"] = "ipbasic"
 
 
 class BenchBaselineConfig(_Model):
@@ -104,16 +109,9 @@ class BenchDepthConfig(_Model):
     seed: int = 0
 
 
-class RefineConfig(_Model):
+class RefineConfig(FrameSelection):
     """`leovr refine`: generator depth, visual-LiDAR front end and the sliding-window graph (LeoVR Sec. III)."""
 
-    input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
-    checkpoint: str | None = None  # generator weights; None = the shipped checkpoint
-    generator_focal_px: float | None = 260.0
-    seed: int = 0
-    start: int = 0
-    end: int | None = None
-    step: int = 1
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
@@ -138,15 +136,6 @@ class RefineConfig(_Model):
     lidar_depth_sigma_log: float = 0.03
     prior_sigma_min: float = 0.02  # generator prior on the field: sigma / depth per cell, clipped
     prior_sigma_max: float = 0.5
-    bins: list[float] = list(LEOVR_BINS)
-    parallax_window: int = 7
-    parallax_rel: float = 0.15
-
-    @field_validator("input")
-    @classmethod
-    def _check_input(cls, v: str) -> str:
-        parse_input(v)
-        return v
 
 
 class BenchRefineConfig(_Model):

@@ -60,3 +60,9 @@ def interpolate_poses(T0: np.ndarray, T1: np.ndarray, s: np.ndarray) -> np.ndarr
     out[:, :3, 3] = t
     out[:, 3, 3] = 1.0
     return out.reshape(s.shape + (4, 4))
+
+
+def back_project(uv: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Camera-frame 3D points (N x 3) of pixels `uv` (N x 2) at depths `z` (N)."""
+    rays = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(K).T
+    return rays * np.asarray(z, np.float64)[:, None]

@@ -98,10 +98,11 @@ class DepthConsistency:
         return r, dict(ok=ok, D=D, Rray=Rray, zs=zs, Pj=Pj, qu=qu, qv=qv)
 
     def evaluate(self, Ti, Tj, ci, cj, jacobians: bool):
+        """Robustly weighted residuals, the field Jacobians (or None) and the per-pixel weights."""
         r, p = self._residual(Ti, Tj, ci, cj, parts=True)
         s = _robust_scale(r)
         if not jacobians:
-            return s * r, None
+            return s * r, None, s
         ok, D, Rray, zs, Pj, qu, qv = (p[k] for k in ("ok", "D", "Rray", "zs", "Pj", "qu", "qv"))
         # d r / d log D_i: depth seen from j, plus the move of the reprojected pixel over D_j's gradient
         dP = Rray * D  # d Pj / d log D_i
@@ -113,7 +114,7 @@ class DepthConsistency:
         Bj = self.dj.grid.dense_weights(qu, qv)
         J_ci = (s * a)[:, None] * Bi
         J_cj = -(s * np.where(ok, 1.0 / self.sigma, 0.0))[:, None] * Bj
-        return s * r, (J_ci, J_cj)
+        return s * r, (J_ci, J_cj), s
 
 
 class LidarDepth:
@@ -145,17 +146,17 @@ def consistency_factor(dc: DepthConsistency, keys: list[int], eps: float = 1e-6)
         Pi, Pj = values.atPose3(ki), values.atPose3(kj)
         ci, cj = values.atVector(kci), values.atVector(kcj)
         Ti, Tj = Pi.matrix(), Pj.matrix()
-        r, J = dc.evaluate(Ti, Tj, ci, cj, H is not None)
+        r, J, s = dc.evaluate(Ti, Tj, ci, cj, H is not None)
         if H is not None:
-            s = _robust_scale(dc._residual(Ti, Tj, ci, cj))
-            for slot, pose, other in ((0, Pi, "i"), (1, Pj, "j")):
+            raw = r / s  # s > 0 always
+            for slot, pose in ((0, Pi), (1, Pj)):
                 Jp = np.zeros((len(r), 6))
                 for k in range(6):
                     d = np.zeros(6)
                     d[k] = eps
                     Tp = pose.retract(d).matrix()
-                    rp = dc._residual(Tp, Tj, ci, cj) if other == "i" else dc._residual(Ti, Tp, ci, cj)
-                    Jp[:, k] = s * (rp - r / np.maximum(s, 1e-12)) / eps
+                    rp = dc._residual(Tp, Tj, ci, cj) if slot == 0 else dc._residual(Ti, Tp, ci, cj)
+                    Jp[:, k] = s * (rp - raw) / eps
                 H[slot] = Jp
             H[2], H[3] = J
         return r

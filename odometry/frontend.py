@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from leovr.config import RefineConfig
-from leovr.geometry import invert_T
+from leovr.geometry import back_project, invert_T
 from odometry.features import Features, detect, match
 from odometry.initial_pose import (
     LidarOdometry,
@@ -58,8 +58,7 @@ class FrontEnd:
             lidar_z = associate(uv, np.stack([lu, lv], 1).astype(float), sparse[lv, lu], self.cfg.assoc_radius_px,
                                 self.cfg.assoc_max_rel_spread)
         z = np.where(np.isfinite(lidar_z), lidar_z, z)
-        rays = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(self.K).T
-        pts = rays * z[:, None]
+        pts = back_project(uv, z, self.K)
         lidar_cam = [pts[k] if np.isfinite(lidar_z[k]) else None for k in range(len(uv))]
         return pts, lidar_cam
 
@@ -81,7 +80,7 @@ class FrontEnd:
             p = self.prev
             T_prev = graph.pose(p.index)
             ia, ib = match(p.feats, feats)
-            obj = cam_pts_world = (p.cam_pts[ia] @ T_prev[:3, :3].T + T_prev[:3, 3]) if len(ia) else np.zeros((0, 3))
+            obj = (p.cam_pts[ia] @ T_prev[:3, :3].T + T_prev[:3, 3]) if len(ia) else np.zeros((0, 3))
             img = feats.uv[ib].astype(np.float64)
             cands: dict[str, np.ndarray | None] = {}
             if T_icp is not None and p.T_icp is not None:
@@ -93,15 +92,16 @@ class FrontEnd:
             else:
                 T_init, source = guess.T_world_cam, guess.source
             T_rel = invert_T(T_prev) @ T_init
-            inl = reprojection_inliers(T_init, cam_pts_world, img, self.K, cfg.pnp_reproj_px) if len(ia) else np.zeros(0, bool)
+            inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px) if len(ia) else np.zeros(0, bool)
             if inl.sum() >= 6:
                 trusted = convex_hull_mask(img[inl], self.shape) & (depth > 0)
-            for a, b in zip(ia[inl], ib[inl]):
+            for m in np.nonzero(inl)[0]:
+                a, b = ia[m], ib[m]
                 k = int(p.landmark[a])
                 if k < 0 or not graph.has_landmark(k):
                     k = self.next_landmark
                     self.next_landmark += 1
-                    new_landmarks[k] = obj[np.nonzero(ia == a)[0][0]]
+                    new_landmarks[k] = obj[m]
                     observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
                 landmark[b] = k
                 observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b]))

@@ -21,9 +21,11 @@ def associate(uv: np.ndarray, lidar_uv: np.ndarray, lidar_depth: np.ndarray, rad
     if not hit.any():
         return out
     d0 = lidar_depth[idx[hit]]
-    neigh = tree.query_ball_point(uv[hit], r=radius_px)
-    lo = np.array([lidar_depth[n].min() for n in neigh])
-    hi = np.array([lidar_depth[n].max() for n in neigh])
+    # every (feature, LiDAR point) pair within the radius, then the depth range per feature
+    pairs = cKDTree(uv[hit]).sparse_distance_matrix(tree, radius_px, output_type="ndarray")
+    lo, hi = np.full(len(d0), np.inf), np.full(len(d0), -np.inf)
+    np.minimum.at(lo, pairs["i"], lidar_depth[pairs["j"]])
+    np.maximum.at(hi, pairs["i"], lidar_depth[pairs["j"]])
     ok = (hi - lo) <= max_rel_spread * d0
     vals = np.where(ok, d0, np.nan)
     out[np.nonzero(hit)[0]] = vals

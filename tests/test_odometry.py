@@ -66,12 +66,12 @@ def test_depth_consistency_vanishes_for_true_geometry_and_jacobians_match_numeri
     rng = np.random.default_rng(0)
     dc.set_samples(rng.uniform(20, 140, 200), rng.uniform(20, 100, 200))
     zero = np.zeros(g.size)
-    r, _ = dc.evaluate(Ti, Tj, zero, zero, False)
+    r, _, _ = dc.evaluate(Ti, Tj, zero, zero, False)
     assert np.abs(r).max() < 0.05  # bilinear sampling only
-    r_bad, _ = dc.evaluate(make_T(t=[0.0, 0.0, 2.0]), Tj, zero, zero, False)
+    r_bad, _, _ = dc.evaluate(make_T(t=[0.0, 0.0, 2.0]), Tj, zero, zero, False)
     assert np.abs(r_bad).mean() > 0.5
     ci, cj = rng.normal(0, 0.02, g.size), rng.normal(0, 0.02, g.size)
-    r0, (Ji, Jj) = dc.evaluate(Ti, Tj, ci, cj, True)
+    r0, (Ji, Jj), _ = dc.evaluate(Ti, Tj, ci, cj, True)
     s = r0 / np.where(r0 == 0, 1, dc._residual(Ti, Tj, ci, cj))  # robust scale per pixel
     eps = 1e-5
     for k in (0, 7, 13):

@@ -14,6 +14,7 @@ import numpy as np
 
 from leovr.data.io import read_depth_png, write_text
 from leovr.data.sequence import Sequence
+from leovr.geometry import back_project
 from leovr.paths import shipped_vocabulary
 from odometry.features import detect
 from odometry.loop.detector import LoopDetector
@@ -29,8 +30,7 @@ def feature_points(feats, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     v = np.clip(np.rint(feats.uv[:, 1]).astype(int), 0, h - 1)
     z = depth[v, u].astype(np.float64)
     z[z <= 0] = np.nan
-    rays = np.c_[feats.uv, np.ones(len(feats))] @ np.linalg.inv(K).T
-    return rays * z[:, None]
+    return back_project(feats.uv, z, K)
 
 
 def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, min_gap: int = 30,

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from leovr.config import CompleteConfig, RefineConfig
+from leovr.config import CompleteConfig, FrameSelection, RefineConfig
 from leovr.data.io import atomic_write, read_depth_png, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
@@ -40,9 +40,9 @@ from leovr.pipeline.completion import (
 
 
 def completion_config(cfg: RefineConfig) -> CompleteConfig:
-    return CompleteConfig(method="generator", checkpoint=cfg.checkpoint, generator_focal_px=cfg.generator_focal_px,
-                          input=cfg.input, seed=cfg.seed, bins=cfg.bins, parallax_window=cfg.parallax_window,
-                          parallax_rel=cfg.parallax_rel)
+    """The generator with the run's input and scoring settings, as `complete` would run it."""
+    shared = set(FrameSelection.model_fields)
+    return CompleteConfig(method="generator", **cfg.model_dump(include=shared))
 
 
 def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Frame:
@@ -83,9 +83,10 @@ class Progress:
     def load(cls, path: Path) -> "Progress":
         try:
             d = json.loads(path.read_text())
-            return cls({int(k): v for k, v in d["poses"].items()}, {int(k): v for k, v in d["icp_poses"].items()},
-                       {int(k): v for k, v in d["sources"].items()}, d.get("poses_no_loop") and
-                       {int(k): v for k, v in d["poses_no_loop"].items()} or {}, d["times"])
+            d.setdefault("poses_no_loop", {})  # only runs with loop closure have it
+            keyed = {name: {int(k): v for k, v in d[name].items()}
+                     for name in ("poses", "icp_poses", "sources", "poses_no_loop")}
+            return cls(**keyed, times=d["times"])
         except (OSError, ValueError, KeyError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
 
@@ -102,7 +103,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
 
     out = Path(out)
     ccfg = completion_config(cfg)
-    indices = frame_indices(len(seq), ccfg.model_copy(update={"start": cfg.start, "end": cfg.end, "step": cfg.step}))
+    indices = frame_indices(len(seq), ccfg)
     state_path = out / "progress.json"
     state = Progress.load(state_path) if resume and state_path.is_file() else Progress()
     todo = [i for i in indices if not (i in state.poses and (out / "depth" / f"{i:06d}.png").is_file())]

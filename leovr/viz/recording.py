@@ -80,18 +80,12 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     tmp = out.with_name(out.name + ".part")
     rec.save(tmp, default_blueprint=blueprint())
     rec.log("world", rr.ViewCoordinates.RDF, static=True)  # the first camera's axes: x right, y down, z forward
-    gt = [seq[i].T_world_cam for i in indices] if seq.info().has_poses else None
     strips = {}
-    if gt is not None and all(T is not None for T in gt):
-        T0 = invert_T(gt[0])
-        strips["ground_truth"] = np.stack([(T0 @ T)[:3, 3] for T in gt])
     if poses is not None:
         strips["leovr"] = poses[: len(indices), :3, 3]
     icp = progress.get("icp_poses", {})
     if icp and all(str(i) in icp for i in indices):
         strips["kiss_icp"] = np.stack([np.array(icp[str(i)]).reshape(4, 4)[:3, 3] for i in indices])
-    for name, xyz in strips.items():
-        rec.log(f"world/trajectory/{name}", rr.LineStrips3D([xyz], colors=[COLOURS[name]], radii=0.08), static=True)
     if run is not None and poses is not None and (run / "loops.json").is_file():
         at = {i: n for n, i in enumerate(indices)}
         pairs = [(at[r["frame"]], at[r["candidate"]]) for r in json.loads((run / "loops.json").read_text())["loops"]
@@ -101,13 +95,18 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
                     static=True)
     if run is not None and (run / "landmarks.npy").is_file():
         rec.log("world/landmarks", rr.Points3D(np.load(run / "landmarks.npy"), colors=[(230, 230, 230)], radii=0.05), static=True)
+    folders = {"generator": "depth_generator", "refined": "depth"}
+    gt: list[np.ndarray] = []  # ground-truth positions relative to the first camera, while every frame has one
+    T0_inv = None
     for n, i in enumerate(indices):
         f = seq[i]
         rec.set_time("frame", sequence=i)
-        if poses is not None:
-            T = poses[n]
+        if f.T_world_cam is not None and (n == 0 or T0_inv is not None):
+            T0_inv = invert_T(f.T_world_cam) if n == 0 else T0_inv
+            gt.append(T0_inv @ f.T_world_cam)
         else:
-            T = invert_T(gt[0]) @ gt[n] if "ground_truth" in strips else np.eye(4)
+            T0_inv = None
+        T = poses[n] if poses is not None else (gt[n] if T0_inv is not None else np.eye(4))
         rec.log("world/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
         rec.log("world/camera/image", rr.Pinhole(image_from_camera=f.K, resolution=[f.width, f.height],
                                                  camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=2.0))
@@ -116,8 +115,8 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
             cam = transform_points(f.T_cam_lidar, f.points[:, :3])
             rec.log("world/lidar", rr.Points3D(transform_points(T, cam), colors=_range_colours(np.linalg.norm(f.points[:, :3], axis=1)), radii=0.04))
         ref = f.depth
-        for kind in ("generator", "refined"):
-            png = run / ("depth_generator" if kind == "generator" else "depth") / f"{i:06d}.png" if run else None
+        for kind, folder in folders.items():
+            png = run / folder / f"{i:06d}.png" if run is not None else None
             if png is not None and png.is_file():
                 d = read_depth_png(png)
                 rec.log(f"world/camera/image/depth_{kind}", rr.DepthImage(_depth_u16(d), meter=1000.0, colormap="turbo"))
@@ -125,6 +124,10 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
                     rec.log("world/camera/error", rr.Image(_error_image(d, ref)))
         if run is None and ref is not None:
             rec.log("world/camera/image/depth_ground_truth", rr.DepthImage(_depth_u16(ref), meter=1000.0, colormap="turbo"))
+    if T0_inv is not None:
+        strips["ground_truth"] = np.stack([T[:3, 3] for T in gt])
+    for name, xyz in strips.items():
+        rec.log(f"world/trajectory/{name}", rr.LineStrips3D([xyz], colors=[COLOURS[name]], radii=0.08), static=True)
     rec.flush()
     rec.disconnect()
     tmp.replace(out)
