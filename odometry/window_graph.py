@@ -118,7 +118,7 @@ class WindowGraph:
         sig = self.grid.cell_means(f.rel_sigma)
         sig = np.clip(np.nan_to_num(sig, nan=cfg.prior_sigma_max), cfg.prior_sigma_min, cfg.prior_sigma_max)
         graph.add(gtsam.PriorFactorVector(C(f.index), np.zeros(self.grid.size), gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        if f.lidar_uvz is not None and len(f.lidar_uvz) and cfg.lidar_depth_samples > 0:
+        if cfg.depth_factors and f.lidar_uvz is not None and len(f.lidar_uvz) and cfg.lidar_depth_samples > 0:
             uvz = f.lidar_uvz
             if len(uvz) > cfg.lidar_depth_samples:
                 uvz = uvz[self.rng.choice(len(uvz), cfg.lidar_depth_samples, replace=False)]
@@ -134,7 +134,7 @@ class WindowGraph:
             graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, cfg.pixel_sigma))
             if o.lidar_cam is not None:
                 graph.add(lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), cfg.bearing_sigma_rad, cfg.range_sigma_m))
-        if f.trusted is not None and self.last is not None and f.trusted.any():
+        if cfg.depth_factors and f.trusted is not None and self.last is not None and f.trusted.any():
             v, u = np.nonzero(f.trusted)
             dc = DepthConsistency(fd, self.depths[self.last], self.K, cfg.consistency_sigma_log)
             pair = _Pair(f.index, self.last, dc, (u.astype(float), v.astype(float)))

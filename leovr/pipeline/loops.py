@@ -1,5 +1,6 @@
 """The loop-closure pass over a refined run (LeoVR Sec. IV-B): bag-of-words detection with the
-co-visibility rule, geometric validation, and a global pose graph that corrects the poses.
+co-visibility rule, geometric validation (PnP both ways, then agreement with a neighbouring loop
+through the odometry), and a global pose graph that corrects the poses.
 
 Runs after `run_refine` on its outputs (images from the sequence, refined depth from `depth/`), so it
 also works on resumed runs. Writes `loops.json`; returns the corrected poses and the loop records."""
@@ -19,7 +20,7 @@ from leovr.paths import shipped_vocabulary
 from odometry.features import detect
 from odometry.loop.detector import LoopDetector
 from odometry.loop.pose_graph import optimise_pose_graph
-from odometry.loop.validate import validate_loop
+from odometry.loop.validate import consistent_loops, validate_loop
 from odometry.loop.vocabulary import Vocabulary
 
 
@@ -51,10 +52,19 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
         j, s = cand
         check = validate_loop(feats[n], pts[n], feats[j], pts[j], f.K)
         records.append({"frame": i, "candidate": indices[j], "score": round(float(s), 4), "inliers": check.inliers,
-                        "reprojection_px": round(float(check.reprojection_px), 3), "accepted": check.accepted,
+                        "reprojection_px": round(float(check.reprojection_px), 3),
+                        "pnp_disagreement_m": round(check.disagree_m, 3), "pnp_disagreement_deg": round(check.disagree_deg, 3),
+                        "accepted": check.accepted,
                         "T_j_i": None if check.T_j_i is None else np.round(check.T_j_i, 6).tolist()})
         if check.accepted:
             loops.append((n, j, check.T_j_i))
+            records[-1]["_loop"] = len(loops) - 1
+    keep = consistent_loops(loops, poses)
+    for r in records:
+        k = r.pop("_loop", None)
+        r["consistent"] = None if k is None else keep[k]
+        r["accepted"] = bool(r["accepted"] and r["consistent"])
+    loops = [lp for lp, ok in zip(loops, keep) if ok]
     corrected = optimise_pose_graph(poses, loops) if loops else poses
     ms = 1000.0 * float(np.mean(t_query)) if t_query else 0.0
     write_text(run / "loops.json", json.dumps({"ms_per_query": ms, "vocabulary_words": voc.words, "loops": records}, indent=2) + "\n")

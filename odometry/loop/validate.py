@@ -1,11 +1,13 @@
 """Geometric validation of a loop candidate: ORB matches between the two frames, their 3D points in
-each camera (LiDAR-backed or from depth), a rigid transform by RANSAC + Umeyama, accepted on the
-inlier count and the inliers' reprojection error."""
+each camera (LiDAR-backed or from depth), a rigid transform by RANSAC + Umeyama to keep consistent
+matches, the measurement by PnP in both directions, accepted on the inlier count, the reprojection
+error and the agreement of the two PnP poses."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from odometry.features import Features, match
@@ -17,6 +19,8 @@ class LoopCheck:
     inliers: int
     reprojection_px: float
     T_j_i: np.ndarray | None  # camera i expressed in camera j (the loop measurement)
+    disagree_m: float = float("nan")  # forward vs reverse PnP
+    disagree_deg: float = float("nan")
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -52,18 +56,73 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, thresh_rel: float = 0.05, thr
     return umeyama(src[best], dst[best]), best
 
 
+def _pnp(P: np.ndarray, uv: np.ndarray, K: np.ndarray, reproj_px: float) -> tuple[np.ndarray | None, np.ndarray, float]:
+    """Pose of the points' camera in the pixels' camera by PnP-RANSAC + Levenberg-Marquardt on the
+    inliers; returns (T 4 x 4 or None, inlier mask, RMS reprojection error of the inliers)."""
+    n = len(P)
+    if n < 6:
+        return None, np.zeros(n, bool), float("inf")
+    ok, rv, tv, inl = cv2.solvePnPRansac(P.astype(np.float64), uv.astype(np.float64), K, None,
+                                         reprojectionError=reproj_px, iterationsCount=200, flags=cv2.SOLVEPNP_EPNP)
+    if not ok or inl is None or len(inl) < 6:
+        return None, np.zeros(n, bool), float("inf")
+    mask = np.zeros(n, bool)
+    mask[inl[:, 0]] = True
+    rv, tv = cv2.solvePnPRefineLM(P[mask].astype(np.float64), uv[mask].astype(np.float64), K, None, rv, tv)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = cv2.Rodrigues(rv)[0], tv[:, 0]
+    proj = P[mask] @ T[:3, :3].T + T[:3, 3]
+    px = (proj @ K.T)[:, :2] / np.maximum(proj[:, 2:3], 1e-6)
+    return T, mask, float(np.sqrt(np.mean(np.sum((px - uv[mask]) ** 2, 1))))
+
+
+def _disagreement(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) between two rigid transforms."""
+    D = np.linalg.solve(A, B)
+    return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1))))
+
+
 def validate_loop(fi: Features, pts_i: np.ndarray, fj: Features, pts_j: np.ndarray, K: np.ndarray,
-                  min_inliers: int = 20, max_reproj_px: float = 3.0) -> LoopCheck:
-    """`pts_*` are the features' 3D points in their own camera (NaN rows where unknown)."""
+                  min_inliers: int = 20, max_reproj_px: float = 2.0, max_disagree_m: float = 0.5,
+                  max_disagree_deg: float = 2.0) -> LoopCheck:
+    """`pts_*` are the features' 3D points in their own camera (NaN rows where unknown).
+
+    Three steps: a rigid 3D-3D RANSAC (Umeyama) keeps geometrically consistent matches; the
+    measurement is then PnP of frame j's points on frame i's pixels (depth errors along the viewing
+    ray cost metres in 3D-3D alignment, PnP keeps them to decimetres); the reverse PnP (frame i's
+    points on frame j's pixels) must agree with it, since the two see independent depth errors."""
     ia, ib = match(fi, fj)
     ok = np.isfinite(pts_i[ia]).all(1) & np.isfinite(pts_j[ib]).all(1)
     ia, ib = ia[ok], ib[ok]
-    T, inl = ransac_rigid(pts_i[ia], pts_j[ib])
-    if T is None:
+    T3, inl = ransac_rigid(pts_i[ia], pts_j[ib])
+    if T3 is None or inl.sum() < min_inliers:
         return LoopCheck(False, int(inl.sum()), float("inf"), None)
-    # reprojection of frame j's inlier points into frame i through the estimated transform
-    P = (pts_j[ib][inl] - T[:3, 3]) @ T[:3, :3]  # T^-1 applied: camera j -> camera i
-    uv = (P @ K.T)[:, :2] / np.maximum(P[:, 2:3], 1e-6)
-    err = float(np.sqrt(np.mean(np.sum((uv - fi.uv[ia][inl]) ** 2, 1)))) if inl.any() else float("inf")
-    n = int(inl.sum())
-    return LoopCheck(n >= min_inliers and err <= max_reproj_px, n, err, T)
+    ia, ib = ia[inl], ib[inl]
+    T_i_j, m_fwd, err = _pnp(pts_j[ib], fi.uv[ia], K, max_reproj_px)
+    T_j_i_rev, m_rev, err_rev = _pnp(pts_i[ia], fj.uv[ib], K, max_reproj_px)
+    if T_i_j is None or T_j_i_rev is None:
+        return LoopCheck(False, int(m_fwd.sum()), err, None)
+    T_j_i = np.linalg.inv(T_i_j)
+    dt, dr = _disagreement(T_j_i, T_j_i_rev)
+    n = int(min(m_fwd.sum(), m_rev.sum()))
+    accepted = n >= min_inliers and max(err, err_rev) <= max_reproj_px and dt <= max_disagree_m and dr <= max_disagree_deg
+    return LoopCheck(accepted, n, err, T_j_i, dt, dr)
+
+
+def consistent_loops(loops: list[tuple[int, int, np.ndarray]], poses: np.ndarray, span: int = 3, max_m: float = 0.5,
+                     max_deg: float = 2.0) -> list[bool]:
+    """Keep a validated loop (i, j, T_j_i) only when another loop found within `span` frames of i tells
+    the same story: carried through the odometry poses (camera-to-world, locally accurate),
+    T_j'_i' = (P_j'^-1 P_j) T_j_i (P_i^-1 P_i') must match its own measurement. One inaccurate PnP
+    rarely agrees with a neighbour's, and a loop with no neighbour is left out."""
+    keep = []
+    for a, (i, j, T) in enumerate(loops):
+        ok = False
+        for b, (i2, j2, T2) in enumerate(loops):
+            if a == b or abs(i2 - i) > span:
+                continue
+            pred = np.linalg.solve(poses[j2], poses[j]) @ T @ np.linalg.solve(poses[i], poses[i2])
+            dm, dd = _disagreement(pred, T2)
+            ok = ok or (dm <= max_m and dd <= max_deg)
+        keep.append(ok)
+    return keep
