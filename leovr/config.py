@@ -113,6 +113,8 @@ class RefineConfig(FrameSelection):
     """`leovr refine`: generator depth, visual-LiDAR front end and the sliding-window graph (LeoVR Sec. III)."""
 
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
+    depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
+    depth_factors: bool = True  # False: point factors only (no depth-consistency / LiDAR-depth factors)
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
@@ -191,6 +193,68 @@ class TrainConfig(_Model):
     seed: int = 0
 
 
+class SelfSupConfig(_Model):
+    """`leovr train --mode selfsup`: cold-start self-supervised training (LeoVR Sec. IV, V-A). No ground
+    truth is read: poses, landmarks and refined depth come from the graph on the raw sequences."""
+
+    epochs: int = Field(24, ge=1)
+    init_fraction: float = Field(0.75, ge=0, le=1)  # initialisation stage: the first 3/4 of the epochs (18 of 24)
+    refresh_every: int = Field(2, ge=1)  # refinement stage: poses, masks and supervision renewed every 2 epochs
+    batch_size: int = Field(8, ge=1)
+    lr: float = Field(1e-4, gt=0)
+    lr_step_epochs: int = Field(6, ge=1)
+    lr_gamma: float = Field(0.5, gt=0, le=1)
+    alpha: float = Field(0.8, ge=0, le=1)  # eq. 17: alpha/2 (1 - SSIM) + (1 - alpha) L1
+    weight_feature: float = Field(0.4, ge=0)  # lambda_f, eq. 22
+    weight_refined: float = Field(0.1, ge=0)  # lambda_r
+    weight_smooth: float = Field(0.2, ge=0)  # lambda_s
+    flow_mask: bool = True  # eq. 19 motion-optical-flow mask on the photometric loss
+    flow_lambda_px: float = Field(1.0, gt=0)  # lambda: largest distance of the flow end point to its epipolar line
+    flow_method: Literal["dis", "farneback"] = "dis"
+    input: str = "full"  # LiDAR input of the generator and the graph (full, vlp16, mid40, ratio:R)
+    train_focal_px: float | None = 260.0  # frames resampled to this focal length (the generator's camera); None = native
+    max_frames: int | None = None  # first frames of each sequence only (None = all)
+    loop_closure: bool = True  # pose quality assurance (Sec. IV-B) in every graph pass
+    loop_min_gap: int = Field(30, ge=2)
+    landmark_frames: int = Field(4, ge=0)  # a landmark counts as visible in frame i when last observed within this many frames
+    refined_agree_rel: float = Field(0.05, gt=0)  # L_r uses a frame when its refined depth is within this of the landmarks (median)
+    lidar_encoder: Literal["partial", "interp"] = "partial"
+    cross_attention: bool = True
+    channels: list[int] = [16, 32, 64, 128, 128]
+    blocks: list[int] = [3, 4, 6, 3]
+    init_checkpoint: str | None = None  # start from these weights instead of random ones
+    rerun_frames: int = Field(2, ge=1)  # frames logged to --rerun each epoch
+    seed: int = 0
+
+    @field_validator("input")
+    @classmethod
+    def _check_input(cls, v: str) -> str:
+        return str(parse_input(v))
+
+
+class BenchSelfSupConfig(_Model):
+    """`leovr bench selfsup`: cold-start self-supervised training against untrained and supervised
+    models on the same frames and schedule, plus a cold start on the shared KITTI raw clip."""
+
+    dataset: str | None = None  # simulator dataset (tools/make_dataset.py); None = the cached default recipe
+    scenarios: list[Literal["city_loop", "straight", "dynamic"]] = ["dynamic", "city_loop"]
+    lidar: Literal["mid40", "vlp16"] = "mid40"  # LeoVR's self-supervised experiments use the Mid-40
+    train_sequences: int = Field(3, ge=1)  # per scenario (day sequences first)
+    test_sequences: int = Field(2, ge=1)  # per scenario, from the test split
+    epochs: int = Field(8, ge=1)
+    quick_epochs: int = Field(2, ge=1)
+    quick_frames: int = Field(12, ge=4)  # --quick: frames per sequence, one sequence per scenario
+    train_focal_px: float = 130.0  # half the simulator's focal length: 224 x 128 frames keep the run under an hour
+    channels: list[int] = [16, 32, 64, 128, 128]
+    batch_size: int = Field(8, ge=1)
+    lr: float = Field(1e-3, gt=0)
+    kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
+    kitti_input: str = "vlp16"
+    kitti_train_frames: int = Field(30, ge=4)  # cold start on the first frames ...
+    kitti_test_frames: int = Field(10, ge=1)  # ... scored on held-out beams of the last frames
+    kitti_epochs: int = Field(8, ge=1)
+
+
 class LeovrConfig(_Model):
     complete: CompleteConfig = CompleteConfig()
     simulate: SimulateConfig = SimulateConfig()
@@ -202,6 +266,8 @@ class LeovrConfig(_Model):
     refine: RefineConfig = RefineConfig()
     bench_refine: BenchRefineConfig = BenchRefineConfig()
     bench_loop: BenchLoopConfig = BenchLoopConfig()
+    selfsup: SelfSupConfig = SelfSupConfig()
+    bench_selfsup: BenchSelfSupConfig = BenchSelfSupConfig()
 
 
 def _describe(exc: ValidationError) -> str:

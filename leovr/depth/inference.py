@@ -34,6 +34,18 @@ def load_generator(path: str | Path) -> DepthGenerator:
     return model.eval()
 
 
+def forward_padded(model: torch.nn.Module, image: torch.Tensor, sparse: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Run the network on B x 3 x H x W images and B x 1 x H x W sparse depth of any size: edge-pad to
+    a multiple of 32 (the encoder's total stride), crop the outputs back."""
+    h, w = sparse.shape[-2:]
+    ph, pw = (-h) % 32, (-w) % 32
+    if ph or pw:
+        image = F.pad(image, (0, pw, 0, ph), mode="replicate")
+        sparse = F.pad(sparse, (0, pw, 0, ph))
+    depth, log_sigma = model(image, sparse)
+    return depth[..., :h, :w], log_sigma[..., :h, :w]
+
+
 @torch.no_grad()
 def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Depth (metres) and log-sigma for a batch (B x H x W x 3 uint8 or H x W x 3; sparse B x H x W or
@@ -45,14 +57,10 @@ def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray) -> tu
         raise ValueError(f"images {images.shape} and sparse depth {sparse.shape} disagree")
     if images.shape[-1] != 3:
         raise ValueError("images must be B x H x W x 3 (RGB)")
-    h, w = sparse.shape[1:]
-    ph, pw = (-h) % 32, (-w) % 32
     img = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255.0
     sp = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[:, None]
-    img = F.pad(img, (0, pw, 0, ph), mode="replicate")
-    sp = F.pad(sp, (0, pw, 0, ph))
-    depth, log_sigma = model(img, sp)
-    d, s = depth[:, 0, :h, :w].numpy(), log_sigma[:, 0, :h, :w].numpy()
+    depth, log_sigma = forward_padded(model, img, sp)
+    d, s = depth[:, 0].numpy(), log_sigma[:, 0].numpy()
     return (d[0], s[0]) if single else (d, s)
 
 

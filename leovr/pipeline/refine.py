@@ -3,7 +3,7 @@ frame by frame as a live system would see them; refined depth, poses, metrics an
 
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 mm), `depth_generator/` (the
 generator alone), `depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
-truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), and `progress.json`, the state `--resume`
+truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), and `progress.json`, the state `--resume`
 continues from (a resumed run restarts the window at the first unfinished frame, anchored at the last
 finished pose).
 """
@@ -43,6 +43,22 @@ def completion_config(cfg: RefineConfig) -> CompleteConfig:
     """The generator with the run's input and scoring settings, as `complete` would run it."""
     shared = set(FrameSelection.model_fields)
     return CompleteConfig(method="generator", **cfg.model_dump(include=shared))
+
+
+def classical_source(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
+    """IP-Basic depth with its holes (above the scan) filled from the nearest completed pixel, and a
+    flat 20 % relative sigma: the graph's depth input when no trained network may be used (the
+    self-supervised cold start)."""
+    from scipy.ndimage import distance_transform_edt
+
+    depth = complete_depth(sample.sparse, "ipbasic")
+    hole = depth <= 0
+    if hole.all():
+        raise DataError(f"frame {sample.frame.index}", "no LiDAR return in the image: nothing to complete")
+    if hole.any():
+        _, (iv, iu) = distance_transform_edt(hole, return_indices=True)
+        depth = depth[iv, iu]
+    return depth, np.log(0.2 * depth)
 
 
 def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Frame:
@@ -95,9 +111,10 @@ class Progress:
 
 
 def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True,
-               pool: dict[str, DepthMetricAccumulator] | None = None) -> dict:
+               pool: dict[str, DepthMetricAccumulator] | None = None, score: bool = True) -> dict:
     """Refine every selected frame; returns the metrics dictionary (also written to metrics.json).
-    `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences."""
+    `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences.
+    `score=False` skips everything that reads ground truth (the self-supervised trainer's pose pass)."""
     from odometry.frontend import FrontEnd
     from odometry.window_graph import WindowGraph
 
@@ -108,7 +125,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     state = Progress.load(state_path) if resume and state_path.is_file() else Progress()
     todo = [i for i in indices if not (i in state.poses and (out / "depth" / f"{i:06d}.png").is_file())]
     has_lidar = seq.has_lidar
-    generator = generator_method(ccfg)
+    generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
     first = seq[indices[0]]
     K, shape = first.K, first.shape
     # a resumed run re-enters the last finished frame first (outputs kept) so the new window starts at its pose
@@ -173,11 +190,12 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 landmarks[n] = transform_points(corrected[at[f]] @ invert_T(before[at[f]]), landmarks[n][None])[0]
     state.save(state_path)
     atomic_write(out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
-    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool)
+    atomic_write(out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
+    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score)
 
 
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
-                  out: Path, has_lidar: bool, progress: bool, pool: dict | None = None) -> dict:
+                  out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True) -> dict:
     """Poses in KITTI and TUM form, timing, and depth / trajectory metrics from the written maps."""
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
     stamps = seq.timestamps()[indices]
@@ -189,7 +207,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
     accs = {m: DepthMetricAccumulator(cfg.bins) for m in ("ipbasic", "generator", "refined")}
     kinds, gt_poses = set(), []
-    for i in tqdm(indices, desc="score", unit="frame", disable=not progress):
+    for i in tqdm(indices if score else [], desc="score", unit="frame", disable=not progress):
         sample = frame_sample(seq, i, ccfg)
         gt_poses.append(sample.frame.T_world_cam)
         if sample.gt_kind == "none":
@@ -210,7 +228,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         "depth": {m: a.result() for m, a in accs.items() if a._gt},
         "timing": timing,
     }
-    if all(T is not None for T in gt_poses) and len(indices) >= 3:
+    if score and all(T is not None for T in gt_poses) and len(indices) >= 3:
         ref = np.stack([invert_T(gt_poses[0]) @ T for T in gt_poses])
         align = "se3" if has_lidar else "sim3"
         metrics["trajectory"] = {"leovr": trajectory_metrics(poses, ref, align)}
