@@ -260,24 +260,63 @@ def bench_loop(
 
 @app.command()
 def train(
-    out: Path = typer.Option(..., "--out", "-o", help="Run folder (checkpoints, log.jsonl)."),
-    mode: str = typer.Option("supervised", help="supervised (selfsup comes later)."),
+    sequences: Optional[list[Path]] = typer.Argument(None, help="Raw sequence folders (--mode selfsup)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Run folder (checkpoints, log.jsonl / log.csv)."),
+    mode: str = typer.Option("supervised", help="supervised (simulator ground truth) | selfsup (raw sequences, no ground truth)."),
     config: Optional[Path] = ConfigOpt,
-    dataset: Optional[Path] = typer.Option(None, help="Dataset folder with manifest.json (tools/make_dataset.py)."),
+    dataset: Optional[Path] = typer.Option(None, help="Dataset folder with manifest.json (--mode supervised)."),
     epochs: Optional[int] = typer.Option(None),
     batch_size: Optional[int] = typer.Option(None, "--batch-size"),
-    max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Cap on training frames."),
+    max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Cap on training frames (selfsup: per sequence)."),
+    init_checkpoint: Optional[Path] = typer.Option(None, "--init-checkpoint", help="Start from these weights."),
+    rerun: Optional[Path] = typer.Option(None, help="selfsup: log flow masks, warped images and photometric error to this .rrd."),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint_last.pt."),
 ) -> None:
-    """Train the depth generator on simulator splits."""
+    """Train the depth generator: supervised on simulator splits, or self-supervised (LeoVR Sec. IV) on
+    raw camera + LiDAR sequences with poses from the graph. Scales over processes with torchrun."""
+    init = None if init_checkpoint is None else str(init_checkpoint)
+    if mode == "selfsup":
+        from selfsup.trainer import train_selfsup
+
+        if not sequences:
+            raise typer.BadParameter("give at least one sequence folder", param_hint="SEQUENCES")
+        cfg = override(load_config(config).selfsup, epochs=epochs, batch_size=batch_size, max_frames=max_frames,
+                       init_checkpoint=init)
+        r = train_selfsup(cfg, list(sequences), out, resume=resume, rerun=rerun)
+        if r:
+            typer.echo(f"epoch {r['epoch']} ({r['stage']}): loss {r['loss']:.4f}, photometric {r['photometric']:.4f}, "
+                       f"flow mask keeps {100 * r['mask_kept']:.0f}% -> {out}/generator.pt")
+        return
+    if mode != "supervised":
+        raise typer.BadParameter("--mode is supervised or selfsup", param_hint="--mode")
+    if sequences:
+        raise typer.BadParameter("--mode supervised reads the simulator dataset (--dataset), not sequence folders",
+                                 param_hint="SEQUENCES")
     from leovr.depth.train import train_supervised
 
-    if mode != "supervised":
-        raise typer.BadParameter("only --mode supervised exists so far", param_hint="--mode")
     cfg = override(load_config(config).train, dataset=None if dataset is None else str(dataset), epochs=epochs,
-                   batch_size=batch_size, max_frames=max_frames)
+                   batch_size=batch_size, max_frames=max_frames, init_checkpoint=init)
     r = train_supervised(cfg, out, resume=resume)
     typer.echo(f"epoch {r.get('epoch')}: val MAE {r.get('val_mae_m', float('nan')):.3f} m -> {out}")
+
+
+@bench_app.command("selfsup")
+def bench_selfsup(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
+    quick: bool = typer.Option(False, help="One short sequence per scenario, two epochs."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Cold-start self-supervised training vs untrained, no-mask, no-L_f/L_r and supervised models."""
+    from leovr.bench.selfsup import run_selfsup_bench
+
+    doc = run_selfsup_bench(out, load_config(config).bench_selfsup, quick)
+    r = doc["results"]
+    for k in ("untrained", "selfsup", "selfsup_nomask", "selfsup_no_lf_lr", "supervised"):
+        typer.echo(f"{k:18s} MAE {r[f'{k}_mae_m']:.3f} m")
+    if "kitti_raw" in r:
+        for k, v in r["kitti_raw"]["held_out"].items():
+            typer.echo(f"KITTI {k:30s} held-out MAE {v['mae_m']:.3f} m")
+    typer.echo(f"-> {out}")
 
 
 @bench_app.command("simulate")

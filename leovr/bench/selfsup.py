@@ -1,0 +1,174 @@
+"""`leovr bench selfsup`: cold-start self-supervised training (LeoVR Sec. V-B2, V-D2/3) on simulator
+`dynamic` and `city_loop` training sequences, scored against ground truth on test sequences:
+untrained network, self-supervised (full), without the flow mask, without L_f and L_r, and a
+supervised reference trained on the same frames with the same schedule and network. Then the shared
+KITTI raw clip: a cold start on its first frames, scored on held-out LiDAR beams of its last frames,
+against the untrained network and the synthetic-only models.
+
+Runs live in `<out stem>_work/` next to the JSON and resume when the bench is started again."""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from leovr.bench.common import write_bench
+from leovr.config import BenchSelfSupConfig, CompleteConfig, SelfSupConfig
+from leovr.data import open_sequence
+from leovr.data.io import atomic_write
+from leovr.data.sequence import Sequence, SequenceView
+from leovr.depth.dataset import split_entries
+from leovr.depth.inference import forward_padded, load_generator, predict_at_focal
+from leovr.depth.network import DepthGenerator
+from leovr.depth.train import depth_loss
+from leovr.eval.depth_metrics import DepthMetricAccumulator
+from leovr.paths import kitti_raw_dir, shipped_checkpoint
+from leovr.pipeline.completion import prepare_sample
+from leovr.sim.dataset import default_root
+from selfsup.supervision import train_frames
+from selfsup.trainer import network_config, train_selfsup
+
+
+def pick_sequences(root: Path, split: str, cfg: BenchSelfSupConfig, per_scenario: int) -> list[Path]:
+    """`per_scenario` sequences of each scenario with the bench's LiDAR, day before night, by seed."""
+    entries = [e for e in split_entries(root, split) if e["lidar"] == cfg.lidar]
+    out = []
+    for scenario in cfg.scenarios:
+        pool = sorted((e for e in entries if e["scenario"] == scenario), key=lambda e: (e["light"] != "day", e["seed"]))
+        out += [e["path"] for e in pool[:per_scenario]]
+    return out
+
+
+@torch.no_grad()
+def score(model: DepthGenerator, seqs: list[Sequence], input_name: str, focal_px: float | None, bins: list[float]) -> dict:
+    """Depth metrics of a model over every frame of the sequences (dense ground truth, else held-out beams)."""
+    model.eval()
+    acc = DepthMetricAccumulator(bins)
+    ccfg = CompleteConfig(input=input_name)
+    for seq in seqs:
+        for i in range(len(seq)):
+            s = prepare_sample(seq[i], ccfg)
+            image = s.frame.image if s.frame.image.ndim == 3 else np.repeat(s.frame.image[..., None], 3, axis=2)
+            depth, _ = predict_at_focal(model, image, s.sparse, float(s.frame.K[0, 0]), focal_px)
+            acc.add(depth, s.gt)
+    r = acc.result()
+    return {"mae_m": r["mae_m"], "rmse_m": r["rmse_m"], "absrel": r.get("absrel"), "delta1": r.get("delta1")}
+
+
+def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: Path, progress: bool) -> Path:
+    """The same network, frames, input, resolution and schedule as the self-supervised run, with an L1
+    loss on ground-truth depth instead: the bench's 'supervised' figure. Resumes per epoch."""
+    final = out / "generator.pt"
+    if final.is_file():
+        return final
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    samples = []
+    for p in sequences:
+        seq = open_sequence(p)
+        for f in train_frames(seq, cfg):
+            gt = seq[f.index].depth
+            gt = cv2.resize(gt, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
+            samples.append((torch.from_numpy(f.image).permute(2, 0, 1).float() / 255.0,
+                            torch.from_numpy(f.sparse)[None], torch.from_numpy(gt.astype(np.float32))[None]))
+    model = DepthGenerator(network_config(cfg))
+    opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr)
+    sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
+    for epoch in tqdm(range(cfg.epochs), desc="supervised reference", unit="epoch", disable=not progress):
+        model.train()
+        order = torch.randperm(len(samples), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
+        for k in range(0, len(order), cfg.batch_size):
+            img, sp, gt = (torch.stack(x) for x in zip(*(samples[int(j)] for j in order[k:k + cfg.batch_size])))
+            depth, _ = forward_padded(model, img, sp)
+            loss = depth_loss(depth, gt, "l1")
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        sched.step()
+    atomic_write(final, lambda tmp: torch.save({"model": model.state_dict(), "network": network_config(cfg).__dict__,
+                                                "config": cfg.model_dump(), "mode": "supervised"}, tmp))
+    return final
+
+
+def _train(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bool, share_init: Path | None = None) -> tuple[Path, float]:
+    """Self-supervised run (resumed when interrupted); returns (generator.pt, minutes spent now)."""
+    t0 = time.time()
+    done = run / "generator.pt"
+    last = run / "checkpoint_last.pt"
+    if done.is_file() and last.is_file() and torch.load(last, weights_only=False)["epoch"] + 1 >= cfg.epochs:
+        return done, 0.0
+    if share_init is not None and share_init.is_dir() and not (run / "graph" / "init").exists():
+        shutil.copytree(share_init, run / "graph" / "init")  # the initialisation pass uses no network: same for every run
+    train_selfsup(cfg, sequences, run, resume=last.is_file(), progress=progress)
+    return done, (time.time() - t0) / 60.0
+
+
+def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, progress: bool = True) -> dict:
+    started = time.time()
+    work = Path(out).with_name(Path(out).stem + "_work")
+    root = Path(cfg.dataset) if cfg.dataset else default_root() / "default"
+    n_train = 1 if quick else cfg.train_sequences
+    train = pick_sequences(root, "train", cfg, n_train)
+    test_paths = pick_sequences(root, "test", cfg, 1 if quick else cfg.test_sequences)
+    tests = [open_sequence(p) for p in test_paths]
+    if quick:
+        tests = [SequenceView(s, list(range(min(len(s), cfg.quick_frames)))) for s in tests]
+    epochs = cfg.quick_epochs if quick else cfg.epochs
+    base = SelfSupConfig(epochs=epochs, batch_size=cfg.batch_size, lr=cfg.lr, channels=cfg.channels,
+                         train_focal_px=cfg.train_focal_px, input="full",
+                         max_frames=cfg.quick_frames if quick else None)
+    variants = {"selfsup": base, "selfsup_nomask": base.model_copy(update={"flow_mask": False}),
+                "selfsup_no_lf_lr": base.model_copy(update={"weight_feature": 0.0, "weight_refined": 0.0})}
+    bins = list(CompleteConfig().bins)
+    minutes, checkpoints = {}, {}
+    for name, vcfg in variants.items():
+        share = None if name == "selfsup" else work / "selfsup" / "graph" / "init"
+        checkpoints[name], minutes[name] = _train(vcfg, train, work / name, progress, share)
+    t0 = time.time()
+    checkpoints["supervised"] = train_supervised_reference(base, train, work / "supervised", progress)
+    minutes["supervised"] = (time.time() - t0) / 60.0
+    untrained = DepthGenerator(network_config(base))
+    synthetic = {"untrained": score(untrained, tests, "full", cfg.train_focal_px, bins)}
+    for name, ck in checkpoints.items():
+        synthetic[name] = score(load_generator(ck), tests, "full", cfg.train_focal_px, bins)
+    results: dict = {f"{k}_mae_m": v["mae_m"] for k, v in synthetic.items()}
+    results["train_minutes"] = {k: round(v, 2) for k, v in minutes.items()}
+    results["synthetic_metrics"] = synthetic
+    results["selfsup_over_supervised"] = synthetic["selfsup"]["mae_m"] / synthetic["supervised"]["mae_m"]
+    results["mask_gain"] = 1.0 - synthetic["selfsup"]["mae_m"] / synthetic["selfsup_nomask"]["mae_m"]
+    # the flow mask's effect on the dynamic scenario alone (the issue's 10 % target)
+    dyn = [t for t, p in zip(tests, test_paths) if "dynamic" in p.name]
+    if dyn:
+        results["dynamic_only"] = {k: score(load_generator(checkpoints[k]), dyn, "full", cfg.train_focal_px, bins)["mae_m"]
+                                   for k in ("selfsup", "selfsup_nomask")}
+    raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
+    if raw.exists():
+        results["kitti_raw"] = kitti_cold_start(raw, cfg, base, work, checkpoints["selfsup"], quick, progress, bins)
+    body = {"quick": quick, "train_sequences": [str(p.relative_to(root)) for p in train],
+            "test_sequences": [str(p.relative_to(root)) for p in test_paths], "epochs": epochs,
+            "train_focal_px": cfg.train_focal_px, "lr": cfg.lr, "batch_size": cfg.batch_size, "results": results}
+    return write_bench(out, "selfsup", body, started)
+
+
+def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, work: Path, synthetic_ck: Path,
+                     quick: bool, progress: bool, bins: list[float]) -> dict:
+    """Cold start on the clip's first frames; every model scored on held-out beams of the last frames."""
+    seq = open_sequence(raw)
+    n_train = min(cfg.kitti_train_frames, len(seq) - cfg.kitti_test_frames)
+    epochs = cfg.quick_epochs if quick else cfg.kitti_epochs
+    kcfg = base.model_copy(update={"input": cfg.kitti_input, "max_frames": n_train, "epochs": epochs})
+    test = [SequenceView(seq, list(range(len(seq) - cfg.kitti_test_frames, len(seq))))]
+    ck, minutes = _train(kcfg, [raw], work / "kitti_cold_start", progress)
+    models = {"untrained": (DepthGenerator(network_config(kcfg)), cfg.train_focal_px),
+              "synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px),
+              "shipped_supervised_synthetic": (load_generator(shipped_checkpoint()), 260.0),
+              "kitti_cold_start": (load_generator(ck), cfg.train_focal_px)}
+    out = {name: score(m, test, cfg.kitti_input, focal, bins) for name, (m, focal) in models.items()}
+    return {"train_frames": n_train, "test_frames": cfg.kitti_test_frames, "input": cfg.kitti_input,
+            "epochs": epochs, "train_minutes": round(minutes, 2), "held_out": out}

@@ -1,0 +1,60 @@
+"""Training samples for the self-supervised trainer: frame i with its previous and next frames, the
+relative poses, the flow masks and the graph's targets. Frames at the ends of a sequence (one
+neighbour only) are left out so every sample has both photometric terms."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from leovr.geometry import invert_T
+from selfsup.supervision import Supervision, TrainFrame
+
+
+def _image(x: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(x)).permute(2, 0, 1).float() / 255.0
+
+
+def _plane(x: np.ndarray | None, like: np.ndarray, fill: float = 0.0) -> torch.Tensor:
+    if x is None:
+        return torch.full((1, *like.shape), fill, dtype=torch.float32)
+    return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None]
+
+
+class SelfSupSamples(Dataset):
+    """`frames[k]` and `supervision[k]` describe sequence k; `set_supervision` swaps in a new graph pass."""
+
+    def __init__(self, frames: list[list[TrainFrame]], supervision: list[Supervision]) -> None:
+        shapes = {f.sparse.shape for seq in frames for f in seq}
+        if len(shapes) != 1:
+            raise ValueError(f"training frames must share one size after resampling, got {sorted(shapes)}")
+        self.frames = frames
+        self.index = [(k, i) for k, seq in enumerate(frames) for i in range(1, len(seq) - 1)]
+        self.set_supervision(supervision)
+
+    def set_supervision(self, supervision: list[Supervision]) -> None:
+        self.sup = supervision
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, j: int) -> dict[str, torch.Tensor]:
+        k, i = self.index[j]
+        fr, sup = self.frames[k], self.sup[k]
+        f = fr[i]
+        return {
+            "image": _image(f.image),
+            "prev": _image(fr[i - 1].image),
+            "next": _image(fr[i + 1].image),
+            "sparse": _plane(f.sparse, f.sparse),
+            "K": torch.from_numpy(f.K).float(),
+            "T_prev": torch.from_numpy(invert_T(sup.poses[i - 1]) @ sup.poses[i]).float(),
+            "T_next": torch.from_numpy(invert_T(sup.poses[i + 1]) @ sup.poses[i]).float(),
+            "mask_prev": _plane(sup.mask_prev[i], f.sparse, 1.0),
+            "mask_next": _plane(sup.mask_next[i], f.sparse, 1.0),
+            "feature_depth": _plane(sup.feature_depth[i], f.sparse),
+            "refined": _plane(sup.refined[i], f.sparse),
+            "use_refined": torch.tensor(bool(sup.use_refined[i])),
+            "key": torch.tensor([k, i]),
+        }

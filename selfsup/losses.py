@@ -1,0 +1,71 @@
+"""The self-supervised objective (LeoVR eqs. 16-17 and 20-22): masked photometric error against the
+warped neighbours, feature-point depth, refined-depth guidance and edge-aware second-order
+smoothness. All terms are means over their valid pixels, so batch and image size do not rescale them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+
+def ssim_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(1 - SSIM) / 2 per pixel over 3 x 3 windows (reflection padded), in [0, 1]."""
+    c1, c2 = 0.01**2, 0.03**2
+    a, b = F.pad(a, (1, 1, 1, 1), mode="reflect"), F.pad(b, (1, 1, 1, 1), mode="reflect")
+    mu_a, mu_b = F.avg_pool2d(a, 3, 1), F.avg_pool2d(b, 3, 1)
+    var_a = F.avg_pool2d(a * a, 3, 1) - mu_a**2
+    var_b = F.avg_pool2d(b * b, 3, 1) - mu_b**2
+    cov = F.avg_pool2d(a * b, 3, 1) - mu_a * mu_b
+    ssim = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
+    return ((1 - ssim) / 2).clamp(0, 1)
+
+
+def photometric_error(a: torch.Tensor, b: torch.Tensor, alpha: float = 0.8) -> torch.Tensor:
+    """Eq. 17: alpha/2 (1 - SSIM) + (1 - alpha) |a - b|_1, averaged over channels: B x 1 x H x W."""
+    return (alpha * ssim_distance(a, b) + (1 - alpha) * (a - b).abs()).mean(1, keepdim=True)
+
+
+def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    m = mask.to(x.dtype)
+    return (x * m).sum() / m.sum().clamp(min=1.0)
+
+
+def photometric_loss(target: torch.Tensor, warped: list[torch.Tensor], masks: list[torch.Tensor],
+                     alpha: float = 0.8) -> torch.Tensor:
+    """Eq. 16: the masked photometric error summed over the neighbouring frames."""
+    return sum(masked_mean(photometric_error(target, w, alpha), m) for w, m in zip(warped, masks))
+
+
+def feature_point_loss(depth: torch.Tensor, feature_depth: torch.Tensor) -> torch.Tensor:
+    """Eq. 20: squared error at the pixels where the graph's landmarks project (feature_depth > 0)."""
+    return masked_mean((depth - feature_depth) ** 2, feature_depth > 0)
+
+
+def refined_depth_loss(depth: torch.Tensor, refined: torch.Tensor, use: torch.Tensor) -> torch.Tensor:
+    """Eq. 21: squared error to the graph's refined depth, only on frames whose refined depth agreed
+    with the landmarks (`use`, B bools)."""
+    return masked_mean((depth - refined) ** 2, (refined > 0) & use.view(-1, 1, 1, 1))
+
+
+def second_order_smoothness(depth: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+    """Edge-aware L1 of the second derivatives of mean-normalised inverse depth, damped where the image
+    has strong gradients (object boundaries may bend)."""
+    disp = 1.0 / depth.clamp(min=1e-3)
+    disp = disp / disp.mean(dim=(2, 3), keepdim=True)
+    dxx = (disp[..., :, 2:] - 2 * disp[..., :, 1:-1] + disp[..., :, :-2]).abs()
+    dyy = (disp[..., 2:, :] - 2 * disp[..., 1:-1, :] + disp[..., :-2, :]).abs()
+    gx = (image[..., :, 2:] - image[..., :, :-2]).abs().mean(1, keepdim=True) / 2
+    gy = (image[..., 2:, :] - image[..., :-2, :]).abs().mean(1, keepdim=True) / 2
+    return (dxx * torch.exp(-gx)).mean() + (dyy * torch.exp(-gy)).mean()
+
+
+@dataclass
+class LossWeights:
+    """Eq. 22 weights (LeoVR Sec. V-A): L = L_p + lambda_f L_f + lambda_r L_r + lambda_s L_s."""
+
+    photometric: float = 1.0
+    feature: float = 0.4
+    refined: float = 0.1
+    smooth: float = 0.2

@@ -1,0 +1,160 @@
+"""What the graph gives the trainer (LeoVR Sec. IV-B, IV-D): poses with loop closure, landmarks and
+refined depth from one pass of `leovr poses` over a raw sequence, turned into per-frame training
+targets at the training resolution: neighbour poses, motion-optical-flow masks, the landmarks'
+sparse depth D^f and the refined depth D^r with its agreement flag.
+
+Initialisation stage: no network is trusted yet, so the graph runs on IP-Basic depth with point
+factors only. Refinement stage: the current generator and the full graph."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from leovr.config import RefineConfig, SelfSupConfig
+from leovr.data.io import read_depth_png, write_text
+from leovr.data.sequence import Sequence
+from leovr.depth.inference import rescale_sparse
+from leovr.errors import DataError
+from leovr.geometry import invert_T
+from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
+from leovr.lidar.projection import sparse_depth
+from selfsup.flow_mask import motion_flow_mask
+
+
+@dataclass
+class TrainFrame:
+    """One frame as the network sees it: resampled to the training focal length."""
+
+    index: int
+    image: np.ndarray  # H x W x 3 uint8
+    sparse: np.ndarray  # H x W float32 metres, the cheap LiDAR input
+    K: np.ndarray  # 3 x 3 at the training resolution
+
+
+@dataclass
+class GraphResult:
+    poses: np.ndarray  # F x 4 x 4 camera-to-world, frame order of `indices`
+    indices: list[int]
+    landmarks: np.ndarray  # N x 3 world
+    landmark_frame: np.ndarray  # N: frame that last observed each landmark
+    depth_dir: Path  # refined depth PNGs
+
+
+@dataclass
+class Supervision:
+    """Targets of every frame of one sequence from one graph pass."""
+
+    poses: np.ndarray  # F x 4 x 4
+    feature_depth: list[np.ndarray]  # D^f per frame, H x W (0 = none)
+    refined: list[np.ndarray | None]  # D^r per frame (refinement stage only)
+    use_refined: np.ndarray  # F bools: D^r agrees with the landmarks
+    mask_prev: list[np.ndarray | None]  # mu for the pair (i, i-1), H x W bool
+    mask_next: list[np.ndarray | None]
+
+
+def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
+    """Images and cheap LiDAR input of the selected frames at the training focal length."""
+    n = len(seq) if cfg.max_frames is None else min(len(seq), cfg.max_frames)
+    if n < 3:
+        raise DataError(seq.path, f"self-supervised training needs at least 3 frames, got {n}")
+    out = []
+    for i in range(n):
+        f = seq[i]
+        if f.points is None:
+            raise DataError(seq.path, f"frame {i} has no LiDAR scan; the trainer needs the LiDAR input")
+        kept = simulate_cheap_sensor(f.points, parse_input(cfg.input), f.index, cfg.seed, f.K, f.T_cam_lidar, f.shape).kept
+        sparse = sparse_depth(kept, f.K, f.T_cam_lidar, f.shape)
+        image = f.image if f.image.ndim == 3 else np.repeat(f.image[..., None], 3, axis=2)
+        K = f.K.astype(np.float64).copy()
+        s = 1.0 if cfg.train_focal_px is None else cfg.train_focal_px / float(f.K[0, 0])
+        if abs(s - 1.0) > 1e-6:
+            shape = (int(round(f.height * s)), int(round(f.width * s)))
+            image = cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+            sparse = rescale_sparse(sparse, s, shape)
+            K[:2] *= s
+        out.append(TrainFrame(i, image, sparse.astype(np.float32), K))
+    return out
+
+
+def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | None, n_frames: int,
+               progress: bool = True) -> GraphResult:
+    """`leovr poses` on the (blind) sequence into `out`; reused when `out/done.json` exists, resumed
+    when a previous pass was interrupted. `checkpoint=None`: IP-Basic depth, point factors only."""
+    from leovr.pipeline.refine import Progress, run_refine
+
+    out = Path(out)
+    if not (out / "done.json").is_file():
+        rcfg = RefineConfig(input=cfg.input, end=n_frames, seed=cfg.seed, loop_closure=cfg.loop_closure,
+                            loop_min_gap=cfg.loop_min_gap, generator_focal_px=cfg.train_focal_px,
+                            depth_source="ipbasic" if checkpoint is None else "generator",
+                            depth_factors=checkpoint is not None, checkpoint=None if checkpoint is None else str(checkpoint))
+        run_refine(seq, rcfg, out, resume=(out / "progress.json").is_file(), progress=progress, score=False)
+        write_text(out / "done.json", json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint)}) + "\n")
+    state = Progress.load(out / "progress.json")
+    indices = list(range(n_frames))
+    missing = [i for i in indices if i not in state.poses]
+    if missing:
+        raise DataError(out / "progress.json", f"graph pass has no pose for frames {missing[:5]}")
+    poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
+    return GraphResult(poses, indices, np.load(out / "landmarks.npy"), np.load(out / "landmarks_frame.npy"), out / "depth")
+
+
+def landmark_depth(frame: TrainFrame, T_world_cam: np.ndarray, landmarks: np.ndarray, landmark_frame: np.ndarray,
+                   near_frames: int) -> np.ndarray:
+    """D^f: landmarks last observed within `near_frames` of this frame, projected (nearest wins)."""
+    h, w = frame.sparse.shape
+    out = np.full((h, w), np.inf, np.float32)
+    near = np.abs(landmark_frame - frame.index) <= near_frames
+    if near.any():
+        P = (landmarks[near] - T_world_cam[:3, 3]) @ T_world_cam[:3, :3]  # world -> camera
+        z = P[:, 2]
+        uv = P @ frame.K.T
+        ok = z > 0.5
+        u = np.floor(uv[ok, 0] / z[ok] + 0.5).astype(np.int64)
+        v = np.floor(uv[ok, 1] / z[ok] + 0.5).astype(np.int64)
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        np.minimum.at(out, (v[inside], u[inside]), z[ok][inside].astype(np.float32))
+    out[np.isinf(out)] = 0.0
+    return out
+
+
+def refined_agrees(refined: np.ndarray, feature_depth: np.ndarray, max_rel: float, min_points: int = 10) -> bool:
+    """The refined map is geometrically consistent with the landmarks: median relative gap under max_rel."""
+    ok = (feature_depth > 0) & (refined > 0)
+    if ok.sum() < min_points:
+        return False
+    return bool(np.median(np.abs(refined[ok] - feature_depth[ok]) / feature_depth[ok]) < max_rel)
+
+
+def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSupConfig, with_refined: bool,
+                      mask_dir: Path | None = None) -> Supervision:
+    """Per-frame targets from a graph pass; masks are written as PNGs to `mask_dir` for inspection."""
+    n = len(frames)
+    fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks, graph.landmark_frame, cfg.landmark_frames)
+              for k, f in enumerate(frames)]
+    refined: list[np.ndarray | None] = [None] * n
+    use = np.zeros(n, bool)
+    if with_refined:
+        for k, f in enumerate(frames):
+            d = read_depth_png(graph.depth_dir / f"{f.index:06d}.png")
+            refined[k] = cv2.resize(d, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
+            use[k] = refined_agrees(refined[k], fdepth[k], cfg.refined_agree_rel)
+    prev: list[np.ndarray | None] = [None] * n
+    nxt: list[np.ndarray | None] = [None] * n
+    if cfg.flow_mask:
+        if mask_dir is not None:
+            mask_dir.mkdir(parents=True, exist_ok=True)
+        for k in range(n):
+            for j, store, tag in ((k - 1, prev, "prev"), (k + 1, nxt, "next")):
+                if 0 <= j < n:
+                    T_j_i = invert_T(graph.poses[j]) @ graph.poses[k]
+                    store[k] = motion_flow_mask(frames[k].image, frames[j].image, T_j_i, frames[k].K,
+                                                cfg.flow_lambda_px, cfg.flow_method)
+                    if mask_dir is not None:
+                        cv2.imwrite(str(mask_dir / f"{frames[k].index:06d}_{tag}.png"), store[k].astype(np.uint8) * 255)
+    return Supervision(graph.poses, fdepth, refined, use, prev, nxt)

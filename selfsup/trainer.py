@@ -1,0 +1,256 @@
+"""Cold-start self-supervised training of the depth generator (LeoVR Sec. IV, V-A).
+
+Epochs split in two stages: the initialisation stage (first `init_fraction` of the epochs) learns from
+the photometric loss, the landmarks (L_f) and smoothness with poses from a graph that trusts no
+network (IP-Basic depth, point factors only); the refinement stage re-runs the full graph with the
+current generator every `refresh_every` epochs and adds the refined-depth guidance (L_r).
+
+The sequences are wrapped in `BlindSequence`: no ground-truth depth or pose reaches this module.
+Every epoch writes `checkpoint_last.pt` (resume) and `generator.pt` (what `--checkpoint` loads)
+atomically and a line of `log.jsonl` / `log.csv`. Several processes started by `torchrun` train one
+model with DistributedDataParallel (gloo, CPU): rank 0 runs the graph passes and writes the files.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
+from tqdm import tqdm
+
+from leovr.config import SelfSupConfig
+from leovr.data import open_sequence
+from leovr.data.io import atomic_write, write_text
+from leovr.depth.inference import forward_padded
+from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.errors import DataError
+from selfsup.blind import BlindSequence
+from selfsup.dataset import SelfSupSamples
+from selfsup.losses import (
+    feature_point_loss,
+    photometric_error,
+    photometric_loss,
+    refined_depth_loss,
+    second_order_smoothness,
+)
+from selfsup.supervision import build_supervision, graph_pass, train_frames
+from selfsup.warp import warp_image
+
+TERMS = ("loss", "photometric", "feature", "refined", "smooth", "mask_kept", "refined_used")
+
+
+def network_config(cfg: SelfSupConfig) -> GeneratorConfig:
+    return GeneratorConfig(lidar_encoder=cfg.lidar_encoder, cross_attention=cfg.cross_attention,
+                           channels=tuple(cfg.channels), blocks=tuple(cfg.blocks))
+
+
+def init_epochs(cfg: SelfSupConfig) -> int:
+    return int(round(cfg.epochs * cfg.init_fraction))
+
+
+def pass_tag(epoch: int, cfg: SelfSupConfig) -> str:
+    """Which graph pass supervises this epoch: 'init', or 'refine_eN' renewed every `refresh_every`."""
+    n = init_epochs(cfg)
+    if epoch < n:
+        return "init"
+    return f"refine_e{n + cfg.refresh_every * ((epoch - n) // cfg.refresh_every) + 1}"
+
+
+def distributed() -> tuple[int, int]:
+    """(rank, world size); joins the torchrun process group (gloo) when there is more than one process."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("gloo")
+    return (dist.get_rank(), world) if world > 1 else (0, 1)
+
+
+def _barrier(world: int) -> None:
+    if world > 1:
+        dist.barrier()
+
+
+def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: bool
+                ) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor]]:
+    """Eq. 22 on one batch: (total loss, detached terms, images for inspection)."""
+    img = b["image"]
+    warped, masks = [], []
+    for side in ("prev", "next"):
+        w, inside = warp_image(b[side], depth, b[f"T_{side}"], b["K"])
+        warped.append(w)
+        masks.append(inside & (b[f"mask_{side}"] > 0.5))
+    lp = photometric_loss(img, warped, masks, cfg.alpha)
+    lf = feature_point_loss(depth, b["feature_depth"]) if cfg.weight_feature > 0 else depth.new_zeros(())
+    use_r = refine_stage and cfg.weight_refined > 0 and bool(b["use_refined"].any())
+    lr = refined_depth_loss(depth, b["refined"], b["use_refined"]) if use_r else depth.new_zeros(())
+    ls = second_order_smoothness(depth, img) if cfg.weight_smooth > 0 else depth.new_zeros(())
+    loss = lp + cfg.weight_feature * lf + cfg.weight_refined * lr + cfg.weight_smooth * ls
+    terms = {"loss": loss.item(), "photometric": lp.item(), "feature": lf.item(), "refined": lr.item(),
+             "smooth": ls.item(), "mask_kept": float(torch.cat(masks).float().mean()),
+             "refined_used": float(b["use_refined"].float().mean()) if refine_stage else 0.0}
+    return loss, terms, {"warped_prev": warped[0], "mask_prev": masks[0]}
+
+
+class _Rerun:
+    """Flow mask, warped neighbour, photometric error and depth of a few frames, once per epoch."""
+
+    def __init__(self, path: Path, cfg: SelfSupConfig, dataset: SelfSupSamples) -> None:
+        import rerun as rr
+
+        self.rr = rr
+        self.rec = rr.RecordingStream("leovr_selfsup")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.rec.save(str(path))
+        n = len(dataset)
+        self.picks = sorted({int(round(x)) for x in np.linspace(0, n - 1, min(cfg.rerun_frames, n))})
+
+    @torch.no_grad()
+    def log(self, epoch: int, model: torch.nn.Module, dataset: SelfSupSamples, cfg: SelfSupConfig, refine: bool) -> None:
+        rr = self.rr
+        self.rec.set_time("epoch", sequence=epoch)
+        model.eval()
+        for j in self.picks:
+            b = {k: v[None] for k, v in dataset[j].items()}
+            depth, _ = forward_padded(model, b["image"], b["sparse"])
+            _, _, extra = batch_terms(depth, b, cfg, refine)
+            pe = photometric_error(b["image"], extra["warped_prev"], cfg.alpha)[0, 0]
+            k, i = (int(x) for x in b["key"][0])
+            base = f"train/seq{k}/frame{i:06d}"
+            to_u8 = lambda t: (t.clamp(0, 1) * 255).byte().permute(1, 2, 0).numpy()  # noqa: E731
+            self.rec.log(f"{base}/image", rr.Image(to_u8(b["image"][0])))
+            self.rec.log(f"{base}/warped_prev", rr.Image(to_u8(extra["warped_prev"][0])))
+            self.rec.log(f"{base}/flow_mask_prev", rr.Image((b["mask_prev"][0, 0] > 0.5).byte().numpy() * 255))
+            self.rec.log(f"{base}/photometric_error", rr.Image((pe.clamp(0, 0.5) * 510).byte().numpy()))
+            self.rec.log(f"{base}/depth", rr.DepthImage((depth[0, 0] * 1000).clamp(0, 65535).to(torch.int32).numpy().astype(np.uint16),
+                                                        meter=1000.0, colormap="turbo"))
+        model.train()
+
+
+def _append_logs(out: Path, record: dict) -> None:
+    with open(out / "log.jsonl", "a") as fh:
+        fh.write(json.dumps(record) + "\n")
+    rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines() if line.strip()]
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[-1]))
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text(out / "log.csv", buf.getvalue())
+
+
+def _save(path: Path, state: dict) -> None:
+    atomic_write(path, lambda tmp: torch.save(state, tmp))
+
+
+def train_selfsup(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
+                  rerun: Path | None = None) -> dict:
+    """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0)."""
+    return fit(cfg, sequences, out, resume, progress, rerun)[0]
+
+
+def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
+        rerun: Path | None = None) -> tuple[dict, DepthGenerator]:
+    """`train_selfsup`, also returning this process's model."""
+    if not sequences:
+        raise DataError("sequences", "self-supervised training needs at least one sequence folder")
+    rank, world = distributed()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    seqs = [BlindSequence(open_sequence(p)) for p in sequences]
+    frames = [train_frames(s, cfg) for s in seqs]
+    model = DepthGenerator(network_config(cfg))
+    if cfg.init_checkpoint and not resume:
+        from leovr.depth.train import _init_from
+
+        _init_from(model, Path(cfg.init_checkpoint))
+    opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
+    sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
+    start = 0
+    last = out / "checkpoint_last.pt"
+    if resume:
+        if not last.is_file():
+            raise DataError(last, "nothing to resume from")
+        state = torch.load(last, map_location="cpu", weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        start = state["epoch"] + 1
+    net = torch.nn.parallel.DistributedDataParallel(model, find_unused_parameters=True) if world > 1 else model
+    network = network_config(cfg).__dict__
+
+    def supervise(tag: str) -> SelfSupSamples | None:
+        """Graph passes for this tag (rank 0), then every rank builds the targets from them."""
+        folder = out / "graph" / tag
+        checkpoint = None
+        if tag != "init":
+            checkpoint = folder / "generator.pt"
+            if rank == 0 and not checkpoint.is_file():
+                _save(checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()})
+        if rank == 0:
+            for k, s in enumerate(seqs):
+                graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), progress)
+        _barrier(world)
+        sup = [build_supervision(frames[k], graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), False),
+                                 cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None)
+               for k, s in enumerate(seqs)]
+        if dataset is None:
+            return SelfSupSamples(frames, sup)
+        dataset.set_supervision(sup)
+        return dataset
+
+    dataset: SelfSupSamples | None = None
+    tag, record, viewer = None, {}, None
+    for epoch in range(start, cfg.epochs):
+        refine = epoch >= init_epochs(cfg)
+        if pass_tag(epoch, cfg) != tag:
+            tag = pass_tag(epoch, cfg)
+            dataset = supervise(tag)
+        if len(dataset) == 0:
+            raise DataError(sequences[0], "no frame has both neighbours: sequences need at least 3 frames")
+        if rerun is not None and rank == 0 and viewer is None:
+            viewer = _Rerun(Path(rerun), cfg, dataset)
+        if world > 1:
+            sampler = DistributedSampler(dataset, world, rank, shuffle=True, seed=cfg.seed)
+            sampler.set_epoch(epoch)
+        else:
+            sampler = RandomSampler(dataset, generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
+        loader = DataLoader(dataset, cfg.batch_size, sampler=sampler)
+        net.train()
+        t0, sums, count = time.time(), dict.fromkeys(TERMS, 0.0), 0
+        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})",
+                   unit="batch", disable=not progress or rank != 0)
+        for b in bar:
+            depth, _ = forward_padded(net, b["image"], b["sparse"])
+            loss, terms, _ = batch_terms(depth, b, cfg, refine)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            for k in TERMS:
+                sums[k] += terms[k]
+            count += 1
+            bar.set_postfix(loss=f"{terms['loss']:.3f}")
+        sched.step()
+        if world > 1:  # gradients are averaged every step; BatchNorm statistics only at the next forward, so sync them now
+            for buf in model.buffers():
+                dist.broadcast(buf, 0)
+        if rank == 0:
+            record = {"epoch": epoch + 1, "stage": "refinement" if refine else "initialisation", "graph_pass": tag,
+                      **{k: sums[k] / max(count, 1) for k in TERMS}, "lr": opt.param_groups[0]["lr"],
+                      "seconds": round(time.time() - t0, 1), "processes": world}
+            _append_logs(out, record)
+            _save(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                         "epoch": epoch, "config": cfg.model_dump(), "network": network})
+            _save(out / "generator.pt", {"model": model.state_dict(), "network": network, "config": cfg.model_dump(),
+                                         "epoch": epoch + 1, "mode": "selfsup"})
+            if viewer is not None:
+                viewer.log(epoch + 1, model, dataset, cfg, refine)
+        _barrier(world)
+    return record, model

@@ -1,0 +1,226 @@
+"""Self-supervised training: warping, losses, flow mask, graph targets, the trainer without ground
+truth (CLI, Rerun log, resume) and DistributedDataParallel over two processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from leovr.config import SelfSupConfig, SimulateConfig
+from leovr.data import open_sequence
+from leovr.geometry import invert_T
+from leovr.sim.simulate import simulate
+from selfsup.blind import BlindSequence
+from selfsup.flow_mask import epipolar_distance, fundamental, motion_flow_mask
+from selfsup.losses import (
+    feature_point_loss,
+    photometric_error,
+    refined_depth_loss,
+    second_order_smoothness,
+)
+from selfsup.supervision import TrainFrame, landmark_depth, refined_agrees
+from selfsup.warp import warp_image
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = {"channels": [8, 8, 16, 16, 16], "blocks": [1, 1, 1, 1], "train_focal_px": 130.0, "loop_closure": False,
+        "batch_size": 2}
+
+
+def _K(f=100.0, cx=31.5, cy=23.5) -> torch.Tensor:
+    return torch.tensor([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
+
+
+def test_warp_reproduces_a_shifted_view():
+    """A fronto-parallel plane at 10 m seen by a camera 0.5 m to the right moves 5 px left (f = 100)."""
+    rng = np.random.default_rng(0)
+    h, w, shift = 48, 64, 5
+    base = torch.from_numpy(rng.random((1, 3, h, w + shift))).float()
+    img_i = base[..., :w]
+    img_j = base[..., shift:]  # pixel u in i is pixel u - 5 in j
+    T = torch.eye(4)[None]
+    T[0, 0, 3] = -0.5  # camera-i point -> camera j (camera j sits 0.5 m to the right)
+    depth = torch.full((1, 1, h, w), 10.0, requires_grad=True)
+    warped, valid = warp_image(img_j, depth, T, _K()[None])
+    assert valid[..., :shift].logical_not().all() and valid[..., shift:].all()
+    assert torch.allclose(warped[..., shift:], img_i[..., shift:], atol=1e-5)
+    # the photometric error is differentiable in depth
+    photometric_error(img_i, warped)[valid].mean().backward()
+    assert depth.grad is not None and depth.grad.abs().sum() > 0
+
+
+def test_photometric_error_and_depth_terms():
+    rng = np.random.default_rng(1)
+    a = torch.from_numpy(rng.random((2, 3, 20, 30))).float()
+    assert photometric_error(a, a).abs().max() < 1e-6
+    noisy = (a + 0.2 * torch.from_numpy(rng.standard_normal(a.shape)).float()).clamp(0, 1)
+    assert photometric_error(a, noisy).mean() > 0.05
+    depth = torch.full((2, 1, 20, 30), 10.0)
+    fd = torch.zeros_like(depth)
+    fd[0, 0, 5, 5], fd[1, 0, 7, 9] = 12.0, 9.0
+    assert feature_point_loss(depth, fd).item() == pytest.approx((4 + 1) / 2)
+    refined = torch.full_like(depth, 11.0)
+    assert refined_depth_loss(depth, refined, torch.tensor([True, False])).item() == pytest.approx(1.0)
+    assert refined_depth_loss(depth, refined, torch.tensor([False, False])).item() == 0.0
+    # a plane in inverse depth is perfectly smooth (second order); a step is not
+    ramp = 1.0 / torch.linspace(0.05, 0.2, 30).expand(2, 1, 20, 30)
+    step = depth.clone()
+    step[..., 15:] = 20.0
+    flat = torch.zeros_like(a)
+    assert second_order_smoothness(ramp, flat).item() < 1e-5 < second_order_smoothness(step, flat).item()
+
+
+def test_fundamental_matrix_and_epipolar_distance():
+    rng = np.random.default_rng(2)
+    K = _K().double().numpy()
+    R, _ = np.linalg.qr(rng.standard_normal((3, 3)) * 0.05 + np.eye(3))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R * np.sign(np.linalg.det(R)), [0.3, -0.1, 1.0]
+    P = rng.uniform([-5, -3, 8], [5, 3, 20], (50, 3))
+    pi = P @ K.T
+    Q = P @ T[:3, :3].T + T[:3, 3]
+    pj = Q @ K.T
+    pi, pj = pi / pi[:, 2:], pj / pj[:, 2:]
+    F = fundamental(T, K)
+    assert np.abs(np.einsum("ni,ij,nj->n", pj, F, pi)).max() < 1e-8
+    # exact correspondences lie on their epipolar lines; a 2 px step across the line is 2 px off
+    line = pi @ F.T
+    normal = line[:, :2] / np.linalg.norm(line[:, :2], axis=1, keepdims=True)
+    d_exact = np.abs(np.sum(pj * line, 1)) / np.linalg.norm(line[:, :2], axis=1)
+    moved = pj.copy()
+    moved[:, :2] += 2.0 * normal
+    d_moved = np.abs(np.sum(moved * line, 1)) / np.linalg.norm(line[:, :2], axis=1)
+    assert d_exact.max() < 1e-6 and np.allclose(d_moved, 2.0)
+    # the dense version: a flow field that moves every pixel to its true match under a pure x translation
+    Tx = np.eye(4)
+    Tx[0, 3] = -0.5
+    flow = np.zeros((48, 64, 2))
+    flow[..., 0] = -5.0  # a plane at 10 m, f = 100: 5 px left, along the horizontal epipolar lines
+    assert epipolar_distance(flow, fundamental(Tx, K)).max() < 1e-9
+    flow[..., 1] = 1.5  # 1.5 px off the lines
+    assert np.allclose(epipolar_distance(flow, fundamental(Tx, K)), 1.5)
+
+
+@pytest.fixture(scope="module")
+def dynamic_seq(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("selfsup") / "dyn"
+    simulate(SimulateConfig(scenario="dynamic", lidar="mid40", frames=6, seed=1002), out, progress=False)
+    return out
+
+
+def test_flow_mask_drops_moving_objects(dynamic_seq):
+    """On rendered frames with known moving-object masks, the epipolar test keeps most static pixels
+    and drops a clearly larger share of moving ones (the ground truth is only read here, by the test).
+    Objects moving along the epipolar lines (straight towards or away from the camera) pass the test by
+    construction, so the moving share is not zero."""
+    seq = open_sequence(dynamic_seq)
+    kept_static, kept_moving = [], []
+    for i in range(len(seq) - 1):
+        a, b = seq[i], seq[i + 1]
+        mask = motion_flow_mask(a.image, b.image, invert_T(b.T_world_cam) @ a.T_world_cam, a.K, 1.0)
+        kept_static.append(mask[~a.moving_mask])
+        kept_moving.append(mask[a.moving_mask])
+    static, moving = np.concatenate(kept_static).mean(), np.concatenate(kept_moving).mean()
+    assert np.concatenate(kept_moving).size > 0.01 * len(seq) * a.moving_mask.size
+    assert static > 0.7 and moving < 0.75 * static
+
+
+def test_landmark_depth_and_refined_agreement():
+    K = np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]])
+    f = TrainFrame(5, np.zeros((48, 64, 3), np.uint8), np.zeros((48, 64), np.float32), K)
+    T = np.eye(4)
+    T[:3, 3] = [1.0, 0, 0]  # camera 1 m along world x
+    world = np.array([[1.0, 0, 10.0], [1.0, 0, 20.0], [1.5, 0.5, 5.0], [1.0, 0, -3.0]])
+    d = landmark_depth(f, T, world, np.array([5, 6, 30, 5]), near_frames=4)
+    assert d[24, 32] == pytest.approx(10.0)  # nearest of two on one pixel; the third was seen too long ago
+    assert (d > 0).sum() == 1  # behind the camera: dropped
+    fd = np.zeros((48, 64), np.float32)
+    fd[::4, ::4] = 10.0
+    assert refined_agrees(np.full_like(fd, 10.3), fd, 0.05)
+    assert not refined_agrees(np.full_like(fd, 12.0), fd, 0.05)
+
+
+def _no_truth_copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    for name in ("depth", "masks", "poses_tum.txt"):
+        p = dst / name
+        shutil.rmtree(p) if p.is_dir() else p.unlink()
+    return dst
+
+
+def test_selfsup_cli_without_ground_truth_rerun_and_resume(dynamic_seq, tmp_path):
+    """`leovr train --mode selfsup` on a sequence whose ground truth files were deleted: trains, logs the
+    flow mask / warped image / photometric error to Rerun, writes a loadable generator, resumes."""
+    from rerun.chunk import RrdReader
+
+    from leovr.depth.inference import load_generator
+
+    seq = _no_truth_copy(dynamic_seq, tmp_path / "blind")
+    info = open_sequence(seq).info()
+    assert not info.has_depth and not info.has_poses
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(yaml.safe_dump({"selfsup": {**TINY, "epochs": 2, "init_fraction": 0.5}}))
+    out, rrd = tmp_path / "run", tmp_path / "train.rrd"
+    cmd = [sys.executable, "-m", "leovr.cli", "train", "--mode", "selfsup", str(seq), "--out", str(out), "--config", str(cfg)]
+    r = subprocess.run(cmd + ["--rerun", str(rrd)], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr[-2000:]
+    log = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
+    assert [x["stage"] for x in log] == ["initialisation", "refinement"]
+    assert all(np.isfinite(x["loss"]) and 0 < x["mask_kept"] < 1 for x in log)
+    assert (out / "graph" / "refine_e2" / "seq0" / "depth").is_dir()  # the refinement stage re-ran the graph
+    assert any((out / "graph" / "init" / "seq0" / "masks").glob("*_prev.png"))
+    assert (out / "log.csv").read_text().count("\n") == 3
+    depth_model = load_generator(out / "generator.pt")
+    assert depth_model.cfg.channels == tuple(TINY["channels"])
+    paths = {c.entity_path for c in RrdReader(str(rrd)).stream()}
+    assert any(p.endswith("flow_mask_prev") for p in paths) and any(p.endswith("photometric_error") for p in paths)
+    assert any(p.endswith("warped_prev") for p in paths)
+    # resume: one more epoch continues the log instead of starting over
+    r = subprocess.run(cmd + ["--resume", "--epochs", "3"], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert [x["epoch"] for x in map(json.loads, (out / "log.jsonl").read_text().splitlines())] == [1, 2, 3]
+
+
+def test_blind_sequence_hides_ground_truth(dynamic_seq):
+    seq = open_sequence(dynamic_seq)
+    assert seq[0].depth is not None and seq[0].T_world_cam is not None
+    f = BlindSequence(seq)[0]
+    assert f.depth is None and f.T_world_cam is None and f.moving_mask is None
+    assert f.points is not None and f.image.shape == seq[0].image.shape
+
+
+def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
+    """torchrun with two CPU processes (gloo): after training, both ranks hold the same weights."""
+    worker = tmp_path / "worker.py"
+    worker.write_text(
+        "import sys, torch\nfrom pathlib import Path\nfrom leovr.config import SelfSupConfig\n"
+        "from selfsup.trainer import fit\n"
+        f"cfg = SelfSupConfig(**{TINY!r}, epochs=1, max_frames=5)\n"
+        "_, model = fit(cfg, [Path(sys.argv[1])], Path(sys.argv[2]), progress=False)\n"
+        "rank = torch.distributed.get_rank()\n"
+        "torch.save(model.state_dict(), Path(sys.argv[2]) / f'rank{rank}.pt')\n")
+    out = tmp_path / "ddp"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
+    r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-port", "29517",
+                        str(worker), str(dynamic_seq), str(out)], capture_output=True, text=True, cwd=REPO, env=env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    a, b = (torch.load(out / f"rank{k}.pt") for k in (0, 1))
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    from leovr.depth.network import DepthGenerator
+    from selfsup.trainer import network_config
+
+    torch.manual_seed(0)
+    fresh = DepthGenerator(network_config(SelfSupConfig(**TINY))).state_dict()
+    changed = any(not torch.equal(a[k], fresh[k]) for k in a if a[k].is_floating_point())
+    assert changed  # training moved the weights away from the initialisation
+    log = json.loads((out / "log.jsonl").read_text().splitlines()[0])
+    assert log["processes"] == 2
