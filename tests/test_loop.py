@@ -11,7 +11,7 @@ from leovr.geometry import make_T
 from odometry.features import Features
 from odometry.loop.detector import LoopDetector
 from odometry.loop.pose_graph import optimise_pose_graph
-from odometry.loop.validate import validate_loop
+from odometry.loop.validate import consistent_loops, validate_loop
 from odometry.loop.vocabulary import Vocabulary
 
 K = np.array([[200.0, 0, 160], [0, 200.0, 120], [0, 0, 1]])
@@ -94,3 +94,17 @@ def test_pose_graph_pulls_a_drifted_loop_closed():
     err = lambda P: np.mean([np.linalg.norm(P[k][:3, 3] - gt[k][:3, 3]) for k in range(40)])  # noqa: E731
     assert err(fixed) < 0.5 * err(est)
 
+
+
+def test_consistent_loops_rejects_the_odd_one_out():
+    """A run of loops measured from true poses agrees through the odometry; one measurement off by
+    1.5 m is dropped, and so is a loop with no neighbour to confirm it."""
+    rng = np.random.default_rng(3)
+    poses = np.stack([make_T(Rotation.from_rotvec([0, 0.02 * k, 0]).as_matrix(), [0.1 * k, 0, 1.0 * k]) for k in range(60)])
+    true = lambda i, j: np.linalg.solve(poses[j], poses[i])  # noqa: E731  camera i in camera j
+    loops = [(i, i - 40, true(i, i - 40)) for i in (50, 51, 52, 53)]
+    bad = true(54, 14)
+    bad[:3, 3] += [1.5, 0, 0]
+    loops.append((54, 14, bad))
+    loops.append((59, 3, true(59, 3) @ make_T(Rotation.from_rotvec(rng.normal(0, 0.001, 3)).as_matrix(), [0, 0, 0])))
+    assert consistent_loops(loops, poses) == [True, True, True, True, False, False]
