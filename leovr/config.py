@@ -217,6 +217,7 @@ class SelfSupConfig(_Model):
     loop_closure: bool = True  # pose quality assurance (Sec. IV-B) in every graph pass
     loop_min_gap: int = Field(30, ge=2)
     landmark_frames: int = Field(4, ge=0)  # a landmark counts as visible in frame i when last observed within this many frames
+    landmarks_lidar_only: bool = True  # L_f on LiDAR-backed landmarks only (triangulated-only ones carry metres of error)
     refined_agree_rel: float = Field(0.05, gt=0)  # L_r uses a frame when its refined depth is within this of the landmarks (median)
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True

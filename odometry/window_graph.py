@@ -99,6 +99,7 @@ class WindowGraph:
         self.landmarks: dict[int, np.ndarray] = {}
         self.retired_landmarks: dict[int, np.ndarray] = {}  # last estimate of landmarks marginalised out
         self.landmark_frame: dict[int, int] = {}  # the latest frame that observed each landmark
+        self.landmark_lidar: set[int] = set()  # landmarks with at least one LiDAR point factor
         self.pairs: list[_Pair] = []
         self.last: int | None = None
 
@@ -159,6 +160,7 @@ class WindowGraph:
         for k in {o.landmark for o in f.observations}:
             stamps.insert((L(k), float(f.index)))
             self.landmark_frame[k] = f.index
+        self.landmark_lidar.update(o.landmark for o in f.observations if o.lidar_cam is not None)
         self.smoother.update(graph, values, stamps)
         self.last = f.index
         return self._collect()
@@ -196,6 +198,11 @@ class WindowGraph:
         items = list(self.retired_landmarks.items()) + list(self.landmarks.items())
         pts = np.array([p for _, p in items], float).reshape(-1, 3)
         return pts, np.array([self.landmark_frame.get(k, -1) for k, _ in items], np.int64)
+
+    def lidar_backed(self) -> np.ndarray:
+        """Per landmark, in the order of `all_landmarks`: whether a LiDAR return fixed its range."""
+        keys = list(self.retired_landmarks) + list(self.landmarks)
+        return np.array([k in self.landmark_lidar for k in keys], bool)
 
     def pose(self, i: int) -> np.ndarray:
         return self.poses[i]

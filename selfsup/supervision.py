@@ -42,6 +42,7 @@ class GraphResult:
     indices: list[int]
     landmarks: np.ndarray  # N x 3 world
     landmark_frame: np.ndarray  # N: frame that last observed each landmark
+    landmark_lidar: np.ndarray  # N: a LiDAR return fixed its range
     depth_dir: Path  # refined depth PNGs
 
 
@@ -101,7 +102,8 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
     if missing:
         raise DataError(out / "progress.json", f"graph pass has no pose for frames {missing[:5]}")
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
-    return GraphResult(poses, indices, np.load(out / "landmarks.npy"), np.load(out / "landmarks_frame.npy"), out / "depth")
+    return GraphResult(poses, indices, np.load(out / "landmarks.npy"), np.load(out / "landmarks_frame.npy"),
+                       np.load(out / "landmarks_lidar.npy"), out / "depth")
 
 
 def landmark_depth(frame: TrainFrame, T_world_cam: np.ndarray, landmarks: np.ndarray, landmark_frame: np.ndarray,
@@ -135,7 +137,8 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
                       mask_dir: Path | None = None) -> Supervision:
     """Per-frame targets from a graph pass; masks are written as PNGs to `mask_dir` for inspection."""
     n = len(frames)
-    fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks, graph.landmark_frame, cfg.landmark_frames)
+    keep = graph.landmark_lidar if cfg.landmarks_lidar_only else np.ones(len(graph.landmarks), bool)
+    fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
               for k, f in enumerate(frames)]
     refined: list[np.ndarray | None] = [None] * n
     use = np.zeros(n, bool)

@@ -3,7 +3,7 @@ frame by frame as a live system would see them; refined depth, poses, metrics an
 
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 mm), `depth_generator/` (the
 generator alone), `depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
-truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), and `progress.json`, the state `--resume`
+truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
 continues from (a resumed run restarts the window at the first unfinished frame, anchored at the last
 finished pose).
 """
@@ -191,6 +191,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     state.save(state_path)
     atomic_write(out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
     atomic_write(out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
+    lidar_backed = graph.lidar_backed()
+    atomic_write(out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score)
 
 
