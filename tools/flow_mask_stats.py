@@ -11,8 +11,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from leovr.config import SimulateConfig
 from leovr.data import open_sequence
 from leovr.geometry import invert_T
