@@ -5,27 +5,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
-
 from leovr.data.records import Frame
-from leovr.data.sequence import Sequence
+from leovr.data.sequence import Sequence, SequenceView
 
 
-class BlindSequence(Sequence):
+class BlindSequence(SequenceView):
     def __init__(self, base: Sequence) -> None:
-        self.base = base
-        self.name = base.name
-        self.path = base.path
-        self.has_lidar = base.has_lidar
-        self.has_poses = False
-        self.has_depth = False
-        self.rate_hz = getattr(base, "rate_hz", 10.0)
-
-    def _num_frames(self) -> int:
-        return len(self.base)
+        super().__init__(base, list(range(len(base))))
+        self.has_poses = self.has_depth = False
 
     def _load(self, i: int) -> Frame:
-        return replace(self.base[i], depth=None, T_world_cam=None, moving_mask=None)
-
-    def timestamps(self) -> np.ndarray:
-        return self.base.timestamps()
+        return replace(super()._load(i), depth=None, T_world_cam=None, moving_mask=None)

@@ -28,9 +28,10 @@ from tqdm import tqdm
 
 from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
-from leovr.data.io import atomic_write, write_text
+from leovr.data.io import write_text
 from leovr.depth.inference import forward_padded
-from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.depth.network import DepthGenerator
+from leovr.depth.train import generator_config, init_from, load_resume, save_checkpoint
 from leovr.errors import DataError
 from selfsup.blind import BlindSequence
 from selfsup.dataset import SelfSupSamples
@@ -45,11 +46,6 @@ from selfsup.supervision import build_supervision, graph_pass, train_frames
 from selfsup.warp import warp_image
 
 TERMS = ("loss", "photometric", "feature", "refined", "smooth", "mask_kept", "refined_used")
-
-
-def network_config(cfg: SelfSupConfig) -> GeneratorConfig:
-    return GeneratorConfig(lidar_encoder=cfg.lidar_encoder, cross_attention=cfg.cross_attention,
-                           channels=tuple(cfg.channels), blocks=tuple(cfg.blocks))
 
 
 def init_epochs(cfg: SelfSupConfig) -> int:
@@ -144,10 +140,6 @@ def _append_logs(out: Path, record: dict) -> None:
     write_text(out / "log.csv", buf.getvalue())
 
 
-def _save(path: Path, state: dict) -> None:
-    atomic_write(path, lambda tmp: torch.save(state, tmp))
-
-
 def train_selfsup(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
                   rerun: Path | None = None) -> dict:
     """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0)."""
@@ -166,41 +158,34 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
     np.random.seed(cfg.seed)
     seqs = [BlindSequence(open_sequence(p)) for p in sequences]
     frames = [train_frames(s, cfg) for s in seqs]
-    model = DepthGenerator(network_config(cfg))
+    model = DepthGenerator(generator_config(cfg))
     if cfg.init_checkpoint and not resume:
-        from leovr.depth.train import _init_from
-
-        _init_from(model, Path(cfg.init_checkpoint))
+        init_from(model, Path(cfg.init_checkpoint))
     opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
     start = 0
     last = out / "checkpoint_last.pt"
     if resume:
-        if not last.is_file():
-            raise DataError(last, "nothing to resume from")
-        state = torch.load(last, map_location="cpu", weights_only=False)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-        start = state["epoch"] + 1
+        start = load_resume(last, model, opt, sched)["epoch"] + 1
     net = torch.nn.parallel.DistributedDataParallel(model, find_unused_parameters=True) if world > 1 else model
-    network = network_config(cfg).__dict__
+    network = generator_config(cfg).__dict__
 
-    def supervise(tag: str) -> SelfSupSamples | None:
-        """Graph passes for this tag (rank 0), then every rank builds the targets from them."""
+    def supervise(tag: str) -> SelfSupSamples:
+        """Graph passes for this tag (rank 0 runs them; the others wait, then read them), and the targets."""
         folder = out / "graph" / tag
         checkpoint = None
         if tag != "init":
             checkpoint = folder / "generator.pt"
             if rank == 0 and not checkpoint.is_file():
-                _save(checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()})
+                save_checkpoint(checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()})
+        if rank != 0:
+            _barrier(world)
+        graphs = [graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), progress and rank == 0)
+                  for k, s in enumerate(seqs)]
         if rank == 0:
-            for k, s in enumerate(seqs):
-                graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), progress)
-        _barrier(world)
-        sup = [build_supervision(frames[k], graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), False),
-                                 cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None)
-               for k, s in enumerate(seqs)]
+            _barrier(world)
+        sup = [build_supervision(frames[k], g, cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None)
+               for k, g in enumerate(graphs)]
         if dataset is None:
             return SelfSupSamples(frames, sup)
         dataset.set_supervision(sup)
@@ -246,9 +231,9 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
                       **{k: sums[k] / max(count, 1) for k in TERMS}, "lr": opt.param_groups[0]["lr"],
                       "seconds": round(time.time() - t0, 1), "processes": world}
             _append_logs(out, record)
-            _save(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+            save_checkpoint(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
                          "epoch": epoch, "config": cfg.model_dump(), "network": network})
-            _save(out / "generator.pt", {"model": model.state_dict(), "network": network, "config": cfg.model_dump(),
+            save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": network, "config": cfg.model_dump(),
                                          "epoch": epoch + 1, "mode": "selfsup"})
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)

@@ -216,10 +216,10 @@ def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
     for k in a:
         assert torch.equal(a[k], b[k]), k
     from leovr.depth.network import DepthGenerator
-    from selfsup.trainer import network_config
+    from leovr.depth.train import generator_config
 
     torch.manual_seed(0)
-    fresh = DepthGenerator(network_config(SelfSupConfig(**TINY))).state_dict()
+    fresh = DepthGenerator(generator_config(SelfSupConfig(**TINY))).state_dict()
     changed = any(not torch.equal(a[k], fresh[k]) for k in a if a[k].is_floating_point())
     assert changed  # training moved the weights away from the initialisation
     log = json.loads((out / "log.jsonl").read_text().splitlines()[0])

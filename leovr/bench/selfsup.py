@@ -26,13 +26,13 @@ from leovr.data.sequence import Sequence, SequenceView
 from leovr.depth.dataset import split_entries
 from leovr.depth.inference import forward_padded, load_generator, predict_at_focal
 from leovr.depth.network import DepthGenerator
-from leovr.depth.train import depth_loss
+from leovr.depth.train import depth_loss, generator_config
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.paths import kitti_raw_dir, shipped_checkpoint
 from leovr.pipeline.completion import prepare_sample
 from leovr.sim.dataset import default_root
 from selfsup.supervision import train_frames
-from selfsup.trainer import network_config, train_selfsup
+from selfsup.trainer import train_selfsup
 
 
 def pick_sequences(root: Path, split: str, cfg: BenchSelfSupConfig, per_scenario: int) -> list[Path]:
@@ -77,7 +77,7 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
             gt = cv2.resize(gt, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
             samples.append((torch.from_numpy(f.image).permute(2, 0, 1).float() / 255.0,
                             torch.from_numpy(f.sparse)[None], torch.from_numpy(gt.astype(np.float32))[None]))
-    model = DepthGenerator(network_config(cfg))
+    model = DepthGenerator(generator_config(cfg))
     opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
     for epoch in tqdm(range(cfg.epochs), desc="supervised reference", unit="epoch", disable=not progress):
@@ -91,7 +91,7 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
             loss.backward()
             opt.step()
         sched.step()
-    atomic_write(final, lambda tmp: torch.save({"model": model.state_dict(), "network": network_config(cfg).__dict__,
+    atomic_write(final, lambda tmp: torch.save({"model": model.state_dict(), "network": generator_config(cfg).__dict__,
                                                 "config": cfg.model_dump(), "mode": "supervised"}, tmp))
     return final
 
@@ -133,7 +133,7 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     t0 = time.time()
     checkpoints["supervised"] = train_supervised_reference(base, train, work / "supervised", progress)
     minutes["supervised"] = (time.time() - t0) / 60.0
-    untrained = DepthGenerator(network_config(base))
+    untrained = DepthGenerator(generator_config(base))
     synthetic = {"untrained": score(untrained, tests, "full", cfg.train_focal_px, bins)}
     for name, ck in checkpoints.items():
         synthetic[name] = score(load_generator(ck), tests, "full", cfg.train_focal_px, bins)
@@ -165,7 +165,7 @@ def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, wo
     kcfg = base.model_copy(update={"input": cfg.kitti_input, "max_frames": n_train, "epochs": epochs})
     test = [SequenceView(seq, list(range(len(seq) - cfg.kitti_test_frames, len(seq))))]
     ck, minutes = _train(kcfg, [raw], work / "kitti_cold_start", progress)
-    models = {"untrained": (DepthGenerator(network_config(kcfg)), cfg.train_focal_px),
+    models = {"untrained": (DepthGenerator(generator_config(kcfg)), cfg.train_focal_px),
               "synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px),
               "shipped_supervised_synthetic": (load_generator(shipped_checkpoint()), 260.0),
               "kitti_cold_start": (load_generator(ck), cfg.train_focal_px)}

@@ -17,7 +17,7 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from leovr.config import TrainConfig
+from leovr.config import SelfSupConfig, TrainConfig
 from leovr.data.io import atomic_write
 from leovr.depth.dataset import DepthSamples, split_sequences
 from leovr.depth.layers import gaussian_nll
@@ -26,7 +26,8 @@ from leovr.errors import DataError
 from leovr.sim.dataset import default_root
 
 
-def generator_config(cfg: TrainConfig) -> GeneratorConfig:
+def generator_config(cfg: TrainConfig | SelfSupConfig) -> GeneratorConfig:
+    """The network a training config describes (both trainers share these fields)."""
     return GeneratorConfig(lidar_encoder=cfg.lidar_encoder, cross_attention=cfg.cross_attention,
                            channels=tuple(cfg.channels), blocks=tuple(cfg.blocks))
 
@@ -60,7 +61,7 @@ def evaluate(model: DepthGenerator, loader: DataLoader) -> float:
     return err / max(n, 1)
 
 
-def _init_from(model: DepthGenerator, path: Path) -> None:
+def init_from(model: DepthGenerator, path: Path) -> None:
     """Copy the weights of a trainer checkpoint into `model` (fine-tuning); the networks must match."""
     from leovr.depth.inference import load_generator
 
@@ -70,8 +71,21 @@ def _init_from(model: DepthGenerator, path: Path) -> None:
     model.load_state_dict(source.state_dict())
 
 
-def _save(path: Path, state: dict) -> None:
+def save_checkpoint(path: Path, state: dict) -> None:
     atomic_write(path, lambda tmp: torch.save(state, tmp))
+
+
+def load_resume(path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer,
+                sched: torch.optim.lr_scheduler.LRScheduler) -> dict:
+    """Restore model, optimiser and scheduler from a trainer's `checkpoint_last.pt`; returns the whole
+    state (epoch and whatever else the trainer stored)."""
+    if not path.is_file():
+        raise DataError(path, "nothing to resume from")
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(state["optimizer"])
+    sched.load_state_dict(state["scheduler"])
+    return state
 
 
 def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
@@ -88,7 +102,7 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     val_loader = DataLoader(val_set, cfg.batch_size)
     model = DepthGenerator(generator_config(cfg))
     if cfg.init_checkpoint and not resume:
-        _init_from(model, Path(cfg.init_checkpoint))
+        init_from(model, Path(cfg.init_checkpoint))
     total = cfg.epochs + cfg.sigma_epochs
     opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
@@ -97,12 +111,7 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     start, best = 0, float("inf")
     last = out / "checkpoint_last.pt"
     if resume:
-        if not last.is_file():
-            raise DataError(last, "nothing to resume from")
-        state = torch.load(last, map_location="cpu", weights_only=False)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
+        state = load_resume(last, model, opt, sched)
         sigma_opt.load_state_dict(state["sigma_optimizer"])
         start, best = state["epoch"] + 1, state["best_val_mae_m"]
         gen.set_state(state["generator"])
@@ -150,8 +159,8 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
         state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
                  "sigma_optimizer": sigma_opt.state_dict(), "epoch": epoch, "best_val_mae_m": best,
                  "generator": gen.get_state(), "config": cfg.model_dump(), "network": generator_config(cfg).__dict__}
-        _save(last, state)
+        save_checkpoint(last, state)
         if save_best:
-            _save(out / "best.pt", {"model": model.state_dict(), "config": cfg.model_dump(),
+            save_checkpoint(out / "best.pt", {"model": model.state_dict(), "config": cfg.model_dump(),
                                     "network": generator_config(cfg).__dict__, "epoch": epoch + 1, "val_mae_m": val_mae})
     return record

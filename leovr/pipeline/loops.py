@@ -40,6 +40,7 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
     voc = Vocabulary.load(vocabulary or shipped_vocabulary())
     det = LoopDetector(min_gap=min_gap)
     feats, pts, records, loops, t_query = {}, {}, [], [], []
+    validated: list[dict] = []  # records of geometrically validated loops, in the order of `loops`
     for n, i in enumerate(indices):
         f = seq[i]
         feats[n] = detect(f.image)
@@ -56,14 +57,13 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
                         "pnp_disagreement_m": round(check.disagree_m, 3), "pnp_disagreement_deg": round(check.disagree_deg, 3),
                         "accepted": check.accepted,
                         "T_j_i": None if check.T_j_i is None else np.round(check.T_j_i, 6).tolist()})
+        records[-1]["consistent"] = None
         if check.accepted:
             loops.append((n, j, check.T_j_i))
-            records[-1]["_loop"] = len(loops) - 1
+            validated.append(records[-1])
     keep = consistent_loops(loops, poses)
-    for r in records:
-        k = r.pop("_loop", None)
-        r["consistent"] = None if k is None else keep[k]
-        r["accepted"] = bool(r["accepted"] and r["consistent"])
+    for r, ok in zip(validated, keep):
+        r["consistent"] = r["accepted"] = ok
     loops = [lp for lp, ok in zip(loops, keep) if ok]
     corrected = optimise_pose_graph(poses, loops) if loops else poses
     ms = 1000.0 * float(np.mean(t_query)) if t_query else 0.0
