@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from leovr.config import RefineConfig, SelfSupConfig
-from leovr.data.io import read_depth_png, write_text
+from leovr.data.io import read_depth_png, require_file, write_text
 from leovr.data.sequence import Sequence
 from leovr.depth.inference import rescale_sparse
 from leovr.errors import DataError
@@ -102,8 +102,9 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
     if missing:
         raise DataError(out / "progress.json", f"graph pass has no pose for frames {missing[:5]}")
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
-    return GraphResult(poses, indices, np.load(out / "landmarks.npy"), np.load(out / "landmarks_frame.npy"),
-                       np.load(out / "landmarks_lidar.npy"), out / "depth")
+    arrays = [np.load(require_file(out / name, "graph-pass landmarks"))
+              for name in ("landmarks.npy", "landmarks_frame.npy", "landmarks_lidar.npy")]
+    return GraphResult(poses, indices, *arrays, out / "depth")
 
 
 def landmark_depth(frame: TrainFrame, T_world_cam: np.ndarray, landmarks: np.ndarray, landmark_frame: np.ndarray,
