@@ -208,6 +208,7 @@ class SelfSupConfig(_Model):
     weight_feature: float = Field(0.4, ge=0)  # lambda_f, eq. 22
     weight_refined: float = Field(0.1, ge=0)  # lambda_r
     weight_smooth: float = Field(0.2, ge=0)  # lambda_s
+    target_loss: Literal["log_l1", "l2"] = "log_l1"  # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
     flow_mask: bool = True  # eq. 19 motion-optical-flow mask on the photometric loss
     flow_lambda_px: float = Field(1.0, gt=0)  # lambda: largest distance of the flow end point to its epipolar line
     flow_method: Literal["dis", "farneback"] = "dis"
@@ -242,7 +243,7 @@ class BenchSelfSupConfig(_Model):
     lidar: Literal["mid40", "vlp16"] = "mid40"  # LeoVR's self-supervised experiments use the Mid-40
     train_sequences: int = Field(3, ge=1)  # per scenario (day sequences first)
     test_sequences: int = Field(2, ge=1)  # per scenario, from the test split
-    epochs: int = Field(8, ge=1)
+    epochs: int = Field(24, ge=1)  # the paper's schedule: 18 initialisation + 6 refinement epochs
     quick_epochs: int = Field(2, ge=1)
     quick_frames: int = Field(12, ge=4)  # --quick: frames per sequence, one sequence per scenario
     train_focal_px: float = 130.0  # half the simulator's focal length: 224 x 128 frames keep the run under an hour
@@ -253,7 +254,7 @@ class BenchSelfSupConfig(_Model):
     kitti_input: str = "vlp16"
     kitti_train_frames: int = Field(30, ge=4)  # cold start on the first frames ...
     kitti_test_frames: int = Field(10, ge=1)  # ... scored on held-out beams of the last frames
-    kitti_epochs: int = Field(8, ge=1)
+    kitti_epochs: int = Field(24, ge=1)
 
 
 class LeovrConfig(_Model):

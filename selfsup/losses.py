@@ -38,15 +38,26 @@ def photometric_loss(target: torch.Tensor, warped: list[torch.Tensor], masks: li
     return sum(masked_mean(photometric_error(target, w, alpha), m) for w, m in zip(warped, masks))
 
 
-def feature_point_loss(depth: torch.Tensor, feature_depth: torch.Tensor) -> torch.Tensor:
-    """Eq. 20: squared error at the pixels where the graph's landmarks project (feature_depth > 0)."""
-    return masked_mean((depth - feature_depth) ** 2, feature_depth > 0)
+def depth_target_error(depth: torch.Tensor, target: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:
+    """Per-pixel error against a graph depth target: 'l2' is the paper's squared error in metres
+    (eqs. 20-21); 'log_l1' is |log D - log D*|, a relative error, so the few far targets (tens of
+    metres, metres off) do not outweigh the many near ones and the photometric term."""
+    if kind == "l2":
+        return (depth - target) ** 2
+    if kind == "log_l1":
+        return (depth.clamp(min=1e-3).log() - target.clamp(min=1e-3).log()).abs()
+    raise ValueError(f"target loss must be 'log_l1' or 'l2', not '{kind}'")
 
 
-def refined_depth_loss(depth: torch.Tensor, refined: torch.Tensor, use: torch.Tensor) -> torch.Tensor:
-    """Eq. 21: squared error to the graph's refined depth, only on frames whose refined depth agreed
+def feature_point_loss(depth: torch.Tensor, feature_depth: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:
+    """Eq. 20: error at the pixels where the graph's landmarks project (feature_depth > 0)."""
+    return masked_mean(depth_target_error(depth, feature_depth, kind), feature_depth > 0)
+
+
+def refined_depth_loss(depth: torch.Tensor, refined: torch.Tensor, use: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:
+    """Eq. 21: error to the graph's refined depth, only on frames whose refined depth agreed
     with the landmarks (`use`, B bools)."""
-    return masked_mean((depth - refined) ** 2, (refined > 0) & use.view(-1, 1, 1, 1))
+    return masked_mean(depth_target_error(depth, refined, kind), (refined > 0) & use.view(-1, 1, 1, 1))
 
 
 def second_order_smoothness(depth: torch.Tensor, image: torch.Tensor) -> torch.Tensor:

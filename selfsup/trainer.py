@@ -83,9 +83,9 @@ def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: 
         warped.append(w)
         masks.append(inside & (b[f"mask_{side}"] > 0.5))
     lp = photometric_loss(img, warped, masks, cfg.alpha)
-    lf = feature_point_loss(depth, b["feature_depth"]) if cfg.weight_feature > 0 else depth.new_zeros(())
+    lf = feature_point_loss(depth, b["feature_depth"], cfg.target_loss) if cfg.weight_feature > 0 else depth.new_zeros(())
     use_r = refine_stage and cfg.weight_refined > 0 and bool(b["use_refined"].any())
-    lr = refined_depth_loss(depth, b["refined"], b["use_refined"]) if use_r else depth.new_zeros(())
+    lr = refined_depth_loss(depth, b["refined"], b["use_refined"], cfg.target_loss) if use_r else depth.new_zeros(())
     ls = second_order_smoothness(depth, img) if cfg.weight_smooth > 0 else depth.new_zeros(())
     loss = lp + cfg.weight_feature * lf + cfg.weight_refined * lr + cfg.weight_smooth * ls
     terms = {"loss": loss.item(), "photometric": lp.item(), "feature": lf.item(), "refined": lr.item(),
@@ -166,7 +166,12 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
     start = 0
     last = out / "checkpoint_last.pt"
     if resume:
-        start = load_resume(last, model, opt, sched)["epoch"] + 1
+        state = load_resume(last, model, opt, sched)
+        changed = sorted(k for k, v in cfg.model_dump().items() if k != "epochs" and state.get("config", {}).get(k) != v)
+        if changed:
+            raise DataError(last, f"was trained with other settings ({', '.join(changed)}); resume with the same "
+                                  "config (only epochs may change) or start a new --out folder")
+        start = state["epoch"] + 1
     net = torch.nn.parallel.DistributedDataParallel(model, find_unused_parameters=True) if world > 1 else model
     network = generator_config(cfg).__dict__
 

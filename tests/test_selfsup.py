@@ -66,10 +66,16 @@ def test_photometric_error_and_depth_terms():
     depth = torch.full((2, 1, 20, 30), 10.0)
     fd = torch.zeros_like(depth)
     fd[0, 0, 5, 5], fd[1, 0, 7, 9] = 12.0, 9.0
-    assert feature_point_loss(depth, fd).item() == pytest.approx((4 + 1) / 2)
+    assert feature_point_loss(depth, fd, "l2").item() == pytest.approx((4 + 1) / 2)
+    assert feature_point_loss(depth, fd).item() == pytest.approx((np.log(12 / 10) + np.log(10 / 9)) / 2)
     refined = torch.full_like(depth, 11.0)
-    assert refined_depth_loss(depth, refined, torch.tensor([True, False])).item() == pytest.approx(1.0)
+    assert refined_depth_loss(depth, refined, torch.tensor([True, False]), "l2").item() == pytest.approx(1.0)
+    assert refined_depth_loss(depth, refined, torch.tensor([True, False])).item() == pytest.approx(np.log(1.1))
     assert refined_depth_loss(depth, refined, torch.tensor([False, False])).item() == 0.0
+    # log_l1 is relative: 1 m off at 5 m costs as much as 10 m off at 50 m; l2 weighs the far one 100x
+    near, far = torch.tensor([[[[5.0]]]]), torch.tensor([[[[50.0]]]])
+    assert feature_point_loss(near * 1.2, near).item() == pytest.approx(feature_point_loss(far * 1.2, far).item())
+    assert feature_point_loss(far * 1.2, far, "l2").item() == pytest.approx(100 * feature_point_loss(near * 1.2, near, "l2").item())
     # a plane in inverse depth is perfectly smooth (second order); a step is not
     ramp = 1.0 / torch.linspace(0.05, 0.2, 30).expand(2, 1, 20, 30)
     step = depth.clone()

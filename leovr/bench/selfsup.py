@@ -65,7 +65,7 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
     """The same network, frames, input, resolution and schedule as the self-supervised run, with an L1
     loss on ground-truth depth instead: the bench's 'supervised' figure. Resumes per epoch."""
     final = out / "generator.pt"
-    if final.is_file():
+    if final.is_file() and torch.load(final, weights_only=False).get("config") == cfg.model_dump():
         return final
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
@@ -101,8 +101,13 @@ def _train(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bool,
     t0 = time.time()
     done = run / "generator.pt"
     last = run / "checkpoint_last.pt"
-    if done.is_file() and last.is_file() and torch.load(last, weights_only=False)["epoch"] + 1 >= cfg.epochs:
-        return done, 0.0
+    if last.is_file():
+        state = torch.load(last, weights_only=False)
+        if state.get("config") != cfg.model_dump():
+            print(f"{run}: left by a run with other settings, starting it again")
+            shutil.rmtree(run)
+        elif done.is_file() and state["epoch"] + 1 >= cfg.epochs:
+            return done, 0.0
     if share_init is not None and share_init.is_dir() and not (run / "graph" / "init").exists():
         shutil.copytree(share_init, run / "graph" / "init")  # the initialisation pass uses no network: same for every run
     train_selfsup(cfg, sequences, run, resume=last.is_file(), progress=progress)
