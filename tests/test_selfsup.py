@@ -193,6 +193,13 @@ def test_selfsup_cli_without_ground_truth_rerun_and_resume(dynamic_seq, tmp_path
     r = subprocess.run(cmd + ["--resume", "--epochs", "3"], capture_output=True, text=True, cwd=REPO)
     assert r.returncode == 0, r.stderr[-2000:]
     assert [x["epoch"] for x in map(json.loads, (out / "log.jsonl").read_text().splitlines())] == [1, 2, 3]
+    # resuming with other loss settings is refused with the setting's name, and nothing is overwritten
+    other = tmp_path / "other.yaml"
+    other.write_text(yaml.safe_dump({"selfsup": {**TINY, "epochs": 2, "init_fraction": 0.5, "target_loss": "l2"}}))
+    before = (out / "checkpoint_last.pt").read_bytes()
+    r = subprocess.run(cmd[:-1] + [str(other), "--resume", "--epochs", "4"], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode != 0 and "target_loss" in r.stderr and "Traceback" not in r.stderr
+    assert (out / "checkpoint_last.pt").read_bytes() == before
 
 
 def test_blind_sequence_hides_ground_truth(dynamic_seq):
