@@ -252,9 +252,10 @@ class BenchSelfSupConfig(_Model):
     lr: float = Field(1e-3, gt=0)
     kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
     kitti_input: str = "vlp16"
-    kitti_train_frames: int = Field(30, ge=4)  # cold start on the first frames ...
+    kitti_train_frames: int = Field(38, ge=4)  # cold start on the first frames ...
     kitti_test_frames: int = Field(10, ge=1)  # ... scored on held-out beams of the last frames
-    kitti_epochs: int = Field(24, ge=1)
+    kitti_epochs: int = Field(96, ge=1)  # 5 batches an epoch on the 48-frame clip: 480 steps
+    kitti_refresh_every: int = Field(8, ge=1)  # refinement-stage graph re-runs on the clip every N epochs
 
 
 class LeovrConfig(_Model):
