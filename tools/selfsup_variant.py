@@ -3,26 +3,25 @@ scored on its test sequences: a quick way to compare loss settings (about 1.6 mi
 
     .venv/bin/python tools/selfsup_variant.py NAME [--set target_loss=l2 --set weight_feature=0] [--epochs 8]
 
-Runs go to runs/selfsup_variants/NAME (resumed when started again with the same settings); the
-network-free initialisation graph pass is copied from the bench's work folder when it is there.
+Runs go to runs/selfsup_variants/NAME (resumed when started again with the same settings, else
+started again); the network-free initialisation graph pass is copied from the bench's work folder
+when it is there.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import time
 from pathlib import Path
 
 import yaml
 
-from leovr.bench.selfsup import pick_sequences, score
-from leovr.config import BenchSelfSupConfig, CompleteConfig, SelfSupConfig
+from leovr.bench.selfsup import base_config, pick_sequences, score, train_run
+from leovr.config import BenchSelfSupConfig, CompleteConfig
 from leovr.data import open_sequence
 from leovr.depth.inference import load_generator
 from leovr.sim.dataset import default_root
-from selfsup.trainer import train_selfsup
 
 
 def main() -> None:
@@ -38,13 +37,10 @@ def main() -> None:
     train = pick_sequences(root, "train", bench, bench.train_sequences)
     tests = [open_sequence(p) for p in pick_sequences(root, "test", bench, bench.test_sequences)]
     overrides = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}
-    cfg = SelfSupConfig(epochs=args.epochs, batch_size=bench.batch_size, lr=bench.lr, channels=bench.channels,
-                        train_focal_px=bench.train_focal_px, input="full", init_fraction=1.0, **overrides)
+    cfg = base_config(bench, args.epochs, init_fraction=1.0, **overrides)
     run = args.runs / args.name
-    if args.shared_init.is_dir() and not (run / "graph" / "init").exists():
-        shutil.copytree(args.shared_init, run / "graph" / "init")
     t0 = time.time()
-    train_selfsup(cfg, train, run, resume=(run / "checkpoint_last.pt").is_file(), progress=False)
+    train_run(cfg, train, run, progress=False, share_init=args.shared_init)
     metrics = score(load_generator(run / "generator.pt"), tests, "full", bench.train_focal_px, list(CompleteConfig().bins))
     print(json.dumps({"name": args.name, "overrides": overrides, "epochs": args.epochs, **metrics,
                       "minutes": round((time.time() - t0) / 60, 1)}))

@@ -100,7 +100,13 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
     return final
 
 
-def _train(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bool, share_init: Path | None = None) -> tuple[Path, float]:
+def base_config(cfg: BenchSelfSupConfig, epochs: int, max_frames: int | None = None, **update) -> SelfSupConfig:
+    """The bench's self-supervised settings (simulator input, half resolution), with `update` on top."""
+    return SelfSupConfig(epochs=epochs, batch_size=cfg.batch_size, lr=cfg.lr, channels=cfg.channels,
+                         train_focal_px=cfg.train_focal_px, input="full", max_frames=max_frames, **update)
+
+
+def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bool, share_init: Path | None = None) -> tuple[Path, float]:
     """Self-supervised run (resumed when interrupted); returns (generator.pt, minutes spent on it over
     every invocation, kept in `train_minutes.json`)."""
     t0 = time.time()
@@ -139,16 +145,14 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     if quick:
         tests = [SequenceView(s, list(range(min(len(s), cfg.quick_frames)))) for s in tests]
     epochs = cfg.quick_epochs if quick else cfg.epochs
-    base = SelfSupConfig(epochs=epochs, batch_size=cfg.batch_size, lr=cfg.lr, channels=cfg.channels,
-                         train_focal_px=cfg.train_focal_px, input="full",
-                         max_frames=cfg.quick_frames if quick else None)
+    base = base_config(cfg, epochs, cfg.quick_frames if quick else None)
     variants = {"selfsup": base, "selfsup_nomask": base.model_copy(update={"flow_mask": False}),
                 "selfsup_no_lf_lr": base.model_copy(update={"weight_feature": 0.0, "weight_refined": 0.0})}
     bins = list(CompleteConfig().bins)
     minutes, checkpoints = {}, {}
     for name, vcfg in variants.items():
         share = None if name == "selfsup" else work / "selfsup" / "graph" / "init"
-        checkpoints[name], minutes[name] = _train(vcfg, train, work / name, progress, share)
+        checkpoints[name], minutes[name] = train_run(vcfg, train, work / name, progress, share)
     checkpoints["supervised"] = train_supervised_reference(base, train, work / "supervised", progress)
     minutes["supervised"] = _minutes(work / "supervised")
     untrained = DepthGenerator(generator_config(base))
@@ -184,7 +188,7 @@ def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, wo
     kcfg = base.model_copy(update={"input": cfg.kitti_input, "max_frames": n_train, "epochs": epochs,
                                    "refresh_every": cfg.kitti_refresh_every, "lr_step_epochs": max(1, epochs // 4)})
     test = [SequenceView(seq, list(range(len(seq) - cfg.kitti_test_frames, len(seq))))]
-    ck, minutes = _train(kcfg, [raw], work / "kitti_cold_start", progress)
+    ck, minutes = train_run(kcfg, [raw], work / "kitti_cold_start", progress)
     models = {"untrained": (DepthGenerator(generator_config(kcfg)), cfg.train_focal_px),
               "synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px),
               "shipped_supervised_synthetic": (load_generator(shipped_checkpoint()), 260.0),
