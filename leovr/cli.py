@@ -159,7 +159,7 @@ def refine(
     config: Optional[Path] = ConfigOpt,
     checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
     window: Optional[int] = typer.Option(None, help="Frames in the sliding window."),
-    input: Optional[str] = typer.Option(None, "--input", help="Cheap LiDAR input: full, vlp16, mid40, ratio:R."),
+    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it (evaluation)."),
     start: Optional[int] = typer.Option(None),
     end: Optional[int] = typer.Option(None),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
@@ -178,7 +178,7 @@ def poses(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
     config: Optional[Path] = ConfigOpt,
     loop_closure: bool = typer.Option(True, "--loop-closure/--no-loop-closure", help="Close loops (default on)."),
-    input: Optional[str] = typer.Option(None, "--input", help="Cheap LiDAR input: full, vlp16, mid40, ratio:R."),
+    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it (evaluation)."),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
 ) -> None:
     """The offline pose pass the self-supervised trainer uses: window odometry, then loop closure."""
@@ -197,7 +197,10 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
         typer.echo(f"loops: {sum(r['accepted'] for r in loops)} accepted of {len(loops)} candidates (loops.json)")
     typer.echo(m["mode"])
     for method, r in m["depth"].items():
-        typer.echo(f"{method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
+        if r.get("n"):
+            typer.echo(f"{method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
+    if not any(r.get("n") for r in m["depth"].values()):
+        typer.echo("depth not scored: no ground truth (the whole scan is the input; --input vlp16|mid40 holds points out)")
     for name, t in m.get("trajectory", {}).items():
         typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m ({t['align']} aligned)")
     t = m["timing"]

@@ -48,7 +48,7 @@ class FrameSelection(_Model):
 class CompleteConfig(FrameSelection):
     """`leovr complete`: classical completion of a cheap LiDAR input, scored on held-out points."""
 
-    method: Literal["nearest", "ipbasic", "generator"] = "ipbasic"
+    method: Literal["nearest", "ipbasic", "interp", "generator"] = "ipbasic"
 
 
 class BenchBaselineConfig(_Model):
@@ -56,7 +56,7 @@ class BenchBaselineConfig(_Model):
 
     data: str | None = None  # KITTI raw clip; None = ../shared/data/kitti_raw
     inputs: list[str] = ["vlp16", "mid40"]
-    methods: list[Literal["nearest", "ipbasic"]] = ["nearest", "ipbasic"]
+    methods: list[Literal["nearest", "ipbasic", "interp"]] = ["nearest", "ipbasic", "interp"]
     quick_step: int = 6  # --quick scores every 6th frame
     seed: int = 0
 
@@ -101,7 +101,7 @@ class BenchDepthConfig(_Model):
     kitti: str | None = None  # KITTI raw clip; None = ../shared/data/kitti_raw
     checkpoint: str | None = None  # None = the shipped generator
     generator_focal_px: float | None = 260.0
-    methods: list[Literal["nearest", "ipbasic", "generator"]] = ["nearest", "ipbasic", "generator"]
+    methods: list[Literal["nearest", "ipbasic", "interp", "generator"]] = ["nearest", "ipbasic", "interp", "generator"]
     synthetic_lidars: list[Literal["mid40", "vlp16"]] = ["mid40", "vlp16"]
     synthetic_step: int = Field(1, ge=1)  # every n-th test frame
     kitti_inputs: list[str] = ["vlp16", "mid40"]
@@ -112,6 +112,7 @@ class BenchDepthConfig(_Model):
 class RefineConfig(FrameSelection):
     """`leovr refine`: generator depth, visual-LiDAR front end and the sliding-window graph (LeoVR Sec. III)."""
 
+    input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R simulate a cheaper sensor (evaluation)
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
     depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
     depth_factors: bool = True  # False: point factors only (no depth-consistency / LiDAR-depth factors)
@@ -186,6 +187,7 @@ class TrainConfig(_Model):
     native_prob: float = Field(0.5, ge=0, le=1)  # share of samples using the sequence's own LiDAR pattern
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True
+    output: Literal["absolute", "residual", "fusion"] = "fusion"  # what the decoder predicts (leovr.depth.network)
     channels: list[int] = [16, 32, 64, 128, 128]
     blocks: list[int] = [3, 4, 6, 3]
     max_frames: int | None = None  # cap on training frames (quick runs)

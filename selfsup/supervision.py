@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from leovr.config import RefineConfig, SelfSupConfig
-from leovr.data.io import read_depth_png, require_file, write_text
+from leovr.data.io import require_file, write_text
+from leovr.data.run_info import read_run_depth
 from leovr.data.sequence import Sequence
 from leovr.depth.inference import rescale_sparse
 from leovr.errors import DataError
@@ -145,7 +146,7 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
     use = np.zeros(n, bool)
     if with_refined:
         for k, f in enumerate(frames):
-            d = read_depth_png(graph.depth_dir / f"{f.index:06d}.png")
+            d = read_run_depth(graph.depth_dir.parent, graph.depth_dir.name, f.index)
             refined[k] = cv2.resize(d, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
             use[k] = refined_agrees(refined[k], fdepth[k], cfg.refined_agree_rel)
     prev: list[np.ndarray | None] = [None] * n

@@ -124,8 +124,7 @@ class _Rerun:
             self.rec.log(f"{base}/warped_prev", rr.Image(to_u8(extra["warped_prev"][0])))
             self.rec.log(f"{base}/flow_mask_prev", rr.Image((b["mask_prev"][0, 0] > 0.5).byte().numpy() * 255))
             self.rec.log(f"{base}/photometric_error", rr.Image((pe.clamp(0, 0.5) * 510).byte().numpy()))
-            self.rec.log(f"{base}/depth", rr.DepthImage((depth[0, 0] * 1000).clamp(0, 65535).to(torch.int32).numpy().astype(np.uint16),
-                                                        meter=1000.0, colormap="turbo"))
+            self.rec.log(f"{base}/depth", rr.DepthImage(depth[0, 0].float().numpy(), meter=1.0, colormap="turbo"))
         model.train()
 
 

@@ -136,7 +136,7 @@ def test_native_writer_keeps_poses_depth_times_and_masks(tmp_path):
     assert seq.has_poses and seq.has_depth and seq.has_lidar
     f = seq[2]
     np.testing.assert_allclose(f.T_world_cam, poses[2], atol=1e-9)
-    np.testing.assert_allclose(f.depth, 3.257)  # millimetre PNG
+    np.testing.assert_allclose(f.depth, round(3.2567 * 256) / 256)  # metres x 256 PNG (KITTI convention)
     np.testing.assert_allclose(f.point_times, np.linspace(0, 0.1, 50), atol=1e-7)
     assert f.points.shape == (50, 4) and f.moving_mask[:, 2].all() and f.moving_mask.sum() == 20
 

@@ -36,7 +36,11 @@ def read_image(path: Path, gray: bool = False) -> np.ndarray:
     return img
 
 
-def read_depth_png(path: Path, scale: float = 1000.0) -> np.ndarray:
+DEPTH_SCALE = 256.0  # KITTI depth-completion convention: uint16 = metres x 256, 0 = unknown, up to 255.99 m
+LEGACY_DEPTH_SCALE = 1000.0  # millimetres: what leovr wrote before (cut at 65.5 m); read where a file says so
+
+
+def read_depth_png(path: Path, scale: float = DEPTH_SCALE) -> np.ndarray:
     """Read a 16-bit depth PNG as float32 metres (0 = unknown); `scale` is units per metre."""
     require_file(path, "depth image")
     d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -47,11 +51,11 @@ def read_depth_png(path: Path, scale: float = 1000.0) -> np.ndarray:
     return d.astype(np.float32) / scale
 
 
-def depth_to_uint16(depth: np.ndarray, scale: float = 1000.0) -> np.ndarray:
-    """Metres to uint16 units (millimetres by default).
+def depth_to_uint16(depth: np.ndarray, scale: float = DEPTH_SCALE) -> np.ndarray:
+    """Metres to uint16 units (metres x 256 by default, the KITTI depth-completion convention).
 
     Non-finite or non-positive values become 0 (unknown); depths beyond the format's range
-    (65.535 m in millimetres) saturate at 65535 rather than being lost.
+    (255.99 m at 256 units per metre) saturate at 65535 rather than being lost.
     """
     d = np.nan_to_num(np.asarray(depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0) * scale
     d = np.where(d > 0, np.minimum(np.round(d), 65535), 0)
@@ -72,8 +76,8 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
             os.unlink(tmp)
 
 
-def write_depth_png(path: Path, depth: np.ndarray, scale: float = 1000.0) -> None:
-    """Write depth in metres as a uint16 PNG (millimetres by default), atomically."""
+def write_depth_png(path: Path, depth: np.ndarray, scale: float = DEPTH_SCALE) -> None:
+    """Write depth in metres as a uint16 PNG (metres x 256 by default), atomically."""
 
     def _write(tmp: Path) -> None:
         if not cv2.imwrite(str(tmp), depth_to_uint16(depth, scale)):

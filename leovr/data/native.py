@@ -10,6 +10,8 @@ import yaml
 
 from leovr.data.io import (
     atomic_write,
+    DEPTH_SCALE,
+    LEGACY_DEPTH_SCALE,
     read_depth_png,
     read_image,
     read_point_file,
@@ -110,7 +112,8 @@ class NativeSequence(Sequence):
                 raise DataError(pose_file, f"{len(self._poses)} poses for {n} frames")
         self.has_poses = self._poses is not None
         self.has_depth = (path / "depth").is_dir()
-        self.depth_scale = float(meta.get("depth_scale", 1000.0))  # PNG units per metre
+        # PNG units per metre; files from before the key existed were written in millimetres
+        self.depth_scale = float(meta.get("depth_scale", LEGACY_DEPTH_SCALE))
         self.has_masks = (path / "masks").is_dir()
 
     def _num_frames(self) -> int:
@@ -165,7 +168,7 @@ class NativeWriter:
         camera_name: str = "camera",
         lidar_name: str = "lidar",
         extra: dict[str, Any] | None = None,
-        depth_scale: float = 1000.0,
+        depth_scale: float = DEPTH_SCALE,
     ) -> None:
         self.out = Path(out)
         self.out.mkdir(parents=True, exist_ok=True)

@@ -85,7 +85,13 @@ def ipbasic(sparse: np.ndarray, cfg: IPBasicConfig | None = None) -> np.ndarray:
     return d
 
 
-METHODS = {"nearest": nearest_fill, "ipbasic": ipbasic}
+def _interp(sparse: np.ndarray) -> np.ndarray:
+    from leovr.depth.prior import interpolated_fill  # the generator's prior, scored on its own too
+
+    return interpolated_fill(sparse)
+
+
+METHODS = {"nearest": nearest_fill, "ipbasic": ipbasic, "interp": _interp}
 
 
 def complete_depth(sparse: np.ndarray, method: str) -> np.ndarray:

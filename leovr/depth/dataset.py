@@ -10,6 +10,7 @@ import torch
 from torch.utils.data import Dataset
 
 from leovr.data import open_sequence
+from leovr.depth.prior import interpolated_fill
 from leovr.errors import DataError
 from leovr.lidar.projection import sparse_depth
 
@@ -43,7 +44,7 @@ class DepthSamples(Dataset):
     """
 
     def __init__(self, sequences: list[Path], ratio: tuple[float, float] = (0.005, 0.30), native_prob: float = 0.5,
-                 max_frames: int | None = None, seed: int = 0, random_input: bool = True) -> None:
+                 max_frames: int | None = None, seed: int = 0, random_input: bool = True, with_prior: bool = False) -> None:
         self.seqs = [open_sequence(p) for p in sequences]
         self.index = [(k, i) for k, s in enumerate(self.seqs) for i in range(len(s))]
         if max_frames is not None and len(self.index) > max_frames:
@@ -51,6 +52,7 @@ class DepthSamples(Dataset):
             self.index = [self.index[j] for j in sorted(pick)]
         self.ratio, self.native_prob, self.seed = ratio, native_prob, seed
         self.random_input = random_input
+        self.with_prior = with_prior  # add the classical prior (residual-mode networks)
         self.epoch = 0
 
     def __len__(self) -> int:
@@ -69,8 +71,11 @@ class DepthSamples(Dataset):
             r = rng.uniform(*self.ratio)
             sparse = np.where(rng.random(gt.shape) < r, gt, 0.0).astype(np.float32)
         img = f.image if f.image.ndim == 3 else np.repeat(f.image[..., None], 3, axis=2)
-        return {
+        out = {
             "image": torch.from_numpy(img).permute(2, 0, 1).float() / 255.0,
             "sparse": torch.from_numpy(sparse)[None],
             "gt": torch.from_numpy(gt)[None],
         }
+        if self.with_prior:
+            out["prior"] = torch.from_numpy(interpolated_fill(sparse))[None]
+        return out

@@ -8,7 +8,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.depth.network import DepthGenerator, GeneratorConfig, prior_for
+from leovr.depth.prior import interpolated_fill
 from leovr.errors import DataError
 
 
@@ -34,15 +35,28 @@ def load_generator(path: str | Path) -> DepthGenerator:
     return model.eval()
 
 
-def forward_padded(model: torch.nn.Module, image: torch.Tensor, sparse: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Run the network on B x 3 x H x W images and B x 1 x H x W sparse depth of any size: edge-pad to
-    a multiple of 32 (the encoder's total stride), crop the outputs back."""
+def _pad32(image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None):
+    """Edge-pad image (and prior) and zero-pad sparse depth to a multiple of 32 (the encoder's stride)."""
     h, w = sparse.shape[-2:]
     ph, pw = (-h) % 32, (-w) % 32
     if ph or pw:
         image = F.pad(image, (0, pw, 0, ph), mode="replicate")
         sparse = F.pad(sparse, (0, pw, 0, ph))
-    depth, log_sigma = model(image, sparse)
+        if prior is not None:
+            prior = F.pad(prior, (0, pw, 0, ph), mode="replicate")
+    return image, sparse, prior
+
+
+def forward_padded(model: torch.nn.Module, image: torch.Tensor, sparse: torch.Tensor,
+                   prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Run the network on B x 3 x H x W images and B x 1 x H x W sparse depth of any size: edge-pad to
+    a multiple of 32 (the encoder's total stride), crop the outputs back. A residual-mode network gets
+    the classical prior of the unpadded input (computed when not given)."""
+    h, w = sparse.shape[-2:]
+    if getattr(model, "uses_prior", False) and prior is None:
+        prior = prior_for(sparse)
+    image, sparse_p, prior_p = _pad32(image, sparse, prior)
+    depth, log_sigma = model(image, sparse_p, prior_p) if prior_p is not None else model(image, sparse_p)
     return depth[..., :h, :w], log_sigma[..., :h, :w]
 
 
@@ -95,6 +109,28 @@ def predict_at_focal(model: DepthGenerator, image: np.ndarray, sparse: np.ndarra
     h, w = sparse.shape
     shape = (max(8, int(round(h * scale))), max(8, int(round(w * scale))))
     small = cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
-    depth, log_sigma = predict(model, small, rescale_sparse(sparse, scale, shape))
-    back = [cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) for x in (depth, log_sigma)]
-    return back[0], back[1]
+    small_sparse = rescale_sparse(sparse, scale, shape)
+    if not model.uses_prior:
+        depth, log_sigma = predict(model, small, small_sparse)
+        back = [cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) for x in (depth, log_sigma)]
+        return back[0], back[1]
+    return predict_parts_full(model, small, small_sparse, sparse)
+
+
+@torch.no_grad()
+def predict_parts_full(model: DepthGenerator, small_image: np.ndarray, small_sparse: np.ndarray,
+                       sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A residual-mode network run on the resampled frame, its residual, fusion uncertainty and sigma
+    resized to the full frame and combined there with the full-resolution prior: the prior keeps every
+    measured return and its pixel-exact interpolation; the network adds its correction."""
+    img = torch.from_numpy(np.ascontiguousarray(small_image)).permute(2, 0, 1)[None].float() / 255.0
+    sp = torch.from_numpy(np.ascontiguousarray(small_sparse, np.float32))[None, None]
+    image_p, sparse_p, prior_p = _pad32(img, sp, prior_for(sp))
+    hs, ws = small_sparse.shape
+    parts = {k: v[..., :hs, :ws] for k, v in model.parts(image_p, sparse_p, prior_p).items()}
+    h, w = sparse.shape
+    full = {k: F.interpolate(v, size=(h, w), mode="bilinear", align_corners=False) for k, v in parts.items()}
+    sp_full = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[None, None]
+    prior_full = torch.from_numpy(interpolated_fill(sparse))[None, None]
+    depth = model.combine(full, prior_full, sp_full)
+    return depth[0, 0].numpy(), full["log_sigma"][0, 0].numpy()

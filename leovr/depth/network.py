@@ -1,13 +1,26 @@
 """LeoVR's depth-map generator (Sec. III-B, V-A): RGB and LiDAR ResNet-34-style encoders with stage
 channels [16, 32, 64, 128, 128] (stride 2 per stage, so a 448x256 input meets the cross-attention as
 14x8x128), inter-sensor cross-attention at the bottleneck, a decoder with skip connections from both
-encoders at every scale, positive metric depth out and a log-uncertainty head."""
+encoders at every scale, positive metric depth out and a log-uncertainty head.
+
+Output modes (`GeneratorConfig.output`):
+- `absolute`: the decoder predicts log depth (the first shipped generator);
+- `residual`: it predicts a log-depth residual r over the classical prior z (leovr.depth.prior):
+  d = z exp(r), so a network that has learnt nothing returns the interpolated LiDAR;
+- `fusion`: as `residual`, then the all-day paper's uncertainty-driven residual fusion (eqs. 3-4):
+  a second head predicts the prior's log uncertainty s (imputed with gamma = -2 at measured pixels,
+  all-day Sec. III-A), lambda = 1 / (1 + exp(alpha (s - beta))) and d = lambda z + (1 - lambda) z exp(r).
+  Near the measurements the prior dominates, so the network cannot stray far from what was measured.
+The prior, residual and fusion weight combine at any resolution (`combine`), so a network run at its
+training focal length keeps the full-resolution prior's detail.
+"""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -18,11 +31,13 @@ from leovr.depth.layers import (
     PartialStage,
     conv_bn_relu,
     resnet_stage,
+    uncertainty_residual,
 )
 
 CHANNELS = (16, 32, 64, 128, 128)
 BLOCKS = (3, 4, 6, 3)  # ResNet-34 blocks per stage after the stem
 DEPTH_NORM_M = 20.0  # sparse depth enters the network as depth / 20 m
+OUTPUTS = ("absolute", "residual", "fusion")
 
 
 @dataclass
@@ -33,6 +48,14 @@ class GeneratorConfig:
     channels: tuple[int, ...] = CHANNELS
     blocks: tuple[int, ...] = BLOCKS
     max_depth: float = 250.0
+    output: str = "absolute"  # absolute | residual | fusion (see the module docstring)
+    fusion_alpha: float = 0.8  # all-day eq. 3
+    fusion_beta: float = 0.0
+    measured_log_sigma: float = -2.0  # gamma: the prior's log uncertainty at measured pixels
+
+    def __post_init__(self) -> None:
+        if self.output not in OUTPUTS:
+            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, not '{self.output}'")
 
 
 class RGBEncoder(nn.Module):
@@ -98,18 +121,36 @@ class DepthGenerator(nn.Module):
         self.full = conv_bn_relu(cin + 3 + 2, ch[0])
         self.depth_head = nn.Conv2d(ch[0], 1, 3, 1, 1)  # last layer: no BN / ReLU
         self.sigma_head = nn.Sequential(conv_bn_relu(ch[0], ch[0]), nn.Conv2d(ch[0], 1, 3, 1, 1))
+        self.fusion_head = nn.Conv2d(ch[0], 1, 3, 1, 1) if cfg.output == "fusion" else None
+        if cfg.output != "absolute":  # start as the prior itself: zero residual, lambda = 1/2
+            for head in (self.depth_head, self.fusion_head):
+                if head is not None:
+                    nn.init.zeros_(head.weight)
+                    nn.init.zeros_(head.bias)
 
     def depth_parameters(self) -> list[nn.Parameter]:
         """Everything but the uncertainty head (frozen while the head is trained, all-day Sec. III-A)."""
         head = {id(p) for p in self.sigma_head.parameters()}
         return [p for p in self.parameters() if id(p) not in head]
 
-    def forward(self, image: torch.Tensor, sparse: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    @property
+    def uses_prior(self) -> bool:
+        return self.cfg.output != "absolute"
+
+    def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The network's outputs before they are combined with the prior, at the input's resolution:
+        `log_depth` (absolute) or `log_residual` (+ `prior_log_sigma` for fusion), and `log_sigma`,
+        the uncertainty of the final depth (what the graph uses as a prior)."""
         h, w = image.shape[-2:]
         if h % 32 or w % 32:
             raise ValueError(f"image size {w}x{h} must be a multiple of 32 in both directions")
         s = sparse / DEPTH_NORM_M
-        filled = pyramid_fill(s)
+        if self.uses_prior:
+            if prior is None:
+                prior = prior_for(sparse)
+            filled = prior / DEPTH_NORM_M
+        else:
+            filled = pyramid_fill(s)
         f_rgb = self.rgb(image)
         f_lidar = self.lidar(s, filled)
         if self.attention is not None:
@@ -122,9 +163,46 @@ class DepthGenerator(nn.Module):
             x = dec(torch.cat([x, f_rgb[i], f_lidar[i]], 1))
         x = F.interpolate(x, size=(h, w), mode="bilinear", align_corners=False)
         x = self.full(torch.cat([x, image, filled, (s > 0).to(s.dtype)], 1))
-        log_depth = self.depth_head(x) + math.log(DEPTH_NORM_M)
-        depth = torch.exp(log_depth.clamp(max=math.log(self.cfg.max_depth)))
-        return depth, self.sigma_head(x)
+        out = {"log_sigma": self.sigma_head(x)}
+        if not self.uses_prior:
+            out["log_depth"] = self.depth_head(x) + math.log(DEPTH_NORM_M)
+        else:
+            out["log_residual"] = self.depth_head(x)
+            if self.fusion_head is not None:
+                out["prior_log_sigma"] = self.fusion_head(x)
+        return out
+
+    def combine(self, parts: dict[str, torch.Tensor], prior: torch.Tensor | None, sparse: torch.Tensor) -> torch.Tensor:
+        """Final depth (metres) from `parts` and, for the residual modes, the prior and the sparse input,
+        all at one resolution (parts may have been resized to it)."""
+        cap = math.log(self.cfg.max_depth)
+        if not self.uses_prior:
+            return torch.exp(parts["log_depth"].clamp(max=cap))
+        if prior is None:
+            prior = prior_for(sparse)
+        z = prior.clamp(min=1e-3)
+        refined = torch.exp((torch.log(z) + parts["log_residual"]).clamp(max=cap))
+        if self.cfg.output == "residual":
+            return refined
+        s = torch.where(sparse > 0, torch.full_like(sparse, self.cfg.measured_log_sigma), parts["prior_log_sigma"])
+        return uncertainty_residual(z, s, refined, self.cfg.fusion_alpha, self.cfg.fusion_beta)
+
+    def forward(self, image: torch.Tensor, sparse: torch.Tensor,
+                prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Depth (metres) and log-sigma at the input's resolution. `prior` (B x 1 x H x W metres) is the
+        classical prior of `sparse`; computed here when a residual mode needs it and none is given."""
+        if self.uses_prior and prior is None:
+            prior = prior_for(sparse)
+        parts = self.parts(image, sparse, prior)
+        return self.combine(parts, prior, sparse), parts["log_sigma"]
+
+
+def prior_for(sparse: torch.Tensor) -> torch.Tensor:
+    """The classical prior (leovr.depth.prior.interpolated_fill) of a B x 1 x H x W sparse batch."""
+    from leovr.depth.prior import interpolated_fill_batch
+
+    filled = interpolated_fill_batch(sparse.detach().cpu().numpy().astype(np.float32))
+    return torch.from_numpy(filled).to(sparse.device, sparse.dtype)
 
 
 def pyramid_fill(sparse: torch.Tensor) -> torch.Tensor:

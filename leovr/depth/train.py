@@ -29,7 +29,13 @@ from leovr.sim.dataset import default_root
 def generator_config(cfg: TrainConfig | SelfSupConfig) -> GeneratorConfig:
     """The network a training config describes (both trainers share these fields)."""
     return GeneratorConfig(lidar_encoder=cfg.lidar_encoder, cross_attention=cfg.cross_attention,
-                           channels=tuple(cfg.channels), blocks=tuple(cfg.blocks))
+                           channels=tuple(cfg.channels), blocks=tuple(cfg.blocks),
+                           output=getattr(cfg, "output", "absolute"))
+
+
+def run_model(model: DepthGenerator, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Depth and log-sigma of a training batch (with its precomputed prior when it has one)."""
+    return model(batch["image"], batch["sparse"], batch.get("prior"))
 
 
 def depth_loss(pred: torch.Tensor, gt: torch.Tensor, kind: str) -> torch.Tensor:
@@ -54,7 +60,7 @@ def evaluate(model: DepthGenerator, loader: DataLoader) -> float:
     model.eval()
     err, n = 0.0, 0
     for b in loader:
-        depth, _ = model(b["image"], b["sparse"])
+        depth, _ = run_model(model, b)
         valid = b["gt"] > 0
         err += float((depth - b["gt"]).abs()[valid].sum())
         n += int(valid.sum())
@@ -62,13 +68,23 @@ def evaluate(model: DepthGenerator, loader: DataLoader) -> float:
 
 
 def init_from(model: DepthGenerator, path: Path) -> None:
-    """Copy the weights of a trainer checkpoint into `model` (fine-tuning); the networks must match."""
+    """Copy the weights of a trainer checkpoint into `model` (fine-tuning); the networks must match,
+    except that an absolute-depth network may start a residual one: every shared layer is copied and
+    the residual heads keep their zero start (the network then begins as its classical prior)."""
+    from dataclasses import replace
+
     from leovr.depth.inference import load_generator
 
     source = load_generator(path)
-    if source.cfg != model.cfg:
+    if replace(source.cfg, output=model.cfg.output) != model.cfg or (
+            source.cfg.output != model.cfg.output and source.cfg.output != "absolute"):
         raise DataError(path, f"init checkpoint describes {source.cfg}, the config asks for {model.cfg}")
-    model.load_state_dict(source.state_dict())
+    state = source.state_dict()
+    if source.cfg.output != model.cfg.output:
+        state = {k: v for k, v in state.items() if not k.startswith("depth_head.")}
+        model.load_state_dict(state, strict=False)
+    else:
+        model.load_state_dict(state)
 
 
 def save_checkpoint(path: Path, state: dict) -> None:
@@ -93,10 +109,11 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     root = Path(cfg.dataset) if cfg.dataset else default_root() / cfg.recipe
+    prior = cfg.output != "absolute"
     train_set = DepthSamples(split_sequences(root, "train"), (cfg.ratio_min, cfg.ratio_max), cfg.native_prob,
-                             cfg.max_frames, cfg.seed)
+                             cfg.max_frames, cfg.seed, with_prior=prior)
     val_set = DepthSamples(split_sequences(root, "val"), max_frames=max(8, (cfg.max_frames or 64) // 4),
-                           seed=cfg.seed + 1, random_input=False)
+                           seed=cfg.seed + 1, random_input=False, with_prior=prior)
     gen = torch.Generator().manual_seed(cfg.seed)
     train_loader = DataLoader(train_set, cfg.batch_size, shuffle=True, generator=gen, drop_last=len(train_set) > cfg.batch_size)
     val_loader = DataLoader(val_set, cfg.batch_size)
@@ -130,7 +147,7 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
                    unit="batch", disable=not progress)
         for b in bar:
             if depth_phase:
-                depth, _ = model(b["image"], b["sparse"])
+                depth, _ = run_model(model, b)
                 loss = depth_loss(depth, b["gt"], cfg.loss)
                 if cfg.smoothness > 0:
                     loss = loss + cfg.smoothness * edge_aware_smoothness(depth, b["image"])
@@ -138,7 +155,7 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
                 loss.backward()
                 opt.step()
             else:  # one pass; the depth path has requires_grad off, so backward stops at the head
-                depth, log_sigma = model(b["image"], b["sparse"])
+                depth, log_sigma = run_model(model, b)
                 loss = gaussian_nll(depth.detach(), log_sigma, b["gt"], (b["gt"] > 0).float())
                 sigma_opt.zero_grad()
                 loss.backward()

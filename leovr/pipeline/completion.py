@@ -1,5 +1,6 @@
-"""Run classical depth completion over a sequence: simulate the cheap input, complete, write
-uint16-mm PNGs and score against ground-truth depth or held-out LiDAR points."""
+"""Run depth completion over a sequence: simulate the cheap input, complete, write uint16 PNGs
+(metres x 256, the KITTI depth-completion convention, recorded in run.json) and score the completed
+arrays against ground-truth depth or held-out LiDAR points."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import numpy as np
 from tqdm import tqdm
 
 from leovr.config import CompleteConfig
-from leovr.data.io import read_depth_png, write_depth_png, write_text
+from leovr.data.io import write_depth_png, write_text
+from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
 from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
@@ -44,6 +46,8 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
     sparse = sparse_depth(split.kept, frame.K, frame.T_cam_lidar, frame.shape)
     if frame.depth is not None:
         return EvalSample(frame, sparse, frame.depth, "dense", split.kept)
+    if not len(split.heldout):  # the whole scan is the input: nothing held out to score against
+        return EvalSample(frame, sparse, np.zeros(frame.shape, np.float32), "none", split.kept)
     held = sparse_depth(split.heldout, frame.K, frame.T_cam_lidar, frame.shape)
     every = sparse_depth(frame.points, frame.K, frame.T_cam_lidar, frame.shape)
     gt = parallax_filter(held, every, cfg.parallax_window, cfg.parallax_rel)
@@ -82,6 +86,8 @@ def frame_indices(n: int, cfg: CompleteConfig) -> list[int]:
 def ground_truth_note(kind: str, cfg: CompleteConfig) -> str:
     if kind == "dense":
         return "dense ground-truth depth of the sequence"
+    if kind == "none":
+        return "none (the whole scan is the input, no points held out)"
     return (
         f"held-out LiDAR points; each dropped when a return within a {cfg.parallax_window}x{cfg.parallax_window} "
         f"window is nearer by more than {cfg.parallax_rel:.0%} (LiDAR-camera parallax filter)"
@@ -97,8 +103,9 @@ def run_completion(
 ) -> dict:
     """Complete every selected frame; write `out/depth/NNNNNN.png` and `out/metrics.json` when `out` is set.
 
-    With `resume`, frames whose PNG already exists are read back instead of recomputed (their
-    millimetre rounding then enters the metrics). Returns the metrics dictionary.
+    Frames are scored from the arrays computed here; with `resume`, frames whose PNG already exists
+    are read back at the folder's recorded scale (1/256 m steps) instead of recomputed. Returns the
+    metrics dictionary.
     """
     if not seq.has_lidar:
         raise DataError(seq.path, "sequence has no LiDAR; depth completion needs a range sensor input")
@@ -107,12 +114,16 @@ def run_completion(
     times: list[float] = []
     kinds: set[str] = set()
     indices = frame_indices(len(seq), cfg)
+    if out is not None:
+        if resume:
+            check_resumable(out)
+        write_run_info(out, "complete", method=cfg.method, input=cfg.input, sequence=str(seq.path))
     for i in tqdm(indices, desc=f"complete {cfg.method}/{cfg.input}", unit="frame", disable=not progress):
         sample = prepare_sample(seq[i], cfg)
         kinds.add(sample.gt_kind)
         png = out / "depth" / f"{sample.frame.index:06d}.png" if out is not None else None
         if resume and png is not None and png.is_file():
-            pred = read_depth_png(png)
+            pred = read_run_depth(out, "depth", sample.frame.index)
         else:
             t0 = time.perf_counter()
             pred = complete(sample)

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.data.io import read_depth_png, write_text
+from leovr.data.io import write_text
+from leovr.data.run_info import read_run_depth
 from leovr.data.sequence import Sequence
 from leovr.geometry import back_project
 from leovr.paths import shipped_vocabulary
@@ -44,7 +45,7 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
     for n, i in enumerate(indices):
         f = seq[i]
         feats[n] = detect(f.image)
-        pts[n] = feature_points(feats[n], read_depth_png(run / "depth" / f"{i:06d}.png"), f.K)
+        pts[n] = feature_points(feats[n], read_run_depth(run, "depth", i), f.K)
         t0 = time.perf_counter()
         cand = det.add(n, voc.bow(feats[n].desc))
         t_query.append(time.perf_counter() - t0)

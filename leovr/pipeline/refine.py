@@ -1,8 +1,9 @@
 """`leovr refine`: generator depth per frame, the visual-LiDAR front end and the sliding-window graph,
 frame by frame as a live system would see them; refined depth, poses, metrics and timing written out.
 
-Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 mm), `depth_generator/` (the
-generator alone), `depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
+Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 256, the KITTI
+depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
+`depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
 truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
 continues from (a resumed run restarts the window at the first unfinished frame, anchored at the last
 finished pose).
@@ -19,7 +20,8 @@ import numpy as np
 from tqdm import tqdm
 
 from leovr.config import CompleteConfig, FrameSelection, RefineConfig
-from leovr.data.io import atomic_write, read_depth_png, write_depth_png, write_text
+from leovr.data.io import atomic_write, write_depth_png, write_text
+from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.records import Frame
@@ -85,6 +87,31 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
     return EvalSample(f, np.zeros(f.shape, np.float32), gt, "dense" if f.depth is not None else "none", None)
 
 
+SCORED = ("nearest", "ipbasic", "generator", "refined")  # depth methods in metrics.json, same pixels
+PNG_FOLDER = {"ipbasic": "depth_ipbasic", "generator": "depth_generator", "refined": "depth"}
+
+
+@dataclass
+class FrameScore:
+    """A frame's ground-truth pixels and each method's depth there, taken from the arrays the run
+    produced (the PNGs hold the same maps to 1/256 m)."""
+
+    kind: str
+    pick: tuple[np.ndarray, np.ndarray]
+    gt: np.ndarray
+    pred: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, sample: EvalSample) -> "FrameScore | None":
+        if sample.gt_kind == "none":
+            return None
+        pick = np.nonzero(np.isfinite(sample.gt) & (sample.gt > 0))
+        return cls(sample.gt_kind, pick, sample.gt[pick])
+
+    def add(self, method: str, depth: np.ndarray) -> None:
+        self.pred[method] = depth[self.pick]
+
+
 @dataclass
 class Progress:
     """What has been finished: poses (camera to world) and the front end's choices, per frame index."""
@@ -136,7 +163,11 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar)
     graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
     pending: dict[int, np.ndarray] = {}
+    scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
     stamps = seq.timestamps()
+    if resume:
+        check_resumable(out)
+    write_run_info(out, "refine", input=cfg.input if has_lidar else "none", sequence=str(seq.path))
     frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
     def finish(results) -> None:
@@ -145,12 +176,16 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             if r.index == anchor:
                 continue
             refined = np.where(gen_depth > 0, gen_depth * np.exp(r.log_offset), 0.0)
+            if r.index in scored:
+                scored[r.index].add("generator", gen_depth)
+                scored[r.index].add("refined", refined)
             write_depth_png(out / "depth_generator" / f"{r.index:06d}.png", gen_depth)
             write_depth_png(out / "depth" / f"{r.index:06d}.png", refined)
             state.poses[r.index] = (T_start @ r.T_world_cam).ravel().tolist()
             state.save(state_path)
 
-    for i in tqdm(todo, desc=f"refine {cfg.input} (window {cfg.window})", unit="frame", disable=not progress):
+    for i in tqdm(todo, desc=f"refine {input_label(cfg.input, has_lidar)} (window {cfg.window})", unit="frame",
+                  disable=not progress):
         sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt)
         if sample.frame.shape != shape:
             raise DataError(seq.path, f"frame {i} is {sample.frame.shape}, the sequence started with {shape}")
@@ -161,8 +196,16 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                            sample.kept_points, graph)
         t2 = time.perf_counter()
         pending[i] = depth
-        if has_lidar and i != anchor:  # the classical baseline on the very same input, for the metrics
-            write_depth_png(out / "depth_ipbasic" / f"{i:06d}.png", complete_depth(sample.sparse, "ipbasic"))
+        if has_lidar and i != anchor:  # the classical baselines on the very same input, for the metrics
+            ipb = complete_depth(sample.sparse, "ipbasic")
+            write_depth_png(out / "depth_ipbasic" / f"{i:06d}.png", ipb)
+            fs = FrameScore.of(sample) if score else None
+            if fs is not None:
+                fs.add("ipbasic", ipb)
+                fs.add("nearest", complete_depth(sample.sparse, "nearest"))
+                scored[i] = fs
+        elif score and i != anchor and (fs := FrameScore.of(sample)) is not None:
+            scored[i] = fs
         finish(graph.add_frame(fi))
         t3 = time.perf_counter()
         if i == anchor:
@@ -193,12 +236,36 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     atomic_write(out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
     lidar_backed = graph.lidar_backed()
     atomic_write(out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
-    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score)
+    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored)
+
+
+def input_label(name: str, has_lidar: bool) -> str:
+    """What the progress bar and metrics say the graph runs on."""
+    if not has_lidar:
+        return "vision + depth (no LiDAR)"
+    return "own scan" if name == "full" else f"{name} simulated from the scan"
+
+
+def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lidar: bool) -> FrameScore | None:
+    """Score of a frame finished before a resume: its maps read back from the PNGs at the run's scale."""
+    sample = frame_sample(seq, i, ccfg)
+    fs = FrameScore.of(sample)
+    if fs is None:
+        return None
+    for method in SCORED:
+        if method == "nearest":
+            if has_lidar:
+                fs.add(method, complete_depth(sample.sparse, "nearest"))
+        elif method != "ipbasic" or has_lidar:
+            fs.add(method, read_run_depth(out, PNG_FOLDER[method], i))
+    return fs
 
 
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
-                  out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True) -> dict:
-    """Poses in KITTI and TUM form, timing, and depth / trajectory metrics from the written maps."""
+                  out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
+                  scored: dict[int, FrameScore] | None = None) -> dict:
+    """Poses in KITTI and TUM form, timing, and depth / trajectory metrics. Depth is scored from the
+    arrays the run produced (`scored`); frames finished before a resume are read back from their PNGs."""
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
     stamps = seq.timestamps()[indices]
     write_kitti_poses(out / "poses_kitti.txt", poses)
@@ -207,23 +274,22 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     timing = {k: float(np.mean(v)) if v else None for k, v in state.times.items()}
     timing.update({"frames_timed": len(state.times["graph_ms"]), "initial_pose_sources": counts})
     write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
-    accs = {m: DepthMetricAccumulator(cfg.bins) for m in ("ipbasic", "generator", "refined")}
+    accs = {m: DepthMetricAccumulator(cfg.bins) for m in SCORED}
+    scored = scored or {}
     kinds, gt_poses = set(), []
     for i in tqdm(indices if score else [], desc="score", unit="frame", disable=not progress):
-        sample = frame_sample(seq, i, ccfg)
-        gt_poses.append(sample.frame.T_world_cam)
-        if sample.gt_kind == "none":
+        gt_poses.append(seq[i].T_world_cam)
+        fs = scored[i] if i in scored else frame_score(seq, ccfg, out, i, has_lidar)
+        if fs is None:
             continue
-        kinds.add(sample.gt_kind)
-        for method, folder in (("ipbasic", "depth_ipbasic"), ("generator", "depth_generator"), ("refined", "depth")):
-            if method == "ipbasic" and not has_lidar:
-                continue
-            pred = read_depth_png(out / folder / f"{i:06d}.png")
+        kinds.add(fs.kind)
+        for method, pred in fs.pred.items():
             for target in (accs, pool or {}):
                 if method in target:
-                    target[method].add(pred, sample.gt)
+                    target[method].add(pred, fs.gt)
     metrics: dict = {
         "sequence": str(seq.path), "reader": seq.name, "input": cfg.input if has_lidar else "none (no LiDAR)",
+        "input_note": input_label(cfg.input, has_lidar),
         "frames": len(indices), "window": cfg.window,
         "mode": "visual-LiDAR" if has_lidar else "vision and depth only (the sequence has no LiDAR)",
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),

@@ -14,6 +14,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from leovr.data import open_sequence
+from leovr.data.run_info import run_depth_scale
 from leovr.data.io import read_depth_png
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.errors import DataError
@@ -55,8 +56,9 @@ def _error_image(pred: np.ndarray, gt: np.ndarray, max_err: float = 5.0) -> np.n
     return np.where(valid[..., None], img, 0).astype(np.uint8)
 
 
-def _depth_u16(d: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(d * 1000.0), 0, 65535).astype(np.uint16)
+def _depth_image(d: np.ndarray) -> "rr.DepthImage":
+    """Float metres (no 16-bit cap; hovering shows metres), 0 = unknown."""
+    return rr.DepthImage(np.nan_to_num(d, nan=0.0).astype(np.float32), meter=1.0, colormap="turbo")
 
 
 def write_recording(target: str | Path, out: str | Path, max_frames: int | None = None) -> dict:
@@ -118,12 +120,12 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
         for kind, folder in folders.items():
             png = run / folder / f"{i:06d}.png" if run is not None else None
             if png is not None and png.is_file():
-                d = read_depth_png(png)
-                rec.log(f"world/camera/image/depth_{kind}", rr.DepthImage(_depth_u16(d), meter=1000.0, colormap="turbo"))
+                d = read_depth_png(png, run_depth_scale(run))
+                rec.log(f"world/camera/image/depth_{kind}", _depth_image(d))
                 if kind == "refined" and ref is not None:
                     rec.log("world/camera/error", rr.Image(_error_image(d, ref)))
         if run is None and ref is not None:
-            rec.log("world/camera/image/depth_ground_truth", rr.DepthImage(_depth_u16(ref), meter=1000.0, colormap="turbo"))
+            rec.log("world/camera/image/depth_ground_truth", _depth_image(ref))
     if T0_inv is not None:
         strips["ground_truth"] = np.stack([T[:3, 3] for T in gt])
     for name, xyz in strips.items():

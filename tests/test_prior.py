@@ -1,0 +1,74 @@
+"""The classical prior and the residual / fusion generator built on it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from leovr.depth.classical import nearest_fill
+from leovr.depth.inference import predict, predict_at_focal
+from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.depth.prior import interpolated_fill
+
+
+def ground_plane(h: int = 120, w: int = 200, f: float = 150.0, cam_height: float = 1.6) -> np.ndarray:
+    """Depth of a flat road seen by a level pinhole camera (rows below the horizon only)."""
+    v = np.arange(h, dtype=np.float64)[:, None] - h / 2 + 0.5
+    depth = np.where(v > 0, f * cam_height / np.maximum(v, 1e-9), 0.0)
+    return np.repeat(depth, w, axis=1).astype(np.float32)
+
+
+def test_interpolation_is_exact_on_a_plane_where_nearest_fill_is_not():
+    gt = ground_plane()
+    sparse = np.zeros_like(gt)
+    sparse[70::8, ::2] = gt[70::8, ::2]  # rings every 8 rows, a return every 2 columns
+    inside = np.zeros_like(gt, bool)
+    inside[70:119 - 7, 2:-2] = True  # between the first and the last ring
+    prior, near = interpolated_fill(sparse), nearest_fill(sparse)
+    err_prior = np.abs(prior - gt)[inside]
+    err_near = np.abs(near - gt)[inside]
+    assert err_prior.max() < 1e-3 * gt[inside].max()  # inverse depth is affine on a plane
+    assert err_near.mean() > 20 * err_prior.mean()
+    measured = sparse > 0
+    np.testing.assert_array_equal(prior[measured], sparse[measured])
+    assert (prior > 0).all()  # outside the hull: nearest return
+
+
+def test_interpolation_degenerate_inputs():
+    assert not interpolated_fill(np.zeros((10, 12), np.float32)).any()
+    line = np.zeros((10, 12), np.float32)
+    line[4, 2:9] = 5.0  # collinear returns: no triangle, nearest fill
+    np.testing.assert_array_equal(interpolated_fill(line), nearest_fill(line))
+
+
+@pytest.mark.parametrize("mode", ["residual", "fusion"])
+def test_untrained_residual_generator_returns_its_prior(mode):
+    torch.manual_seed(0)
+    rng = np.random.default_rng(1)
+    img = rng.integers(0, 255, (96, 160, 3), dtype=np.uint8)
+    sparse = np.where(rng.random((96, 160)) < 0.05, rng.uniform(3, 60, (96, 160)), 0).astype(np.float32)
+    model = DepthGenerator(GeneratorConfig(output=mode, channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))).eval()
+    depth, log_sigma = predict(model, img, sparse)
+    np.testing.assert_allclose(depth, interpolated_fill(sparse), rtol=1e-5)
+    # run at another focal length: the residual is resized and the prior is built at full resolution
+    full, _ = predict_at_focal(model, img, sparse, focal_px=300.0, model_focal_px=150.0)
+    np.testing.assert_allclose(full, interpolated_fill(sparse), rtol=1e-5)
+    assert depth.shape == log_sigma.shape == sparse.shape
+
+
+def test_fusion_keeps_measured_pixels_close_to_the_measurement():
+    """With a residual of +50 % everywhere, measured pixels move only by (1 - lambda(gamma)) of it."""
+    model = DepthGenerator(GeneratorConfig(output="fusion", channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))).eval()
+    with torch.no_grad():
+        model.depth_head.bias.fill_(float(np.log(1.5)))
+        model.fusion_head.bias.fill_(3.0)  # far from the measurements the prior is distrusted
+    rng = np.random.default_rng(2)
+    img = rng.integers(0, 255, (64, 96, 3), dtype=np.uint8)
+    sparse = np.where(rng.random((64, 96)) < 0.05, 10.0, 0).astype(np.float32)
+    depth, _ = predict(model, img, sparse)
+    lam_measured = 1.0 / (1.0 + np.exp(0.8 * -2.0))
+    lam_far = 1.0 / (1.0 + np.exp(0.8 * 3.0))
+    m = sparse > 0
+    np.testing.assert_allclose(depth[m], 10.0 * (lam_measured + (1 - lam_measured) * 1.5), rtol=1e-4)
+    np.testing.assert_allclose(depth[~m], 10.0 * (lam_far + (1 - lam_far) * 1.5), rtol=1e-4)
