@@ -51,13 +51,15 @@ def test_complete_writes_uint16_png_metrics_and_resumes(kitti_raw_tiny, tmp_path
     assert m["method"] == "nearest" and m["input"] == "vlp16" and m["frames"] == 2
     png = cv2.imread(str(out / "depth" / "000001.png"), cv2.IMREAD_UNCHANGED)
     assert png.dtype == np.uint16 and png.shape == (80, 160)
-    # the tiny world is a 10 m sphere: depth (camera z) lies in 9.1-10 m across this 44-degree view
-    assert png.min() > 9_100 and png.max() <= 10_050 and m["mae_m"] < 0.1
+    # the tiny world is a 10 m sphere: depth (camera z) lies in 9.1-10 m across this 44-degree view,
+    # written as metres x 256 (KITTI depth-completion convention), the scale recorded in run.json
+    assert png.min() > 9.1 * 256 and png.max() <= 10.05 * 256 and m["mae_m"] < 0.1
+    assert json.loads((out / "run.json").read_text())["depth_png"]["scale"] == 256
     # option on the command line beats the config file
     r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "-o", str(out / "b"), "-c", str(cfg), "--method", "ipbasic"])
     assert json.loads((out / "b" / "metrics.json").read_text())["method"] == "ipbasic"
     # resume: a frame already written is read back, not recomputed
-    marker = np.full_like(png, 12_345)
+    marker = np.full_like(png, 12_345)  # 48.2 m
     cv2.imwrite(str(out / "depth" / "000001.png"), marker)
     r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "--out", str(out), "-c", str(cfg), "--end", "2", "--resume"])
     assert r.exit_code == 0, r.output
@@ -103,7 +105,7 @@ def test_bench_baseline_quick_contract(tmp_path):
     doc = json.loads(out.read_text())
     assert set(doc["results"]) == {"kitti_vlp16", "kitti_mid40"}
     for per_input in doc["results"].values():
-        assert set(per_input) == {"nearest", "ipbasic"}
+        assert set(per_input) == {"nearest", "ipbasic", "interp"}
         for r in per_input.values():
             assert {"mae_m", "rmse_m", "absrel", "delta1", "ms_per_frame", "bins"} <= set(r)
             assert 0.1 < r["mae_m"] < 10 and r["rmse_m"] >= r["mae_m"] and 0 < r["delta1"] <= 1
@@ -149,7 +151,7 @@ def test_demo_on_generated_default(tmp_path):
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ground_truth"].startswith("dense") and m["frames"] == 3
-    assert list(m["depth"]) == ["raw", "ipbasic", "generator", "refined"]
+    assert list(m["depth"]) == ["raw", "nearest", "ipbasic", "generator", "refined"]
     assert m["depth"]["refined"]["n"] > 150_000  # dense ground truth: most of 3 x 448 x 256 pixels
     assert set(m["trajectory"]) == {"leovr", "leovr_no_loop", "kiss_icp"}  # city loop: loop closure on
     for f in ("sequence/preview.png", "mae_by_distance.png", "trajectory.png", "demo.rrd", "report.md"):

@@ -31,7 +31,7 @@ def test_refine_writes_every_output(refined):
     assert len(list((out / "depth").glob("*.png"))) == 7 and len(list((out / "depth_generator").glob("*.png"))) == 7
     assert len((out / "poses_kitti.txt").read_text().splitlines()) == 7
     assert len((out / "poses_tum.txt").read_text().splitlines()) == 7
-    assert json.loads((out / "metrics.json").read_text())["depth"].keys() == {"ipbasic", "generator", "refined"}
+    assert json.loads((out / "metrics.json").read_text())["depth"].keys() == {"nearest", "ipbasic", "generator", "refined"}
     timing = json.loads((out / "timing.json").read_text())
     assert all(timing[k] > 0 for k in ("generator_ms", "frontend_ms", "graph_ms"))
     assert sum(timing["initial_pose_sources"].values()) == 7

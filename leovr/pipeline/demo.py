@@ -22,7 +22,7 @@ from leovr.pipeline.refine import completion_config, frame_sample, run_refine
 from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording
 
-METHODS = ("raw", "ipbasic", "generator", "refined")
+METHODS = ("raw", "nearest", "ipbasic", "generator", "refined")
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
