@@ -303,6 +303,31 @@ def train(
     typer.echo(f"epoch {r.get('epoch')}: val MAE {r.get('val_mae_m', float('nan')):.3f} m -> {out}")
 
 
+@app.command()
+def adapt(
+    sequences: list[Path] = typer.Argument(..., help="Recorded sequence folders (camera + LiDAR)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder (generator.pt, log.jsonl, run.json)."),
+    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it (evaluation)."),
+    init: Optional[Path] = typer.Option(None, "--init", help="Generator to start from (default: the shipped one)."),
+    epochs: Optional[int] = typer.Option(None),
+    start: Optional[int] = typer.Option(None, help="First frame of every sequence."),
+    end: Optional[int] = typer.Option(None, help="Stop before this frame."),
+    resume: bool = typer.Option(False, help="Continue from OUT/checkpoint_last.pt."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Self-supervised adaptation of the generator to your own recordings: part of each frame's LiDAR
+    input is hidden and predicted from the rest; no ground truth is read. Use the result with
+    `leovr refine --checkpoint OUT/generator.pt` or `leovr complete --checkpoint ...`."""
+    from leovr.data import open_sequence
+    from selfsup.adapt import adapt as run_adapt
+
+    cfg = override(load_config(config).adapt, input=input, epochs=epochs, start=start, end=end,
+                   init_checkpoint=None if init is None else str(init))
+    r = run_adapt([open_sequence(s) for s in sequences], cfg, out, resume=resume)
+    typer.echo(f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
+               f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns -> {out / 'generator.pt'}")
+
+
 @bench_app.command("selfsup")
 def bench_selfsup(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),

@@ -236,6 +236,32 @@ class SelfSupConfig(_Model):
         return str(parse_input(v))
 
 
+class AdaptConfig(_Model):
+    """`leovr adapt`: fine-tune the generator on the user's recordings by hiding part of their own LiDAR
+    input (selfsup.masked_lidar); no ground truth, no held-out evaluation points."""
+
+    input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R when evaluating a cheaper sensor
+    init_checkpoint: str | None = None  # None = the shipped generator (must be a residual / fusion network)
+    generator_focal_px: float | None = 260.0  # frames resampled to the generator's training focal length
+    seed: int = 0
+    start: int = 0  # frames [start:end] of every sequence
+    end: int | None = None
+    splits_per_frame: int = Field(4, ge=1)  # masked splits drawn per frame (one per visit, at random)
+    val_every: int = Field(8, ge=0)  # every n-th frame validates, never trained on (0 = no validation)
+    epochs: int = Field(40, ge=1)
+    patience: int = Field(6, ge=1)  # stop after this many epochs without a better validation MAE
+    max_minutes: float | None = Field(18.0, gt=0)  # stop before the next epoch once training took this long
+    batch_size: int = Field(4, ge=1)
+    lr: float = Field(1e-4, gt=0)
+    weight_smooth: float = Field(0.01, ge=0)  # edge-aware smoothness of the inverse depth
+    weight_nll: float = Field(1.0, ge=0)  # Gaussian NLL of the uncertainty head at the hidden returns
+
+    @field_validator("input")
+    @classmethod
+    def _check_input(cls, v: str) -> str:
+        return str(parse_input(v))
+
+
 class BenchSelfSupConfig(_Model):
     """`leovr bench selfsup`: cold-start self-supervised training against untrained and supervised
     models on the same frames and schedule, plus a cold start on the shared KITTI raw clip."""
@@ -272,6 +298,7 @@ class LeovrConfig(_Model):
     bench_refine: BenchRefineConfig = BenchRefineConfig()
     bench_loop: BenchLoopConfig = BenchLoopConfig()
     selfsup: SelfSupConfig = SelfSupConfig()
+    adapt: AdaptConfig = AdaptConfig()
     bench_selfsup: BenchSelfSupConfig = BenchSelfSupConfig()
 
 

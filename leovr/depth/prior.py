@@ -11,37 +11,45 @@ edges inside a triangle are left to the network (the residual it learns over thi
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 from scipy.spatial import Delaunay, QhullError
 
-from leovr.depth.classical import nearest_fill
+
+def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The prior of `sparse` at the pixels (rows, cols) only (float32 metres; 0 where the map is empty)."""
+    sparse = np.asarray(sparse, np.float32)
+    valid = sparse > 0
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+    if not valid.any():
+        return np.zeros(len(rows), np.float32)
+    _, (iv, iu) = distance_transform_edt(~valid, return_indices=True)
+    out = sparse[iv[rows, cols], iu[rows, cols]].astype(np.float32)  # nearest return
+    v, u = np.nonzero(valid)
+    if len(u) >= 3:
+        try:
+            tri = Delaunay(np.stack([u, v], 1).astype(np.float64))
+        except QhullError:  # all returns on one line: nothing to interpolate across
+            tri = None
+        if tri is not None:
+            pix = np.stack([cols, rows], 1).astype(np.float64)
+            simplex = tri.find_simplex(pix)
+            inside = np.nonzero(simplex >= 0)[0]
+            T = tri.transform[simplex[inside]]
+            b = np.einsum("nij,nj->ni", T[:, :2], pix[inside] - T[:, 2])
+            bary = np.concatenate([b, 1.0 - b.sum(1, keepdims=True)], 1)
+            inv = (np.clip(bary, 0.0, 1.0) / sparse[v, u][tri.simplices[simplex[inside]]]).sum(1)
+            out[inside] = 1.0 / np.maximum(inv, 1e-6)
+    measured = valid[rows, cols]
+    out[measured] = sparse[rows[measured], cols[measured]]
+    return out
 
 
 def interpolated_fill(sparse: np.ndarray) -> np.ndarray:
     """Dense depth (metres, float32) from a sparse map (0 = no return); all zeros when it is empty."""
     sparse = np.asarray(sparse, np.float32)
-    valid = sparse > 0
-    out = nearest_fill(sparse)
-    v, u = np.nonzero(valid)
-    if len(u) < 3:
-        return out
-    try:
-        tri = Delaunay(np.stack([u, v], 1).astype(np.float64))
-    except QhullError:  # all returns on one line: nothing to interpolate across
-        return out
     h, w = sparse.shape
     gv, gu = np.mgrid[0:h, 0:w]
-    pix = np.stack([gu.ravel(), gv.ravel()], 1).astype(np.float64)
-    simplex = tri.find_simplex(pix)
-    inside = np.nonzero(simplex >= 0)[0]
-    T = tri.transform[simplex[inside]]
-    b = np.einsum("nij,nj->ni", T[:, :2], pix[inside] - T[:, 2])
-    bary = np.concatenate([b, 1.0 - b.sum(1, keepdims=True)], 1)
-    inv = (np.clip(bary, 0.0, 1.0) / sparse[v, u][tri.simplices[simplex[inside]]]).sum(1)
-    flat = out.ravel()
-    flat[inside] = 1.0 / np.maximum(inv, 1e-6)
-    out = flat.reshape(h, w)
-    out[valid] = sparse[valid]
-    return out
+    return interpolated_at(sparse, gv.ravel(), gu.ravel()).reshape(h, w)
 
 
 def interpolated_fill_batch(sparse: np.ndarray) -> np.ndarray:

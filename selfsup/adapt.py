@@ -1,0 +1,222 @@
+"""`leovr adapt`: fine-tune the generator on the user's own recordings, without any ground truth.
+
+Starting from the shipped generator (or `--init`), each training frame's own LiDAR input is split
+into a thinner input and hidden returns (selfsup.masked_lidar); the network runs on the thinner input
+at its training focal length, exactly as at inference its residual, fusion weight and sigma are
+resized to the full frame and combined with the full-resolution prior, and the loss is read at the
+hidden returns: L1 on depth, the Gaussian NLL of the uncertainty head (all-day eq. 2, on detached
+depth, so the graph's prior is trained on the user's data too), and a small edge-aware smoothness.
+Frames held out of training (every `val_every`-th) validate on the same task with fixed splits of
+their input; training stops when that stops improving and the best epoch is kept.
+
+Outputs in OUT: `generator.pt` (best validation; `leovr refine/complete --checkpoint` take it),
+`checkpoint_last.pt` (resume), `log.jsonl`, `run.json`. Only the cheap input is read: never held-out
+evaluation points, ground-truth depth or poses.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from leovr.config import AdaptConfig
+from leovr.data.io import write_text
+from leovr.data.run_info import write_run_info
+from leovr.data.sequence import Sequence
+from leovr.depth.inference import _pad32, load_generator, rescale_sparse
+from leovr.depth.layers import gaussian_nll
+from leovr.depth.network import DepthGenerator, prior_for
+from leovr.depth.prior import interpolated_at
+from leovr.depth.train import edge_aware_smoothness, save_checkpoint
+from leovr.errors import DataError
+from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
+from selfsup.masked_lidar import masked_split
+
+
+@dataclass
+class SplitSample:
+    """One masked split of one frame, ready for the network: small input and full-resolution targets."""
+
+    sparse: torch.Tensor  # 1 x hs x ws, metres (the thinner input at the network's focal length)
+    prior: torch.Tensor  # 1 x hs x ws, its prior
+    grid: torch.Tensor  # N x 2, hidden returns' full-resolution pixel centres in [-1, 1] (x, y)
+    target: torch.Tensor  # N, metres
+    prior_at: torch.Tensor  # N, full-resolution prior at the hidden returns
+    measured_at: torch.Tensor  # N, kept input depth at those pixels (0 = none)
+
+
+@dataclass
+class AdaptFrame:
+    name: str  # sequence index : frame index, for messages
+    image: torch.Tensor  # 3 x hs x ws
+    splits: list[SplitSample]
+
+
+def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray,
+                 shape: tuple[int, int], scale: float, n: int, rng: np.random.Generator) -> AdaptFrame:
+    """`n` masked splits of one frame's input scan (`points`) with the resampled image."""
+    h, w = shape
+    hs, ws = (max(8, int(round(h * scale))), max(8, int(round(w * scale)))) if scale != 1.0 else shape
+    small = image if (hs, ws) == shape else cv2.resize(image, (ws, hs), interpolation=cv2.INTER_AREA)
+    img = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1).float() / 255.0
+    splits = []
+    for _ in range(n):
+        sp = masked_split(points, K, T_cam_lidar, shape, rng)
+        rows, cols = np.nonzero(sp.target > 0)
+        small_sparse = sp.sparse if (hs, ws) == shape else rescale_sparse(sp.sparse, scale, (hs, ws))
+        s = torch.from_numpy(small_sparse)[None]
+        grid = np.stack([(cols + 0.5) / w * 2 - 1, (rows + 0.5) / h * 2 - 1], 1).astype(np.float32)
+        splits.append(SplitSample(s, prior_for(s[None])[0], torch.from_numpy(grid),
+                                  torch.from_numpy(sp.target[rows, cols]),
+                                  torch.from_numpy(interpolated_at(sp.sparse, rows, cols)),
+                                  torch.from_numpy(sp.sparse[rows, cols])))
+    return AdaptFrame("", img, splits)
+
+
+def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) -> list[AdaptFrame]:
+    """Every selected frame of every sequence with its masked splits (seeded by sequence and frame)."""
+    sensor = parse_input(cfg.input)
+    out = []
+    jobs = [(k, seq, i) for k, seq in enumerate(seqs) for i in range(len(seq))[cfg.start:cfg.end]]
+    if not jobs:
+        raise DataError("frames", f"no frame selected (start={cfg.start}, end={cfg.end})")
+    for k, seq, i in tqdm(jobs, desc="adapt: prepare frames", unit="frame", disable=not progress):
+        f = seq[i]
+        if f.points is None or not len(f.points):
+            raise DataError(seq.path, f"frame {f.index} has no LiDAR scan; adaptation needs the LiDAR input")
+        kept = simulate_cheap_sensor(f.points, sensor, f.index, cfg.seed, f.K, f.T_cam_lidar, f.shape).kept
+        image = f.image if f.image.ndim == 3 else np.repeat(f.image[..., None], 3, axis=2)
+        scale = 1.0 if cfg.generator_focal_px is None else cfg.generator_focal_px / float(f.K[0, 0])
+        scale = 1.0 if abs(scale - 1.0) < 0.05 else scale
+        rng = np.random.default_rng([cfg.seed, k, f.index])
+        fr = frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng)
+        fr.name = f"{seq.path}:{f.index}"
+        out.append(fr)
+    return out
+
+
+def split_loss(model: DepthGenerator, image: torch.Tensor, s: SplitSample, weight_smooth: float,
+               weight_nll: float) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """Loss of one split; also returns the summed absolute error (metres) and the target count."""
+    hs, ws = s.sparse.shape[-2:]
+    img_p, sp_p, prior_p = _pad32(image[None], s.sparse[None], s.prior[None])
+    parts = {k: v[..., :hs, :ws] for k, v in model.parts(img_p, sp_p, prior_p).items()}
+    at = {k: F.grid_sample(v, s.grid[None, None], mode="bilinear", align_corners=False)  # 1 x 1 x 1 x N
+          for k, v in parts.items()}
+    depth = model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
+    err = (depth - s.target).abs()
+    loss = err.mean() if len(err) else depth.sum() * 0.0
+    if weight_nll > 0 and len(err):
+        sigma = at["log_sigma"].view(-1)
+        loss = loss + weight_nll * gaussian_nll(depth.detach(), sigma, s.target, torch.ones_like(sigma))
+    if weight_smooth > 0:
+        small = model.combine(parts, s.prior[None], s.sparse[None])
+        loss = loss + weight_smooth * edge_aware_smoothness(small, image[None])
+    return loss, err.detach().sum(), len(err)
+
+
+@torch.no_grad()
+def validate(model: DepthGenerator, frames: list[AdaptFrame]) -> float:
+    """MAE (metres) at the hidden returns of every split of the validation frames (fixed splits)."""
+    model.eval()
+    total, n = 0.0, 0
+    for fr in frames:
+        for s in fr.splits:
+            _, e, c = split_loss(model, fr.image, s, 0.0, 0.0)
+            total, n = total + float(e), n + c
+    return total / max(n, 1)
+
+
+def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
+    """Adapt the generator to `seqs`; returns the last log record (with the best validation MAE)."""
+    from leovr.paths import shipped_checkpoint
+
+    out = Path(out)
+    init = Path(cfg.init_checkpoint) if cfg.init_checkpoint else shipped_checkpoint()
+    model = load_generator(init)
+    if not model.uses_prior:
+        raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
+    last = out / "checkpoint_last.pt"
+    settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
+    state = None
+    if resume and last.is_file():
+        state = torch.load(last, map_location="cpu", weights_only=False)
+        if state.get("settings") != settings or state.get("sequences") != [str(s.path) for s in seqs]:
+            raise DataError(last, "was written with other settings or sequences; adapt into a new folder")
+    torch.manual_seed(cfg.seed)
+    frames = input_frames(seqs, cfg, progress)
+    val = [fr for j, fr in enumerate(frames) if cfg.val_every and j % cfg.val_every == cfg.val_every // 2]
+    train = [fr for fr in frames if fr not in val] or frames
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    start, best, since_best, minutes = 0, float("inf"), 0, 0.0
+    log_path = out / "log.jsonl"
+    if state is not None:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        start, best, since_best, minutes = state["epoch"] + 1, state["best_val_mae_m"], state["since_best"], state["minutes"]
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        write_run_info(out, "adapt", input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
+        log_path.unlink(missing_ok=True)
+        best = validate(model, val) if val else float("inf")
+        save_best(model, out, cfg, init, seqs, 0, best)
+        with open(log_path, "a") as fh:
+            fh.write(json.dumps({"epoch": 0, "val_mae_m": best, "note": "before adaptation"}) + "\n")
+    gen = torch.Generator().manual_seed(cfg.seed)
+    record: dict = {"epoch": start, "best_val_mae_m": best}
+    for epoch in range(start, cfg.epochs):
+        if since_best >= cfg.patience or (cfg.max_minutes and minutes >= cfg.max_minutes):
+            break
+        t0 = time.time()
+        model.train()
+        order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
+        losses, err, cnt = [], 0.0, 0
+        bar = tqdm(range(0, len(order), cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
+                   disable=not progress)
+        for b in bar:
+            opt.zero_grad()
+            total = 0.0
+            for j in order[b:b + cfg.batch_size]:
+                fr = train[j]
+                s = fr.splits[int(torch.randint(len(fr.splits), (1,), generator=gen))]
+                loss, e, c = split_loss(model, fr.image, s, cfg.weight_smooth, cfg.weight_nll)
+                (loss / cfg.batch_size).backward()
+                total += float(loss.detach())
+                err, cnt = err + float(e), cnt + c
+            opt.step()
+            losses.append(total / len(order[b:b + cfg.batch_size]))
+            bar.set_postfix(loss=f"{losses[-1]:.3f}")
+        val_mae = validate(model, val) if val else float("nan")
+        minutes += (time.time() - t0) / 60.0
+        improved = not val or val_mae < best
+        since_best = 0 if improved else since_best + 1
+        if improved:
+            best = val_mae if val else best
+            save_best(model, out, cfg, init, seqs, epoch + 1, val_mae)
+        record = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)), "train_mae_m": err / max(cnt, 1),
+                  "val_mae_m": val_mae, "best_val_mae_m": best, "minutes": round(minutes, 2)}
+        with open(log_path, "a") as fh:
+            fh.write(json.dumps(record) + "\n")
+        save_checkpoint(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
+                               "best_val_mae_m": best, "since_best": since_best, "minutes": minutes,
+                               "settings": settings, "sequences": [str(s.path) for s in seqs],
+                               "network": model.cfg.__dict__})
+    record.update({"frames_train": len(train), "frames_val": len(val), "minutes": round(minutes, 2)})
+    write_text(out / "summary.json", json.dumps(record, indent=2) + "\n")
+    return record
+
+
+def save_best(model: DepthGenerator, out: Path, cfg: AdaptConfig, init: Path, seqs: list[Sequence], epoch: int,
+              val_mae: float) -> None:
+    """The adapted generator in the trainer's checkpoint format (load_generator reads it)."""
+    save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": model.cfg.__dict__,
+                                           "config": cfg.model_dump(), "epoch": epoch, "val_mae_m": val_mae,
+                                           "adapted_from": str(init), "sequences": [str(s.path) for s in seqs]})

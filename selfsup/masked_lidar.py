@@ -1,0 +1,72 @@
+"""The self-supervised task of `leovr adapt`: hide part of the user's own LiDAR input and predict it.
+
+The held-back returns must lie where the scored pixels of a real evaluation lie: between the rings
+of a spinning LiDAR at every position within a gap, and outside the area a Livox-like cone covers.
+- Ring scans (a spinning LiDAR, or a VLP-16 simulated from one): keep one ring in `k`, k drawn from
+  {2, 3, 4}, at a random phase; the hidden rings then sit at 1/2, 1/3 and 2/3, or 1/4, 1/2 and 3/4
+  of the enlarged gap, as the real held-out beams sit within a gap of the full input. The network
+  is density-agnostic (SLIM), so what it learns on the thinned input carries to the full one.
+- Scans without rings (a rosette): keep a random share of the returns inside a cone shrunk to a random
+  fraction of the input's angular radius, so that hidden returns lie both between kept ones and
+  beyond the edge of the input, where a Mid-40's evaluation error comes from.
+Only the user's input is read: never held-out evaluation points, never ground truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from leovr.eval.heldout import parallax_filter
+from leovr.lidar.projection import sparse_depth
+
+MIN_RINGS = 8  # fewer rings found: treat the scan as ring-less
+
+
+@dataclass
+class MaskedSplit:
+    """Sparse maps of one split: what the network sees and the hidden returns it is scored on."""
+
+    sparse: np.ndarray  # H x W metres, 0 = none
+    target: np.ndarray  # H x W metres, 0 = none (parallax-filtered against every input return)
+
+
+def stored_rings(points: np.ndarray) -> np.ndarray | None:
+    """Ring index per point of a scan stored ring after ring (KITTI, the simulator's spinning sensors):
+    a ring ends where the azimuth wraps around. None for scans without that structure (a rosette)."""
+    az = np.arctan2(points[:, 1], points[:, 0])
+    wraps = np.nonzero(np.diff(az) < -np.pi)[0]
+    if len(wraps) < MIN_RINGS - 1:
+        return None
+    ids = np.zeros(len(points), np.int64)
+    ids[wraps + 1] = 1
+    return np.cumsum(ids)
+
+
+def _ring_split(rings: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    k = int(rng.integers(2, 5))
+    return (rings % k) == int(rng.integers(0, k))
+
+
+def _cone_split(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    xyz = points[:, :3].astype(np.float64)
+    axis = xyz.mean(0)
+    axis /= max(np.linalg.norm(axis), 1e-9)
+    cosang = (xyz @ axis) / np.maximum(np.linalg.norm(xyz, axis=1), 1e-9)
+    ang = np.arccos(np.clip(cosang, -1.0, 1.0))
+    inner = ang <= np.quantile(ang, 1.0) * rng.uniform(0.55, 0.9)
+    return inner & (rng.random(len(points)) < rng.uniform(0.35, 0.7))
+
+
+def masked_split(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int],
+                 rng: np.random.Generator, window: int = 7, rel: float = 0.15) -> MaskedSplit:
+    """Split the input scan `points` (N x >=3, LiDAR frame) into a thinner input and hidden targets."""
+    rings = stored_rings(points)
+    keep = _ring_split(rings, rng) if rings is not None else _cone_split(points, rng)
+    if keep.all() or not keep.any():  # too few points to split: hide a random half
+        keep = rng.random(len(points)) < 0.5
+    sparse = sparse_depth(points[keep], K, T_cam_lidar, shape)
+    hidden = sparse_depth(points[~keep], K, T_cam_lidar, shape)
+    every = sparse_depth(points, K, T_cam_lidar, shape)
+    return MaskedSplit(sparse.astype(np.float32), parallax_filter(hidden, every, window, rel).astype(np.float32))

@@ -1,0 +1,97 @@
+"""`leovr adapt`: the masked-LiDAR task, and proof that adaptation reads nothing but the cheap input."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import torch
+from typer.testing import CliRunner
+
+from leovr.cli import app
+from leovr.data import open_sequence
+from leovr.data.native import NativeWriter
+from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.errors import DataError
+from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
+from leovr.lidar.projection import sparse_depth
+from selfsup.masked_lidar import masked_split, stored_rings
+from tests.conftest import FX, CX, CY, H, R_CAM_LIDAR, W, ring_scan, write_kitti_raw
+
+runner = CliRunner()
+K = np.array([[FX, 0, CX], [0, FX, CY], [0, 0, 1.0]])
+T = np.eye(4)
+T[:3, :3] = R_CAM_LIDAR
+
+
+def test_masked_split_hides_rings_between_kept_rings():
+    pts = ring_scan(n_rings=16)
+    assert stored_rings(pts) is not None and stored_rings(pts).max() == 15
+    every = sparse_depth(pts, K, T, (H, W))
+    for seed in range(6):
+        sp = masked_split(pts, K, T, (H, W), np.random.default_rng(seed))
+        kept, hidden = sp.sparse > 0, sp.target > 0
+        assert kept.any() and hidden.any() and not (kept & hidden).any()
+        assert (kept | hidden).sum() <= (every > 0).sum()
+        rows_kept, rows_hidden = np.unique(np.nonzero(kept)[0]), np.unique(np.nonzero(hidden)[0])
+        # hidden rings lie between kept rings (and beyond the last kept one), never on them
+        assert not set(rows_hidden) & set(rows_kept)
+
+
+def test_masked_split_without_rings_hides_beyond_the_input_edge():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(3000, 3)) * [0, 0.04, 0.04] + [1, 0, 0]  # a forward cone, no ring order
+    pts = np.concatenate([d / np.linalg.norm(d, axis=1, keepdims=True) * 10, np.ones((3000, 1))], 1)
+    assert stored_rings(pts) is None
+    sp = masked_split(pts.astype(np.float32), K, T, (H, W), np.random.default_rng(1))
+    r_kept = np.hypot(*(np.nonzero(sp.sparse > 0) - np.array([[CY], [CX]])))
+    r_hidden = np.hypot(*(np.nonzero(sp.target > 0) - np.array([[CY], [CX]])))
+    assert r_hidden.max() > r_kept.max() + 3  # targets outside the thinner input's cone
+
+
+def small_generator(path):
+    torch.manual_seed(0)
+    net = DepthGenerator(GeneratorConfig(output="fusion", channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1)))
+    torch.save({"model": net.state_dict(), "network": net.cfg.__dict__}, path)
+    return path
+
+
+def test_adapt_reads_only_the_cheap_input(tmp_path):
+    """Adapting with --input vlp16 on a drive gives the very same weights as adapting with --input full
+    on a copy that holds only the VLP-16 rings: the 48 held-out rings (the evaluation beams) are never read."""
+    drive = write_kitti_raw(tmp_path / "raw", frames=4)
+    seq = open_sequence(drive)
+    w = NativeWriter(tmp_path / "cheap")
+    for i in range(len(seq)):
+        f = seq[i]
+        kept = simulate_cheap_sensor(f.points, parse_input("vlp16"), f.index, 0, f.K, f.T_cam_lidar, f.shape).kept
+        assert 0 < len(kept) < len(f.points)
+        w.write(replace(f, points=kept))
+    cheap = w.close()
+    init = small_generator(tmp_path / "init.pt")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("adapt:\n  generator_focal_px: null\n  val_every: 4\n  batch_size: 3\n  splits_per_frame: 2\n")
+    outs = {}
+    for name, data, inp in (("raw", drive, "vlp16"), ("cheap", cheap, "full")):
+        outs[name] = tmp_path / f"out_{name}"
+        r = runner.invoke(app, ["adapt", str(data), "--out", str(outs[name]), "--input", inp, "--init", str(init),
+                                "--epochs", "1", "-c", str(cfg)])
+        assert r.exit_code == 0, r.output
+    a = torch.load(outs["raw"] / "generator.pt", weights_only=False)
+    b = torch.load(outs["cheap"] / "generator.pt", weights_only=False)
+    start = torch.load(init, weights_only=False)["model"]
+    assert a["epoch"] == b["epoch"]
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert any(not torch.equal(a["model"][k], start[k]) for k in start)  # it did train
+    log = [json.loads(line) for line in (outs["raw"] / "log.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in log] == [0, 1]
+    # resume continues to a second epoch; other settings are refused
+    r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "vlp16", "--init", str(init),
+                            "--epochs", "2", "-c", str(cfg), "--resume"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((outs["raw"] / "log.jsonl").read_text().splitlines()[-1])["epoch"] == 2
+    r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "mid40", "--init", str(init),
+                            "--epochs", "4", "-c", str(cfg), "--resume"])
+    assert isinstance(r.exception, DataError) and "other settings" in str(r.exception)
