@@ -328,6 +328,22 @@ def adapt(
                f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns -> {out / 'generator.pt'}")
 
 
+@bench_app.command("real")
+def bench_real(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
+    quick: bool = typer.Option(False, help="First 12 frames, one adaptation epoch."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Real KITTI clip: nearest, IP-Basic, prior, shipped generator / refined, adapted / adapted + refined,
+    inductive and transductive protocols, all on the same held-out pixels."""
+    from leovr.bench.real import run_real_bench
+
+    doc = run_real_bench(out, load_config(config).bench_real, quick=quick)
+    for key, r in doc["results"].items():
+        typer.echo(key + ": " + ", ".join(f"{m} {v['mae_m']:.3f}" for m, v in r.items() if v.get("mae_m") is not None))
+    typer.echo(f"-> {out}")
+
+
 @bench_app.command("selfsup")
 def bench_selfsup(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),

@@ -224,6 +224,7 @@ class SelfSupConfig(_Model):
     refined_agree_rel: float = Field(0.05, gt=0)  # L_r uses a frame when its refined depth is within this of the landmarks (median)
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True
+    output: Literal["absolute", "residual", "fusion"] = "absolute"  # the paper's cold start predicts depth itself
     channels: list[int] = [16, 32, 64, 128, 128]
     blocks: list[int] = [3, 4, 6, 3]
     init_checkpoint: str | None = None  # start from these weights instead of random ones
@@ -260,6 +261,22 @@ class AdaptConfig(_Model):
     @classmethod
     def _check_input(cls, v: str) -> str:
         return str(parse_input(v))
+
+
+class BenchRealConfig(_Model):
+    """`leovr bench real`: every depth method on the real KITTI raw clip, same held-out pixels, with
+    adaptation under the inductive and transductive protocols."""
+
+    kitti_raw: str | None = None  # None = ../shared/data/kitti_raw
+    inputs: list[str] = ["vlp16", "mid40"]
+    checkpoint: str | None = None  # generator to start from (None = the shipped one)
+    window: int = Field(4, ge=2)
+    inductive_train_frames: int = Field(38, ge=1)  # adapt on frames [0, 38), score [38, 48)
+    adapt_epochs: int = Field(40, ge=1)  # at most; early stopping on the validation frames usually ends sooner
+    quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames ...
+    quick_train_frames: int = Field(8, ge=1)  # ... adapted on the first 8
+    quick_epochs: int = Field(1, ge=1)
+    seed: int = 0
 
 
 class BenchSelfSupConfig(_Model):
@@ -299,6 +316,7 @@ class LeovrConfig(_Model):
     bench_loop: BenchLoopConfig = BenchLoopConfig()
     selfsup: SelfSupConfig = SelfSupConfig()
     adapt: AdaptConfig = AdaptConfig()
+    bench_real: BenchRealConfig = BenchRealConfig()
     bench_selfsup: BenchSelfSupConfig = BenchSelfSupConfig()
 
 

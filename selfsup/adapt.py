@@ -103,24 +103,46 @@ def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) 
     return out
 
 
-def split_loss(model: DepthGenerator, image: torch.Tensor, s: SplitSample, weight_smooth: float,
-               weight_nll: float) -> tuple[torch.Tensor, torch.Tensor, int]:
-    """Loss of one split; also returns the summed absolute error (metres) and the target count."""
-    hs, ws = s.sparse.shape[-2:]
-    img_p, sp_p, prior_p = _pad32(image[None], s.sparse[None], s.prior[None])
+def batch_loss(model: DepthGenerator, batch: list[tuple[torch.Tensor, SplitSample]], weight_smooth: float,
+               weight_nll: float) -> tuple[torch.Tensor, float, int]:
+    """Mean loss of a batch of (image, split) of one size; also the summed absolute error (metres)
+    at the hidden returns and their count."""
+    image = torch.stack([im for im, _ in batch])
+    sparse = torch.stack([s.sparse for _, s in batch])
+    prior = torch.stack([s.prior for _, s in batch])
+    hs, ws = sparse.shape[-2:]
+    img_p, sp_p, prior_p = _pad32(image, sparse, prior)
     parts = {k: v[..., :hs, :ws] for k, v in model.parts(img_p, sp_p, prior_p).items()}
-    at = {k: F.grid_sample(v, s.grid[None, None], mode="bilinear", align_corners=False)  # 1 x 1 x 1 x N
-          for k, v in parts.items()}
-    depth = model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
-    err = (depth - s.target).abs()
-    loss = err.mean() if len(err) else depth.sum() * 0.0
-    if weight_nll > 0 and len(err):
-        sigma = at["log_sigma"].view(-1)
-        loss = loss + weight_nll * gaussian_nll(depth.detach(), sigma, s.target, torch.ones_like(sigma))
+    losses, err_sum, count = [], 0.0, 0
+    for b, (_, s) in enumerate(batch):
+        if not len(s.target):
+            continue
+        at = {k: F.grid_sample(v[b:b + 1], s.grid[None, None], mode="bilinear", align_corners=False)  # 1x1x1xN
+              for k, v in parts.items()}
+        depth = model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
+        err = (depth - s.target).abs()
+        loss = err.mean()
+        if weight_nll > 0:
+            sigma = at["log_sigma"].view(-1)
+            loss = loss + weight_nll * gaussian_nll(depth.detach(), sigma, s.target, torch.ones_like(sigma))
+        losses.append(loss)
+        err_sum, count = err_sum + float(err.detach().sum()), count + len(err)
+    total = torch.stack(losses).mean() if losses else parts["log_sigma"].sum() * 0.0
     if weight_smooth > 0:
-        small = model.combine(parts, s.prior[None], s.sparse[None])
-        loss = loss + weight_smooth * edge_aware_smoothness(small, image[None])
-    return loss, err.detach().sum(), len(err)
+        small = model.combine(parts, prior, sparse)
+        total = total + weight_smooth * edge_aware_smoothness(small, image)
+    return total, err_sum, count
+
+
+def batches(items: list[tuple[torch.Tensor, SplitSample]], size: int) -> list[list[tuple[torch.Tensor, SplitSample]]]:
+    """Consecutive groups of at most `size` items; a group never mixes image sizes."""
+    out: list[list] = []
+    for it in items:
+        if out and len(out[-1]) < size and out[-1][0][0].shape == it[0].shape:
+            out[-1].append(it)
+        else:
+            out.append([it])
+    return out
 
 
 @torch.no_grad()
@@ -128,10 +150,9 @@ def validate(model: DepthGenerator, frames: list[AdaptFrame]) -> float:
     """MAE (metres) at the hidden returns of every split of the validation frames (fixed splits)."""
     model.eval()
     total, n = 0.0, 0
-    for fr in frames:
-        for s in fr.splits:
-            _, e, c = split_loss(model, fr.image, s, 0.0, 0.0)
-            total, n = total + float(e), n + c
+    for b in batches([(fr.image, s) for fr in frames for s in fr.splits], 4):
+        _, e, c = batch_loss(model, b, 0.0, 0.0)
+        total, n = total + e, n + c
     return total / max(n, 1)
 
 
@@ -176,23 +197,22 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         if since_best >= cfg.patience or (cfg.max_minutes and minutes >= cfg.max_minutes):
             break
         t0 = time.time()
-        model.train()
+        # BatchNorm stays in inference mode: a few frames of one clip per batch would give it noisy
+        # statistics (the usual practice when fine-tuning with small batches); every weight still trains
+        model.eval()
         order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
+        items = [(train[j].image, train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
+                 for j in order]
         losses, err, cnt = [], 0.0, 0
-        bar = tqdm(range(0, len(order), cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
+        bar = tqdm(batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
                    disable=not progress)
         for b in bar:
             opt.zero_grad()
-            total = 0.0
-            for j in order[b:b + cfg.batch_size]:
-                fr = train[j]
-                s = fr.splits[int(torch.randint(len(fr.splits), (1,), generator=gen))]
-                loss, e, c = split_loss(model, fr.image, s, cfg.weight_smooth, cfg.weight_nll)
-                (loss / cfg.batch_size).backward()
-                total += float(loss.detach())
-                err, cnt = err + float(e), cnt + c
+            loss, e, c = batch_loss(model, b, cfg.weight_smooth, cfg.weight_nll)
+            loss.backward()
             opt.step()
-            losses.append(total / len(order[b:b + cfg.batch_size]))
+            losses.append(float(loss.detach()))
+            err, cnt = err + e, cnt + c
             bar.set_postfix(loss=f"{losses[-1]:.3f}")
         val_mae = validate(model, val) if val else float("nan")
         minutes += (time.time() - t0) / 60.0

@@ -43,7 +43,7 @@ def test_bench_depth_quick_synthetic(tmp_path):
     doc = run_depth_bench(tmp_path / "b.json", cfg, quick=True, progress=False)
     assert json.loads((tmp_path / "b.json").read_text())["results"] == doc["results"]
     res = doc["results"]["synthetic_mid40"]
-    assert set(res) == {"nearest", "ipbasic", "generator"}
+    assert set(res) == {"nearest", "ipbasic", "interp", "generator"}
     for r in res.values():
         assert r["mae_m"] > 0 and r["n"] > 10_000 and set(r["by_light"]) == {"day", "night"}
     # outside the Mid-40 cone the classical fills have nothing to go on; the generator uses the image

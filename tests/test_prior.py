@@ -22,9 +22,9 @@ def ground_plane(h: int = 120, w: int = 200, f: float = 150.0, cam_height: float
 def test_interpolation_is_exact_on_a_plane_where_nearest_fill_is_not():
     gt = ground_plane()
     sparse = np.zeros_like(gt)
-    sparse[70::8, ::2] = gt[70::8, ::2]  # rings every 8 rows, a return every 2 columns
+    sparse[80::4, ::2] = gt[80::4, ::2]  # rings every 4 rows (depth ratio < 1.25 ring to ring), a return every 2 columns
     inside = np.zeros_like(gt, bool)
-    inside[70:119 - 7, 2:-2] = True  # between the first and the last ring
+    inside[80:117, 2:-2] = True  # between the first and the last ring
     prior, near = interpolated_fill(sparse), nearest_fill(sparse)
     err_prior = np.abs(prior - gt)[inside]
     err_near = np.abs(near - gt)[inside]
@@ -33,6 +33,16 @@ def test_interpolation_is_exact_on_a_plane_where_nearest_fill_is_not():
     measured = sparse > 0
     np.testing.assert_array_equal(prior[measured], sparse[measured])
     assert (prior > 0).all()  # outside the hull: nearest return
+
+
+def test_depth_edges_take_the_nearest_return_instead_of_a_blend():
+    sparse = np.zeros((40, 60), np.float32)
+    sparse[10::8, ::3] = 5.0  # a near wall on the left ...
+    sparse[10::8, 30::3] = 20.0  # ... and the background on the right
+    prior = interpolated_fill(sparse)
+    assert set(np.unique(np.round(prior, 3))) == {5.0, 20.0}  # no flying pixel in between
+    np.testing.assert_array_equal(prior, interpolated_fill(sparse, edge_ratio=1.5))
+    assert len(np.unique(np.round(interpolated_fill(sparse, edge_ratio=np.inf), 3))) > 2  # blends without the test
 
 
 def test_interpolation_degenerate_inputs():

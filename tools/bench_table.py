@@ -19,7 +19,7 @@ def main(path: str) -> None:
     for key, methods in doc["results"].items():
         for m, r in methods.items():
             print(f"| {key} | {m} | {fmt(r['mae_m'])} | {fmt(r['rmse_m'])} | {fmt(r['absrel'])} | "
-                  f"{fmt(r['delta1'])} | {fmt(r['p95_m'])} | {fmt(r['ms_per_frame'], 1)} | {r['n']} |")
+                  f"{fmt(r['delta1'])} | {fmt(r.get('p95_m'))} | {fmt(r.get('ms_per_frame'), 1)} | {r['n']} |")
     bins = list(next(iter(next(iter(doc["results"].values())).values()))["bins"])
     print("\nMAE (m) per distance bin:\n")
     print("| dataset_input | method | " + " | ".join(bins) + " |")

@@ -21,7 +21,7 @@ from leovr.pipeline.refine import run_refine
 from leovr.sim.dataset import Recipe, default_root, make_dataset
 
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
-DEPTH_METHODS = ("ipbasic", "generator", "refined")
+DEPTH_METHODS = ("nearest", "ipbasic", "generator", "refined")
 TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
 
 

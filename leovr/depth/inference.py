@@ -9,7 +9,6 @@ import torch
 import torch.nn.functional as F
 
 from leovr.depth.network import DepthGenerator, GeneratorConfig, prior_for
-from leovr.depth.prior import interpolated_fill
 from leovr.errors import DataError
 
 
@@ -131,6 +130,6 @@ def predict_parts_full(model: DepthGenerator, small_image: np.ndarray, small_spa
     h, w = sparse.shape
     full = {k: F.interpolate(v, size=(h, w), mode="bilinear", align_corners=False) for k, v in parts.items()}
     sp_full = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[None, None]
-    prior_full = torch.from_numpy(interpolated_fill(sparse))[None, None]
+    prior_full = prior_for(sp_full)
     depth = model.combine(full, prior_full, sp_full)
     return depth[0, 0].numpy(), full["log_sigma"][0, 0].numpy()

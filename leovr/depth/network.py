@@ -198,11 +198,16 @@ class DepthGenerator(nn.Module):
 
 
 def prior_for(sparse: torch.Tensor) -> torch.Tensor:
-    """The classical prior (leovr.depth.prior.interpolated_fill) of a B x 1 x H x W sparse batch."""
+    """The classical prior (leovr.depth.prior.interpolated_fill) of a B x 1 x H x W sparse batch; a map
+    without any return (a sequence without LiDAR) gets a flat DEPTH_NORM_M, which the residual reshapes."""
     from leovr.depth.prior import interpolated_fill_batch
 
-    filled = interpolated_fill_batch(sparse.detach().cpu().numpy().astype(np.float32))
-    return torch.from_numpy(filled).to(sparse.device, sparse.dtype)
+    filled = torch.from_numpy(interpolated_fill_batch(sparse.detach().cpu().numpy().astype(np.float32)))
+    filled = filled.to(sparse.device, sparse.dtype)
+    empty = ~(sparse > 0).flatten(1).any(1)
+    if bool(empty.any()):
+        filled[empty] = DEPTH_NORM_M
+    return filled
 
 
 def pyramid_fill(sparse: torch.Tensor) -> torch.Tensor:

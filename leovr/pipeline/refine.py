@@ -138,9 +138,11 @@ class Progress:
 
 
 def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True,
-               pool: dict[str, DepthMetricAccumulator] | None = None, score: bool = True) -> dict:
+               pool: dict[str, DepthMetricAccumulator] | None = None, score: bool = True,
+               collect: dict[int, FrameScore] | None = None) -> dict:
     """Refine every selected frame; returns the metrics dictionary (also written to metrics.json).
-    `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences.
+    `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences;
+    `collect` receives each frame's FrameScore (benchmarks that score subsets of frames).
     `score=False` skips everything that reads ground truth (the self-supervised trainer's pose pass)."""
     from odometry.frontend import FrontEnd
     from odometry.window_graph import WindowGraph
@@ -236,7 +238,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     atomic_write(out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
     lidar_backed = graph.lidar_backed()
     atomic_write(out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
-    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored)
+    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect)
 
 
 def input_label(name: str, has_lidar: bool) -> str:
@@ -263,7 +265,7 @@ def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lida
 
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
                   out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
-                  scored: dict[int, FrameScore] | None = None) -> dict:
+                  scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None) -> dict:
     """Poses in KITTI and TUM form, timing, and depth / trajectory metrics. Depth is scored from the
     arrays the run produced (`scored`); frames finished before a resume are read back from their PNGs."""
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
@@ -282,6 +284,8 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         fs = scored[i] if i in scored else frame_score(seq, ccfg, out, i, has_lidar)
         if fs is None:
             continue
+        if collect is not None:
+            collect[i] = fs
         kinds.add(fs.kind)
         for method, pred in fs.pred.items():
             for target in (accs, pool or {}):
