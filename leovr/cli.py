@@ -317,7 +317,9 @@ def adapt(
 ) -> None:
     """Self-supervised adaptation of the generator to your own recordings: part of each frame's LiDAR
     input is hidden and predicted from the rest; no ground truth is read. Use the result with
-    `leovr refine --checkpoint OUT/generator.pt` or `leovr complete --checkpoint ...`."""
+    `leovr refine --checkpoint OUT/generator.pt` or `leovr complete --checkpoint ...`.
+    Experimental: on the shared KITTI clip it does not help yet (far depth is pulled near; see
+    docs/benchmarks.md, `leovr bench real`); compare before relying on it."""
     from leovr.data import open_sequence
     from selfsup.adapt import adapt as run_adapt
 

@@ -2,11 +2,13 @@
 
 The held-back returns must lie where the scored pixels of a real evaluation lie: between the rings
 of a spinning LiDAR at every position within a gap, and outside the area a Livox-like cone covers.
-- Ring scans (a spinning LiDAR, or a VLP-16 simulated from one): keep one ring in `k`, k drawn from
-  {2, 3, 4}, at a random phase; the hidden rings then sit at 1/2, 1/3 and 2/3, or 1/4, 1/2 and 3/4
-  of the enlarged gap, as the real held-out beams sit within a gap of the full input. The network
-  is density-agnostic (SLIM), so what it learns on the thinned input carries to the full one.
-- Scans without rings (a rosette): keep a random share of the returns inside a cone shrunk to a random
+- Ring scans (a spinning LiDAR, or a VLP-16 simulated from one): hide one ring in `k`, k drawn from
+  {2, 3, 4}, at a random phase; each hidden ring lies between two kept ones. The thinner input keeps
+  50-75 % of the rings: close to the density the network meets at inference. (Keeping only one ring
+  in k, so that hidden rings sit at every position of a wide gap, was tried first: on the real clip
+  the adapted network then over-corrected the full input, 2.04 m MAE against 0.80 m before adaptation,
+  VLP-16-like, frames 0-37, docs/benchmarks.md.)
+- Scans without rings (a rosette): keep 60-90 % of the returns inside a cone shrunk to a random
   fraction of the input's angular radius, so that hidden returns lie both between kept ones and
   beyond the edge of the input, where a Mid-40's evaluation error comes from.
 Only the user's input is read: never held-out evaluation points, never ground truth.
@@ -46,7 +48,7 @@ def stored_rings(points: np.ndarray) -> np.ndarray | None:
 
 def _ring_split(rings: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     k = int(rng.integers(2, 5))
-    return (rings % k) == int(rng.integers(0, k))
+    return (rings % k) != int(rng.integers(0, k))
 
 
 def _cone_split(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -56,7 +58,7 @@ def _cone_split(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     cosang = (xyz @ axis) / np.maximum(np.linalg.norm(xyz, axis=1), 1e-9)
     ang = np.arccos(np.clip(cosang, -1.0, 1.0))
     inner = ang <= np.quantile(ang, 1.0) * rng.uniform(0.55, 0.9)
-    return inner & (rng.random(len(points)) < rng.uniform(0.35, 0.7))
+    return inner & (rng.random(len(points)) < rng.uniform(0.6, 0.9))
 
 
 def masked_split(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int],
