@@ -78,12 +78,13 @@ def test_adapt_reads_only_the_cheap_input(tmp_path):
         r = runner.invoke(app, ["adapt", str(data), "--out", str(outs[name]), "--input", inp, "--init", str(init),
                                 "--epochs", "1", "-c", str(cfg)])
         assert r.exit_code == 0, r.output
-    a = torch.load(outs["raw"] / "generator.pt", weights_only=False)
-    b = torch.load(outs["cheap"] / "generator.pt", weights_only=False)
     start = torch.load(init, weights_only=False)["model"]
-    assert a["epoch"] == b["epoch"]
-    for k in a["model"]:
-        assert torch.equal(a["model"][k], b["model"][k]), k
+    for name in ("generator.pt", "checkpoint_last.pt"):  # best-validation and last weights
+        a = torch.load(outs["raw"] / name, weights_only=False)
+        b = torch.load(outs["cheap"] / name, weights_only=False)
+        assert a["epoch"] == b["epoch"]
+        for k in a["model"]:
+            assert torch.equal(a["model"][k], b["model"][k]), (name, k)
     assert any(not torch.equal(a["model"][k], start[k]) for k in start)  # it did train
     log = [json.loads(line) for line in (outs["raw"] / "log.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in log] == [0, 1]
