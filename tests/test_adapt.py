@@ -17,7 +17,7 @@ from leovr.errors import DataError
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from selfsup.masked_lidar import masked_split, stored_rings
-from tests.conftest import FX, CX, CY, H, R_CAM_LIDAR, W, ring_scan, write_kitti_raw
+from tests.conftest import CX, CY, FX, R_CAM_LIDAR, H, W, ring_scan, write_kitti_raw
 
 runner = CliRunner()
 K = np.array([[FX, 0, CX], [0, FX, CY], [0, 0, 1.0]])

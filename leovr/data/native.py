@@ -9,9 +9,9 @@ import numpy as np
 import yaml
 
 from leovr.data.io import (
-    atomic_write,
     DEPTH_SCALE,
     LEGACY_DEPTH_SCALE,
+    atomic_write,
     read_depth_png,
     read_image,
     read_point_file,

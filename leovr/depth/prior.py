@@ -17,7 +17,7 @@ from scipy.spatial import Delaunay, QhullError
 
 # Chosen on the simulator's validation split (tools/prior_edge_ratio.py, never on the KITTI clip):
 # lowest mean MAE relative to the nearest fill over Mid-40, VLP-16 and uniform-ratio inputs
-# (0.948 at 1.5, 0.951 at 2, 0.962 at 1.25; no edge test 0.997, worst on VLP-16 at 1.13x nearest).
+# (0.948 at 1.5, 0.951 at 2, 0.962 at 1.25; no edge test 0.993, worst on VLP-16 at 1.13x nearest).
 EDGE_RATIO = 1.5
 
 

@@ -14,8 +14,8 @@ from tqdm import tqdm
 
 from leovr.config import CompleteConfig
 from leovr.data.io import write_depth_png, write_text
-from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
 from leovr.data.records import Frame
+from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError

@@ -147,7 +147,7 @@ def report(m: dict, source: str, inp: str) -> str:
         f"Time per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, graph {t['graph_ms']:.0f} ms; "
         f"initial poses: {t['initial_pose_sources']}.",
         "",
-        "Files: `refine/depth/` (refined, uint16 mm), `refine/depth_generator/`, `refine/poses_kitti.txt`, "
+        "Files: `refine/depth/` (refined, uint16 metres x 256), `refine/depth_generator/`, `refine/poses_kitti.txt`, "
         "`refine/poses_tum.txt`, `mae_by_distance.png`, `trajectory.png`, `demo.rrd` (open with `rerun demo.rrd`).",
         "",
     ]

@@ -21,10 +21,10 @@ from tqdm import tqdm
 
 from leovr.config import CompleteConfig, FrameSelection, RefineConfig
 from leovr.data.io import atomic_write, write_depth_png, write_text
-from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.records import Frame
+from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError

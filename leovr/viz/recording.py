@@ -14,9 +14,9 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from leovr.data import open_sequence
-from leovr.data.run_info import run_depth_scale
 from leovr.data.io import read_depth_png
 from leovr.data.kitti_common import read_kitti_poses
+from leovr.data.run_info import run_depth_scale
 from leovr.errors import DataError
 from leovr.geometry import invert_T, transform_points
 
