@@ -55,7 +55,6 @@ class SplitSample:
 
 @dataclass
 class AdaptFrame:
-    name: str  # sequence index : frame index, for messages
     image: torch.Tensor  # 3 x hs x ws
     splits: list[SplitSample]
 
@@ -78,7 +77,7 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
                                   torch.from_numpy(sp.target[rows, cols]),
                                   torch.from_numpy(interpolated_at(sp.sparse, rows, cols)),
                                   torch.from_numpy(sp.sparse[rows, cols])))
-    return AdaptFrame("", img, splits)
+    return AdaptFrame(img, splits)
 
 
 def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) -> list[AdaptFrame]:
@@ -97,9 +96,7 @@ def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) 
         scale = 1.0 if cfg.generator_focal_px is None else cfg.generator_focal_px / float(f.K[0, 0])
         scale = 1.0 if abs(scale - 1.0) < 0.05 else scale
         rng = np.random.default_rng([cfg.seed, k, f.index])
-        fr = frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng)
-        fr.name = f"{seq.path}:{f.index}"
-        out.append(fr)
+        out.append(frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng))
     return out
 
 
@@ -174,8 +171,9 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
             raise DataError(last, "was written with other settings or sequences; adapt into a new folder")
     torch.manual_seed(cfg.seed)
     frames = input_frames(seqs, cfg, progress)
-    val = [fr for j, fr in enumerate(frames) if cfg.val_every and j % cfg.val_every == cfg.val_every // 2]
-    train = [fr for fr in frames if fr not in val] or frames
+    is_val = [bool(cfg.val_every) and j % cfg.val_every == cfg.val_every // 2 for j in range(len(frames))]
+    val = [fr for fr, v in zip(frames, is_val) if v]
+    train = [fr for fr, v in zip(frames, is_val) if not v] or frames
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     start, best, since_best, minutes = 0, float("inf"), 0, 0.0
     log_path = out / "log.jsonl"

@@ -10,7 +10,7 @@ import torch
 from torch.utils.data import Dataset
 
 from leovr.data import open_sequence
-from leovr.depth.prior import interpolated_fill
+from leovr.depth.network import prior_for
 from leovr.errors import DataError
 from leovr.lidar.projection import sparse_depth
 
@@ -77,5 +77,5 @@ class DepthSamples(Dataset):
             "gt": torch.from_numpy(gt)[None],
         }
         if self.with_prior:
-            out["prior"] = torch.from_numpy(interpolated_fill(sparse))[None]
+            out["prior"] = prior_for(out["sparse"][None])[0]
         return out

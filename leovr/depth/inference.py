@@ -55,7 +55,7 @@ def forward_padded(model: torch.nn.Module, image: torch.Tensor, sparse: torch.Te
     if getattr(model, "uses_prior", False) and prior is None:
         prior = prior_for(sparse)
     image, sparse_p, prior_p = _pad32(image, sparse, prior)
-    depth, log_sigma = model(image, sparse_p, prior_p) if prior_p is not None else model(image, sparse_p)
+    depth, log_sigma = model(image, sparse_p, prior_p)
     return depth[..., :h, :w], log_sigma[..., :h, :w]
 
 

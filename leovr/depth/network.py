@@ -147,7 +147,7 @@ class DepthGenerator(nn.Module):
         s = sparse / DEPTH_NORM_M
         if self.uses_prior:
             if prior is None:
-                prior = prior_for(sparse)
+                raise ValueError("a residual-mode generator needs the classical prior (prior_for)")
             filled = prior / DEPTH_NORM_M
         else:
             filled = pyramid_fill(s)
@@ -178,8 +178,6 @@ class DepthGenerator(nn.Module):
         cap = math.log(self.cfg.max_depth)
         if not self.uses_prior:
             return torch.exp(parts["log_depth"].clamp(max=cap))
-        if prior is None:
-            prior = prior_for(sparse)
         z = prior.clamp(min=1e-3)
         refined = torch.exp((torch.log(z) + parts["log_residual"]).clamp(max=cap))
         if self.cfg.output == "residual":

@@ -198,16 +198,15 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                            sample.kept_points, graph)
         t2 = time.perf_counter()
         pending[i] = depth
+        fs = FrameScore.of(sample) if score and i != anchor else None
+        if fs is not None:
+            scored[i] = fs
         if has_lidar and i != anchor:  # the classical baselines on the very same input, for the metrics
             ipb = complete_depth(sample.sparse, "ipbasic")
             write_depth_png(out / "depth_ipbasic" / f"{i:06d}.png", ipb)
-            fs = FrameScore.of(sample) if score else None
             if fs is not None:
                 fs.add("ipbasic", ipb)
                 fs.add("nearest", complete_depth(sample.sparse, "nearest"))
-                scored[i] = fs
-        elif score and i != anchor and (fs := FrameScore.of(sample)) is not None:
-            scored[i] = fs
         finish(graph.add_frame(fi))
         t3 = time.perf_counter()
         if i == anchor:
@@ -254,12 +253,11 @@ def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lida
     fs = FrameScore.of(sample)
     if fs is None:
         return None
-    for method in SCORED:
-        if method == "nearest":
-            if has_lidar:
-                fs.add(method, complete_depth(sample.sparse, "nearest"))
-        elif method != "ipbasic" or has_lidar:
-            fs.add(method, read_run_depth(out, PNG_FOLDER[method], i))
+    if has_lidar:
+        fs.add("nearest", complete_depth(sample.sparse, "nearest"))
+    for method, folder in PNG_FOLDER.items():
+        if method != "ipbasic" or has_lidar:
+            fs.add(method, read_run_depth(out, folder, i))
     return fs
 
 
