@@ -18,6 +18,7 @@ import numpy as np
 from leovr.depth.classical import IPBasicConfig, ipbasic, nearest_fill
 from leovr.depth.dataset import DepthSamples, split_sequences
 from leovr.depth.inference import load_generator, predict
+from leovr.depth.prior import interpolated_fill
 from leovr.paths import shipped_checkpoint
 from leovr.sim.dataset import default_root
 
@@ -35,6 +36,7 @@ def main() -> None:
         "nearest": lambda img, sp: nearest_fill(sp),
         "ipbasic": lambda img, sp: ipbasic(sp),
         "ipbasic_without_final_fill": lambda img, sp: ipbasic(sp, IPBasicConfig(fill_remaining=False)),
+        "interp": lambda img, sp: interpolated_fill(sp),  # the residual generators' classical prior alone
         "generator": lambda img, sp: predict(model, img, sp)[0],
     }
     err = {m: 0.0 for m in methods}
