@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from leovr.config import AdaptConfig
 from leovr.data.io import write_text
-from leovr.data.run_info import write_run_info
+from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.inference import _pad32, load_generator, rescale_sparse
 from leovr.depth.layers import gaussian_nll
@@ -38,6 +38,7 @@ from leovr.depth.prior import interpolated_at
 from leovr.depth.train import edge_aware_smoothness, save_checkpoint
 from leovr.errors import DataError
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
+from leovr.lidar.projection import sparse_depth
 from selfsup.masked_lidar import masked_split
 
 
@@ -57,18 +58,24 @@ class SplitSample:
 class AdaptFrame:
     image: torch.Tensor  # 3 x hs x ws
     splits: list[SplitSample]
+    sparse: torch.Tensor  # 1 x hs x ws, the whole input (what inference sees)
+    prior: torch.Tensor  # 1 x hs x ws, its prior
+    teacher: torch.Tensor | None = None  # 1 x hs x ws, the starting network's log depth on the whole input
 
 
 def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray,
-                 shape: tuple[int, int], scale: float, n: int, rng: np.random.Generator) -> AdaptFrame:
+                 shape: tuple[int, int], scale: float, n: int, rng: np.random.Generator,
+                 span_rings: bool = False) -> AdaptFrame:
     """`n` masked splits of one frame's input scan (`points`) with the resampled image."""
     h, w = shape
     hs, ws = (max(8, int(round(h * scale))), max(8, int(round(w * scale)))) if scale != 1.0 else shape
     small = image if (hs, ws) == shape else cv2.resize(image, (ws, hs), interpolation=cv2.INTER_AREA)
     img = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1).float() / 255.0
+    whole = sparse_depth(points, K, T_cam_lidar, shape).astype(np.float32)
+    whole_small = torch.from_numpy(whole if (hs, ws) == shape else rescale_sparse(whole, scale, (hs, ws)))[None]
     splits = []
     for _ in range(n):
-        sp = masked_split(points, K, T_cam_lidar, shape, rng)
+        sp = masked_split(points, K, T_cam_lidar, shape, rng, span_rings=span_rings)
         rows, cols = np.nonzero(sp.target > 0)
         small_sparse = sp.sparse if (hs, ws) == shape else rescale_sparse(sp.sparse, scale, (hs, ws))
         s = torch.from_numpy(small_sparse)[None]
@@ -77,7 +84,7 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
                                   torch.from_numpy(sp.target[rows, cols]),
                                   torch.from_numpy(interpolated_at(sp.sparse, rows, cols)),
                                   torch.from_numpy(sp.sparse[rows, cols])))
-    return AdaptFrame(img, splits)
+    return AdaptFrame(img, splits, whole_small, prior_for(whole_small[None])[0])
 
 
 def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) -> list[AdaptFrame]:
@@ -96,20 +103,46 @@ def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) 
         scale = 1.0 if cfg.generator_focal_px is None else cfg.generator_focal_px / float(f.K[0, 0])
         scale = 1.0 if abs(scale - 1.0) < 0.05 else scale
         rng = np.random.default_rng([cfg.seed, k, f.index])
-        out.append(frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng))
+        out.append(frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng,
+                                cfg.span_rings))
     return out
 
 
-def batch_loss(model: DepthGenerator, batch: list[tuple[torch.Tensor, SplitSample]], weight_smooth: float,
-               weight_nll: float) -> tuple[torch.Tensor, float, int]:
-    """Mean loss of a batch of (image, split) of one size; also the summed absolute error (metres)
-    at the hidden returns and their count."""
-    image = torch.stack([im for im, _ in batch])
-    sparse = torch.stack([s.sparse for _, s in batch])
-    prior = torch.stack([s.prior for _, s in batch])
+def _forward(model: DepthGenerator, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor) -> dict:
     hs, ws = sparse.shape[-2:]
     img_p, sp_p, prior_p = _pad32(image, sparse, prior)
-    parts = {k: v[..., :hs, :ws] for k, v in model.parts(img_p, sp_p, prior_p).items()}
+    return {k: v[..., :hs, :ws] for k, v in model.parts(img_p, sp_p, prior_p).items()}
+
+
+def anchor_loss(model: DepthGenerator, frames: list[AdaptFrame]) -> torch.Tensor:
+    """Mean |log depth - the starting network's log depth| on the frames' whole input (what inference
+    sees): the masked task may teach what the thinner input needs, but not move the inference output
+    beyond what that teaches without a cost."""
+    image = torch.stack([fr.image for fr in frames])
+    sparse = torch.stack([fr.sparse for fr in frames])
+    prior = torch.stack([fr.prior for fr in frames])
+    depth = model.combine(_forward(model, image, sparse, prior), prior, sparse)
+    teacher = torch.stack([fr.teacher for fr in frames])
+    return (torch.log(depth.clamp(min=1e-3)) - teacher).abs().mean()
+
+
+@torch.no_grad()
+def set_teachers(model: DepthGenerator, frames: list[AdaptFrame]) -> None:
+    """The starting network's log depth on each frame's whole input (AdaptFrame.teacher)."""
+    model.eval()
+    for fr in frames:
+        d = model.combine(_forward(model, fr.image[None], fr.sparse[None], fr.prior[None]), fr.prior[None], fr.sparse[None])
+        fr.teacher = torch.log(d[0].clamp(min=1e-3))
+
+
+def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]], weight_smooth: float,
+               weight_nll: float, weight_anchor: float = 0.0) -> tuple[torch.Tensor, float, int]:
+    """Mean loss of a batch of (frame, split) of one size; also the summed absolute error (metres)
+    at the hidden returns and their count."""
+    image = torch.stack([fr.image for fr, _ in batch])
+    sparse = torch.stack([s.sparse for _, s in batch])
+    prior = torch.stack([s.prior for _, s in batch])
+    parts = _forward(model, image, sparse, prior)
     losses, err_sum, count = [], 0.0, 0
     for b, (_, s) in enumerate(batch):
         if not len(s.target):
@@ -128,14 +161,16 @@ def batch_loss(model: DepthGenerator, batch: list[tuple[torch.Tensor, SplitSampl
     if weight_smooth > 0:
         small = model.combine(parts, prior, sparse)
         total = total + weight_smooth * edge_aware_smoothness(small, image)
+    if weight_anchor > 0:
+        total = total + weight_anchor * anchor_loss(model, [fr for fr, _ in batch])
     return total, err_sum, count
 
 
-def batches(items: list[tuple[torch.Tensor, SplitSample]], size: int) -> list[list[tuple[torch.Tensor, SplitSample]]]:
+def batches(items: list[tuple[AdaptFrame, SplitSample]], size: int) -> list[list[tuple[AdaptFrame, SplitSample]]]:
     """Consecutive groups of at most `size` items; a group never mixes image sizes."""
     out: list[list] = []
     for it in items:
-        if out and len(out[-1]) < size and out[-1][0][0].shape == it[0].shape:
+        if out and len(out[-1]) < size and out[-1][0][0].image.shape == it[0].image.shape:
             out[-1].append(it)
         else:
             out.append([it])
@@ -147,7 +182,7 @@ def validate(model: DepthGenerator, frames: list[AdaptFrame]) -> float:
     """MAE (metres) at the hidden returns of every split of the validation frames (fixed splits)."""
     model.eval()
     total, n = 0.0, 0
-    for b in batches([(fr.image, s) for fr in frames for s in fr.splits], 4):
+    for b in batches([(fr, s) for fr in frames for s in fr.splits], 4):
         _, e, c = batch_loss(model, b, 0.0, 0.0)
         total, n = total + e, n + c
     return total / max(n, 1)
@@ -164,16 +199,17 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
-    state = None
-    if resume and last.is_file():
-        state = torch.load(last, map_location="cpu", weights_only=False)
-        if state.get("settings") != settings or state.get("sequences") != [str(s.path) for s in seqs]:
-            raise DataError(last, "was written with other settings or sequences; adapt into a new folder")
+    identity = run_identity("adapt", settings, [s.path for s in seqs], init)
+    out.mkdir(parents=True, exist_ok=True)
+    start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
+    state = torch.load(last, map_location="cpu", weights_only=False) if resume and last.is_file() else None
     torch.manual_seed(cfg.seed)
     frames = input_frames(seqs, cfg, progress)
     is_val = [bool(cfg.val_every) and j % cfg.val_every == cfg.val_every // 2 for j in range(len(frames))]
     val = [fr for fr, v in zip(frames, is_val) if v]
     train = [fr for fr, v in zip(frames, is_val) if not v] or frames
+    if cfg.weight_anchor > 0:
+        set_teachers(model, train)  # before any weight moves (on resume: from the starting network too)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     start, best, since_best, minutes = 0, float("inf"), 0, 0.0
     log_path = out / "log.jsonl"
@@ -182,8 +218,6 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         opt.load_state_dict(state["optimizer"])
         start, best, since_best, minutes = state["epoch"] + 1, state["best_val_mae_m"], state["since_best"], state["minutes"]
     else:
-        out.mkdir(parents=True, exist_ok=True)
-        write_run_info(out, "adapt", input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
         log_path.unlink(missing_ok=True)
         best = validate(model, val) if val else float("inf")
         save_best(model, out, cfg, init, seqs, 0, best)
@@ -199,14 +233,14 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         # statistics (the usual practice when fine-tuning with small batches); every weight still trains
         model.eval()
         order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
-        items = [(train[j].image, train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
+        items = [(train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
                  for j in order]
         losses, err, cnt = [], 0.0, 0
         bar = tqdm(batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
                    disable=not progress)
         for b in bar:
             opt.zero_grad()
-            loss, e, c = batch_loss(model, b, cfg.weight_smooth, cfg.weight_nll)
+            loss, e, c = batch_loss(model, b, cfg.weight_smooth, cfg.weight_nll, cfg.weight_anchor)
             loss.backward()
             opt.step()
             losses.append(float(loss.detach()))

@@ -61,9 +61,25 @@ def _cone_split(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return inner & (rng.random(len(points)) < rng.uniform(0.6, 0.9))
 
 
+def ring_gap_px(depth: np.ndarray) -> int:
+    """Median vertical distance (pixels) between consecutive returns of one image column: a ring
+    scanner's ring spacing in the image (0 without two returns in any column)."""
+    rows, cols = np.nonzero(depth > 0)
+    order = np.lexsort((rows, cols))
+    r, c = rows[order], cols[order]
+    gaps = np.diff(r)[(np.diff(c) == 0)]
+    gaps = gaps[gaps > 1]
+    return int(np.median(gaps)) if len(gaps) else 0
+
+
 def masked_split(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int],
-                 rng: np.random.Generator, window: int = 7, rel: float = 0.15) -> MaskedSplit:
-    """Split the input scan `points` (N x >=3, LiDAR frame) into a thinner input and hidden targets."""
+                 rng: np.random.Generator, window: int = 7, rel: float = 0.15, span_rings: bool = False) -> MaskedSplit:
+    """Split the input scan `points` (N x >=3, LiDAR frame) into a thinner input and hidden targets.
+
+    Hidden returns the camera may not see are dropped by the evaluation's parallax filter (a return
+    within `window` px nearer by `rel`). With `span_rings`, a ring scan's window reaches one ring
+    above and below (the evaluation's 7 px reach the next rings of a 64-ring scan; in a sparser
+    user scan they would find only the hidden ring's own neighbours and keep points behind edges)."""
     rings = stored_rings(points)
     keep = _ring_split(rings, rng) if rings is not None else _cone_split(points, rng)
     if keep.all() or not keep.any():  # too few points to split: hide a random half
@@ -71,4 +87,7 @@ def masked_split(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, sha
     sparse = sparse_depth(points[keep], K, T_cam_lidar, shape)
     hidden = sparse_depth(points[~keep], K, T_cam_lidar, shape)
     every = sparse_depth(points, K, T_cam_lidar, shape)
-    return MaskedSplit(sparse.astype(np.float32), parallax_filter(hidden, every, window, rel).astype(np.float32))
+    size: int | tuple[int, int] = window
+    if span_rings and rings is not None:
+        size = (max(window, 2 * ring_gap_px(every) + 1), window)
+    return MaskedSplit(sparse.astype(np.float32), parallax_filter(hidden, every, size, rel).astype(np.float32))

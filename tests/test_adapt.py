@@ -95,4 +95,4 @@ def test_adapt_reads_only_the_cheap_input(tmp_path):
     assert json.loads((outs["raw"] / "log.jsonl").read_text().splitlines()[-1])["epoch"] == 2
     r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "mid40", "--init", str(init),
                             "--epochs", "4", "-c", str(cfg), "--resume"])
-    assert isinstance(r.exception, DataError) and "other settings" in str(r.exception)
+    assert isinstance(r.exception, DataError) and "settings.input (folder: \"vlp16\", now: \"mid40\")" in str(r.exception)

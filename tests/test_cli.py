@@ -9,7 +9,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
-from conftest import KITTI_RAW, needs_shared
+from conftest import KITTI_RAW, needs_shared, write_kitti_raw
 from typer.testing import CliRunner
 
 from leovr.cli import app
@@ -65,6 +65,30 @@ def test_complete_writes_uint16_png_metrics_and_resumes(kitti_raw_tiny, tmp_path
     assert r.exit_code == 0, r.output
     assert json.loads((out / "metrics.json").read_text())["mae_m"] > 1.0
     assert (cv2.imread(str(out / "depth" / "000001.png"), cv2.IMREAD_UNCHANGED) == 12_345).all()
+
+
+def test_resume_refuses_a_folder_another_run_wrote(kitti_raw_tiny, tmp_path):
+    """--resume continues only the run that wrote the folder: another method, input, sequence or a
+    folder without run.json is refused with the difference named, and nothing in it is touched."""
+    out = tmp_path / "out"
+    base = ["complete", str(kitti_raw_tiny), "--out", str(out), "--method", "nearest", "--input", "vlp16", "--end", "2"]
+    assert runner.invoke(app, base).exit_code == 0
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    other = tmp_path / "other"
+    write_kitti_raw(other, frames=3)
+    for args, named in [(["--method", "ipbasic"], 'settings.method (folder: "nearest", now: "ipbasic")'),
+                        (["--input", "mid40"], 'settings.input (folder: "vlp16", now: "mid40")'),
+                        (["--end", "3"], "settings.end (folder: 2, now: 3)")]:
+        cmd = base + args + ["--resume"]
+        r = subprocess.run([sys.executable, "-c", "from leovr.cli import main; main()", *cmd], capture_output=True, text=True)
+        assert r.returncode == 2 and named in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = runner.invoke(app, ["complete", str(other), *base[2:], "--resume"])
+    assert r.exit_code != 0 and "sequences[0].path" in str(r.exception)
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    (out / "run.json").unlink()
+    r = runner.invoke(app, base + ["--resume"])
+    assert r.exit_code != 0 and "no run.json" in str(r.exception)
+    assert runner.invoke(app, base).exit_code == 0  # without --resume the folder is simply rewritten
 
 
 def test_convert_then_info(kitti_raw_tiny, tmp_path):

@@ -1,12 +1,16 @@
-"""`run.json`: what a leovr output folder holds, so that its files are read back as they were written.
+"""`run.json`: what a leovr output folder holds and what made it.
 
-Today it records the depth PNG convention (units per metre). Output folders written before it
-existed have no `run.json`; their depth PNGs were millimetres, and they are read as such.
+It records the depth PNG convention (units per metre), so that files are read back as they were
+written (folders written before `run.json` existed hold millimetre PNGs), and the run's identity
+(command, every setting, the sequences' file listing, the checkpoint's hash, leovr's version), so
+that `--resume` continues only the very run that wrote the folder.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +31,92 @@ def write_run_info(out: Path, command: str, **extra) -> None:
     """Write `out/run.json` (the command, leovr's version, the depth PNG convention and `extra`)."""
     body = {"command": command, "leovr_version": __version__, "depth_png": depth_png_record(), **extra}
     write_text(Path(out) / RUN_FILE, json.dumps(body, indent=2) + "\n")
+
+
+def folder_fingerprint(path: Path) -> str:
+    """SHA-1 of the relative paths and sizes of every file under `path` (or of the file itself): what
+    a sequence on disk is, without reading its contents."""
+    path = Path(path)
+    h = hashlib.sha1()
+    if path.is_file():
+        h.update(f"{path.name}:{path.stat().st_size}".encode())
+        return h.hexdigest()
+    for root, dirs, files in os.walk(path):
+        dirs.sort()
+        for name in sorted(files):
+            p = Path(root) / name
+            try:
+                size = p.stat().st_size
+            except OSError:
+                continue
+            h.update(f"{p.relative_to(path)}:{size}\n".encode())
+    return h.hexdigest()
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def run_identity(command: str, settings: dict, sequences: list[Path], checkpoint: Path | None = None) -> dict:
+    """What made a run: compared field by field when it is resumed."""
+    return json.loads(json.dumps({
+        "command": command,
+        "settings": settings,
+        "sequences": [{"path": str(Path(p).resolve()), "files_sha1": folder_fingerprint(p)} for p in sequences],
+        "checkpoint_sha256": file_sha256(checkpoint) if checkpoint is not None else None,
+        "leovr_version": __version__,
+    }, default=str))
+
+
+def _differences(old, new, prefix: str = "") -> list[str]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for k in sorted(set(old) | set(new), key=str):
+            out += _differences(old.get(k), new.get(k), f"{prefix}.{k}" if prefix else str(k))
+        return out
+    if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
+        return [d for n, (a, b) in enumerate(zip(old, new)) for d in _differences(a, b, f"{prefix}[{n}]")]
+    return [] if old == new else [f"{prefix} (folder: {_short(old)}, now: {_short(new)})"]
+
+
+def _short(v) -> str:
+    t = json.dumps(v)
+    return t if len(t) <= 60 else t[:57] + "..."
+
+
+def check_identity(out: Path, identity: dict) -> None:
+    """Refuse to resume into `out` unless its run.json names the same run; the message lists every
+    difference. A folder without outputs (nothing to resume) passes."""
+    out = Path(out)
+    path = out / RUN_FILE
+    if not path.is_file():
+        if out.is_dir() and any(out.iterdir()):
+            raise DataError(out, "holds files but no run.json (not a leovr run, or written by an older "
+                                 "version): resume into a new output folder")
+        return
+    try:
+        old = json.loads(path.read_text()).get("identity")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise DataError(path, f"unreadable run description: {exc}") from exc
+    if old is None:
+        raise DataError(path, "records no run identity (written by an older leovr): resume into a new output folder")
+    diff = _differences(old, identity)
+    if diff:
+        raise DataError(out, "was written by another run; --resume refused: " + "; ".join(diff[:6])
+                        + (f" (+{len(diff) - 6} more)" if len(diff) > 6 else ""))
+
+
+def start_run(out: Path, command: str, identity: dict, resume: bool, **extra) -> None:
+    """Before any work: refuse a resume into a folder another run wrote (or an older leovr wrote in
+    millimetres), then record this run in `out/run.json`."""
+    if resume:
+        check_resumable(out)
+        check_identity(out, identity)
+    write_run_info(out, command, identity=identity, **extra)
 
 
 def check_resumable(out: Path) -> None:

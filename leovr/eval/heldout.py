@@ -10,13 +10,14 @@ PARALLAX_REL = 0.15
 
 
 def parallax_filter(
-    heldout: np.ndarray, all_returns: np.ndarray, window: int = PARALLAX_WINDOW, rel: float = PARALLAX_REL
+    heldout: np.ndarray, all_returns: np.ndarray, window: int | tuple[int, int] = PARALLAX_WINDOW,
+    rel: float = PARALLAX_REL,
 ) -> np.ndarray:
     """Drop held-out depths that have a clearly nearer return nearby.
 
     The LiDAR sits behind and above the camera, so near object edges it sees background the camera
     cannot. A held-out pixel is dropped when some return (kept or held out) within a `window` x
-    `window` neighbourhood is nearer by more than `rel` (fraction of its depth). Maps use 0 = none.
+    `window` (or rows x cols) neighbourhood is nearer by more than `rel` (fraction of its depth). Maps use 0 = none.
     """
     near = np.where(all_returns > 0, all_returns, np.inf)
     nearest = minimum_filter(near, size=window, mode="constant", cval=np.inf)

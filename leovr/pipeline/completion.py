@@ -15,7 +15,7 @@ from tqdm import tqdm
 from leovr.config import CompleteConfig
 from leovr.data.io import write_depth_png, write_text
 from leovr.data.records import Frame
-from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
+from leovr.data.run_info import read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError
@@ -23,6 +23,7 @@ from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.heldout import parallax_filter
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
+from leovr.paths import shipped_checkpoint
 
 
 @dataclass
@@ -57,7 +58,6 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
 def generator_method(cfg: CompleteConfig):
     """A function EvalSample -> (depth, log-sigma) running the configured generator (loaded once)."""
     from leovr.depth.inference import load_generator, predict_at_focal
-    from leovr.paths import shipped_checkpoint
 
     model = load_generator(cfg.checkpoint or shipped_checkpoint())
 
@@ -115,9 +115,9 @@ def run_completion(
     kinds: set[str] = set()
     indices = frame_indices(len(seq), cfg)
     if out is not None:
-        if resume:
-            check_resumable(out)
-        write_run_info(out, "complete", method=cfg.method, input=cfg.input, sequence=str(seq.path))
+        checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.method == "generator" else None
+        start_run(out, "complete", run_identity("complete", cfg.model_dump(), [seq.path], checkpoint), resume,
+                  method=cfg.method, input=cfg.input, sequence=str(seq.path))
     for i in tqdm(indices, desc=f"complete {cfg.method}/{cfg.input}", unit="frame", disable=not progress):
         sample = prepare_sample(seq[i], cfg)
         kinds.add(sample.gt_kind)

@@ -24,7 +24,7 @@ from leovr.data.io import atomic_write, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.records import Frame
-from leovr.data.run_info import check_resumable, read_run_depth, write_run_info
+from leovr.data.run_info import read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError
@@ -32,6 +32,7 @@ from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import interpolate_poses, invert_T, transform_points
 from leovr.lidar.deskew import deskew
+from leovr.paths import shipped_checkpoint
 from leovr.pipeline.completion import (
     EvalSample,
     frame_indices,
@@ -167,9 +168,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     pending: dict[int, np.ndarray] = {}
     scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
     stamps = seq.timestamps()
-    if resume:
-        check_resumable(out)
-    write_run_info(out, "refine", input=cfg.input if has_lidar else "none", sequence=str(seq.path))
+    checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.depth_source == "generator" else None
+    start_run(out, "refine", run_identity("refine", cfg.model_dump(), [seq.path], checkpoint), resume,
+              input=cfg.input if has_lidar else "none", sequence=str(seq.path))
     frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
     def finish(results) -> None:
