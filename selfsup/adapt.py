@@ -136,7 +136,7 @@ def set_teachers(model: DepthGenerator, frames: list[AdaptFrame]) -> None:
 
 
 def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]], weight_smooth: float,
-               weight_nll: float, weight_anchor: float = 0.0) -> tuple[torch.Tensor, float, int]:
+               weight_nll: float, weight_anchor: float = 0.0, log_loss: bool = False) -> tuple[torch.Tensor, float, int]:
     """Mean loss of a batch of (frame, split) of one size; also the summed absolute error (metres)
     at the hidden returns and their count."""
     image = torch.stack([fr.image for fr, _ in batch])
@@ -151,7 +151,7 @@ def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]
               for k, v in parts.items()}
         depth = model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
         err = (depth - s.target).abs()
-        loss = err.mean()
+        loss = (torch.log(depth.clamp(min=1e-3)) - torch.log(s.target)).abs().mean() if log_loss else err.mean()
         if weight_nll > 0:
             sigma = at["log_sigma"].view(-1)
             loss = loss + weight_nll * gaussian_nll(depth.detach(), sigma, s.target, torch.ones_like(sigma))
@@ -240,7 +240,8 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
                    disable=not progress)
         for b in bar:
             opt.zero_grad()
-            loss, e, c = batch_loss(model, b, cfg.weight_smooth, cfg.weight_nll, cfg.weight_anchor)
+            loss, e, c = batch_loss(model, b, cfg.weight_smooth, cfg.weight_nll, cfg.weight_anchor,
+                                   cfg.depth_loss == "log_l1")
             loss.backward()
             opt.step()
             losses.append(float(loss.detach()))

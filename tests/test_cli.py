@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -88,7 +89,13 @@ def test_resume_refuses_a_folder_another_run_wrote(kitti_raw_tiny, tmp_path):
     (out / "run.json").unlink()
     r = runner.invoke(app, base + ["--resume"])
     assert r.exit_code != 0 and "no run.json" in str(r.exception)
-    assert runner.invoke(app, base).exit_code == 0  # without --resume the folder is simply rewritten
+    old = os.umask(0o022)  # files honour the user's umask (0666 & ~umask), not mkstemp's 0600
+    try:
+        assert runner.invoke(app, base).exit_code == 0  # without --resume the folder is simply rewritten
+    finally:
+        os.umask(old)
+    for p in ("run.json", "metrics.json", "depth/000001.png"):
+        assert (out / p).stat().st_mode & 0o777 == 0o644, p
 
 
 def test_convert_then_info(kitti_raw_tiny, tmp_path):

@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 
 import pyarrow.compute as pc
+import pytest
 import rerun as rr
 
 from leovr.config import RefineConfig, SimulateConfig
 from leovr.data import open_sequence
+from leovr.errors import DataError
 from leovr.pipeline.refine import run_refine
 from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording
@@ -38,6 +40,15 @@ def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
         assert e in entities, e
     assert frames == {0, 1, 2, 3}
     assert not (tmp_path / "r.rrd.part").exists()
+    # a corrupt run file fails with its name, before or during logging, and leaves neither the
+    # recording nor a .part file behind
+    for name, text in [("loops.json", '{"loops": [{"frame": 3}'), ("metrics.json", "[1, 2]")]:
+        good = (tmp_path / "run" / name).read_text()
+        (tmp_path / "run" / name).write_text(text)
+        with pytest.raises(DataError, match=name.replace(".", r"\.")):
+            write_recording(tmp_path / "run", tmp_path / "bad.rrd")
+        assert not (tmp_path / "bad.rrd").exists() and not (tmp_path / "bad.rrd.part").exists()
+        (tmp_path / "run" / name).write_text(good)
 
 
 def test_sequence_recording_without_a_run(tmp_path):

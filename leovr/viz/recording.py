@@ -66,9 +66,9 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     target, out = Path(target), Path(out)
     run = target if (target / "metrics.json").is_file() and (target / "poses_kitti.txt").is_file() else None
     if run is not None:
-        seq = open_sequence(json.loads((run / "metrics.json").read_text())["sequence"])
+        seq = open_sequence(_json_field(run / "metrics.json", "sequence"))
         poses = read_kitti_poses(run / "poses_kitti.txt")
-        progress = json.loads((run / "progress.json").read_text()) if (run / "progress.json").is_file() else {}
+        progress = _read_json(run / "progress.json") if (run / "progress.json").is_file() else {}
         indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
     else:
         seq, poses, progress = open_sequence(target), None, {}
@@ -77,10 +77,47 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
         indices = indices[:max_frames]
     if not indices:
         raise DataError(target, "nothing to record")
-    rec = rr.RecordingStream("leovr")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".part")
+    try:
+        strips = _record(tmp, run, seq, poses, progress, indices)
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)  # a failed recording leaves nothing behind
+    return {"frames": len(indices), "trajectories": sorted(strips), "path": str(out)}
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DataError(path, f"not readable JSON: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise DataError(path, "must hold a JSON object")
+    return doc
+
+
+def _json_field(path: Path, key: str):
+    doc = _read_json(path)
+    if key not in doc:
+        raise DataError(path, f"has no '{key}' field")
+    return doc[key]
+
+
+def _record(tmp: Path, run: Path | None, seq, poses: np.ndarray | None, progress: dict, indices: list[int]) -> dict:
+    """Log everything into the recording file `tmp`; returns the trajectory strips logged."""
+    rec = rr.RecordingStream("leovr")
     rec.save(tmp, default_blueprint=blueprint())
+    try:
+        strips = _log_all(rec, run, seq, poses, progress, indices)
+        rec.flush()
+    finally:
+        rec.disconnect()
+    return strips
+
+
+def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray | None, progress: dict,
+             indices: list[int]) -> dict:
     rec.log("world", rr.ViewCoordinates.RDF, static=True)  # the first camera's axes: x right, y down, z forward
     strips = {}
     if poses is not None:
@@ -90,7 +127,7 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
         strips["kiss_icp"] = np.stack([np.array(icp[str(i)]).reshape(4, 4)[:3, 3] for i in indices])
     if run is not None and poses is not None and (run / "loops.json").is_file():
         at = {i: n for n, i in enumerate(indices)}
-        pairs = [(at[r["frame"]], at[r["candidate"]]) for r in json.loads((run / "loops.json").read_text())["loops"]
+        pairs = [(at[r["frame"]], at[r["candidate"]]) for r in _json_field(run / "loops.json", "loops")
                  if r["accepted"] and r["frame"] in at and r["candidate"] in at]
         if pairs:
             rec.log("world/loops", rr.LineStrips3D([poses[[a, b], :3, 3] for a, b in pairs], colors=[(220, 40, 200)], radii=0.1),
@@ -130,7 +167,4 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
         strips["ground_truth"] = np.stack([T[:3, 3] for T in gt])
     for name, xyz in strips.items():
         rec.log(f"world/trajectory/{name}", rr.LineStrips3D([xyz], colors=[COLOURS[name]], radii=0.08), static=True)
-    rec.flush()
-    rec.disconnect()
-    tmp.replace(out)
-    return {"frames": len(indices), "trajectories": sorted(strips), "path": str(out)}
+    return strips
