@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import ring_scan
+from conftest import ring_scan, write_kitti_raw
 
 from leovr.data import open_sequence
 from leovr.errors import DataError
@@ -57,10 +57,35 @@ def test_empty_scan_names_the_file(kitti_raw_tiny):
         open_sequence(kitti_raw_tiny)[1]
 
 
-def test_image_and_scan_counts_differ(kitti_raw_tiny):
-    (kitti_raw_tiny / "velodyne_points" / "data" / "0000000002.bin").unlink()
-    with pytest.raises(DataError, match=r"velodyne_points/data: 2 scans but 3 images"):
-        open_sequence(kitti_raw_tiny)
+def test_frames_are_paired_by_number_not_by_position(tmp_path):
+    """One image and a different scan missing: the others keep their own partners, the gap stays a
+    gap in time, and the warning names the skipped frame numbers."""
+    drive = write_kitti_raw(tmp_path / "raw", frames=5)
+    (drive / "image_02" / "data" / "0000000001.png").unlink()
+    (drive / "velodyne_points" / "data" / "0000000003.bin").unlink()
+    with pytest.warns(UserWarning, match=r"skipped frame 1 without an image|skipped frame 3 without a scan") as w:
+        seq = open_sequence(drive)
+    text = str(w[0].message)
+    assert "frame 3 without a scan" in text and "frame 1 without an image" in text
+    assert seq.frame_numbers() == [0, 2, 4] and len(seq) == 3
+    assert [p.stem for p in seq.image_files] == [p.stem for p in seq.scan_files] == ["0000000000", "0000000002", "0000000004"]
+    assert np.allclose(seq.timestamps(), [0.0, 0.2, 0.4])
+    assert seq[1:].frame_numbers() == [2, 4]
+
+
+def test_calibration_of_the_wrong_size_or_singular_names_key_and_file(kitti_raw_tiny):
+    calib = kitti_raw_tiny.parent / "calib_cam_to_cam.txt"
+    good = calib.read_text()
+    eye = "1 0 0 0 1 0 0 0 1"
+    for text, msg in [(f"P_rect_02: {eye}\nR_rect_00: {eye}\n", r"'P_rect_02': needs 12 numbers, 9 numbers"),
+                      (f"P_rect_02: 100 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {eye} 0 0 0\n", r"'R_rect_00': needs 9 numbers, 12"),
+                      (f"P_rect_02: 0 0 0 0 0 0 0 0 0 0 0 0\nR_rect_00: {eye}\n", "singular"),
+                      (f"P_rect_02: nan 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {eye}\n", "NaN")]:
+        calib.write_text(text)
+        with pytest.raises(DataError, match=r"calib_cam_to_cam\.txt: .*" + msg):
+            open_sequence(kitti_raw_tiny)
+    calib.write_text(good)
+    open_sequence(kitti_raw_tiny)
 
 
 def test_timestamps_going_backwards(kitti_raw_tiny):

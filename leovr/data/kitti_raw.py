@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from datetime import datetime
 from pathlib import Path
 
@@ -72,6 +73,23 @@ def oxts_poses(files: list[Path]) -> np.ndarray:
     return invert_T(T[0]) @ T
 
 
+def _numbered(folder: Path, pattern: str) -> dict[int, Path]:
+    """Files of `folder` by the frame number their name holds (0000000042.png -> 42)."""
+    out: dict[int, Path] = {}
+    for p in sorted(folder.glob(pattern)):
+        if not p.stem.isdigit():
+            raise DataError(p, "file name is not a frame number (KITTI names frames 0000000000, 0000000001, ...)")
+        out[int(p.stem)] = p
+    return out
+
+
+def _frames(numbers: list[int]) -> str:
+    if not numbers:
+        return "no frame"
+    shown = ", ".join(str(n) for n in numbers[:10])
+    return f"frame{'s' if len(numbers) > 1 else ''} {shown}" + (f" (+{len(numbers) - 10} more)" if len(numbers) > 10 else "")
+
+
 class KittiRawSequence(FileSequence):
     """One KITTI raw drive in "sync" layout; calibration is read from the date folder above it."""
 
@@ -83,31 +101,40 @@ class KittiRawSequence(FileSequence):
         if drive is None:
             raise DataError(path, "not a KITTI raw drive (expected image_02/data, or one *_sync folder holding it)")
         self.path = drive
-        self.image_files = sorted((drive / "image_02" / "data").glob("*.png"))
-        if not self.image_files:
+        images = _numbered(drive / "image_02" / "data", "*.png")
+        if not images:
             raise DataError(drive / "image_02" / "data", "no PNG images")
         velo_dir = drive / "velodyne_points" / "data"
-        self.scan_files = sorted(velo_dir.glob("*.bin")) if velo_dir.is_dir() else []
-        self.has_lidar = bool(self.scan_files)
-        if self.has_lidar and len(self.scan_files) != len(self.image_files):
-            raise DataError(
-                velo_dir,
-                f"{len(self.scan_files)} scans but {len(self.image_files)} images in {drive / 'image_02' / 'data'}",
-            )
+        scans = _numbered(velo_dir, "*.bin") if velo_dir.is_dir() else {}
+        self.has_lidar = bool(scans)
+        numbers = sorted(images)
+        if self.has_lidar:
+            numbers = sorted(set(images) & set(scans))
+            no_scan, no_image = sorted(set(images) - set(scans)), sorted(set(scans) - set(images))
+            if not numbers:
+                raise DataError(velo_dir, "no scan has the frame number of an image in image_02/data")
+            if no_scan or no_image:
+                warnings.warn(f"{drive}: frames paired by number; skipped {_frames(no_scan)} without a scan"
+                              f" and {_frames(no_image)} without an image", stacklevel=2)
+        self._frame_numbers = numbers
+        self.image_files = [images[n] for n in numbers]
+        self.scan_files = [scans[n] for n in numbers] if self.has_lidar else []
         self.K, self.T_cam_lidar, T_cam_imu = self._read_calibration(drive)
         ts_file = drive / "image_02" / "timestamps.txt"
         if ts_file.is_file():
-            self._times = check_timestamps(_read_kitti_time(ts_file), ts_file)
-            if len(self._times) != len(self.image_files):
-                raise DataError(ts_file, f"{len(self._times)} timestamps for {len(self.image_files)} images")
-        else:
-            self._times = np.arange(len(self.image_files)) / self.rate_hz
-        oxts = sorted((drive / "oxts" / "data").glob("*.txt"))
+            times = _read_kitti_time(ts_file)
+            if len(times) <= numbers[-1]:
+                raise DataError(ts_file, f"{len(times)} timestamps, but frame number {numbers[-1]} needs line {numbers[-1] + 1}")
+            self._times = check_timestamps(times[numbers], ts_file)
+        else:  # frame numbers at the camera rate: a gap in the numbering stays a gap in time
+            self._times = (np.array(numbers, float) - numbers[0]) / self.rate_hz
+        oxts = _numbered(drive / "oxts" / "data", "*.txt") if (drive / "oxts" / "data").is_dir() else {}
         self._poses = None
         if oxts and T_cam_imu is not None:
-            if len(oxts) != len(self.image_files):
-                raise DataError(drive / "oxts" / "data", f"{len(oxts)} OXTS packets for {len(self.image_files)} images")
-            T_w_imu = oxts_poses(oxts)
+            missing = [n for n in numbers if n not in oxts]
+            if missing:
+                raise DataError(drive / "oxts" / "data", f"no OXTS packet for {_frames(missing)}")
+            T_w_imu = oxts_poses([oxts[n] for n in numbers])
             T_imu_cam = invert_T(T_cam_imu)
             # world = first camera frame
             self._poses = invert_T(T_w_imu[0] @ T_imu_cam) @ T_w_imu @ T_imu_cam
@@ -117,15 +144,22 @@ class KittiRawSequence(FileSequence):
         c2c_path = _calib_file(drive, "calib_cam_to_cam.txt")
         v2c_path = _calib_file(drive, "calib_velo_to_cam.txt")
         c2c = read_matrix_rows(c2c_path, "camera calibration")
-        for key in ("P_rect_02", "R_rect_00"):
-            if key not in c2c or c2c[key].size not in (9, 12):
-                raise DataError(c2c_path, f"missing or malformed '{key}'")
+        for key, size in (("P_rect_02", 12), ("R_rect_00", 9)):
+            if key not in c2c or c2c[key].size != size:
+                got = "missing" if key not in c2c else f"{c2c[key].size} numbers"
+                raise DataError(c2c_path, f"missing or malformed '{key}': needs {size} numbers, {got}")
+            if not np.isfinite(c2c[key]).all():
+                raise DataError(c2c_path, f"'{key}' holds NaN or infinite values")
         P = c2c["P_rect_02"].reshape(3, 4)
+        if abs(np.linalg.det(P[:, :3])) < 1e-9 or P[0, 0] <= 0 or P[1, 1] <= 0:
+            raise DataError(c2c_path, "'P_rect_02' is singular or has non-positive focal lengths")
         K, T_rect2 = split_projection(P)
         R_rect = make_T(c2c["R_rect_00"].reshape(3, 3))
         v2c = read_matrix_rows(v2c_path, "LiDAR-to-camera calibration")
         if "R" not in v2c or "T" not in v2c or v2c["R"].size != 9 or v2c["T"].size != 3:
             raise DataError(v2c_path, "missing or malformed 'R' (9 values) / 'T' (3 values)")
+        if not (np.isfinite(v2c["R"]).all() and np.isfinite(v2c["T"]).all()):
+            raise DataError(v2c_path, "'R' or 'T' holds NaN or infinite values")
         T_cam0_velo = make_T(v2c["R"].reshape(3, 3), v2c["T"])
         T_cam_lidar = T_rect2 @ R_rect @ T_cam0_velo
         T_cam_imu = None

@@ -55,6 +55,11 @@ class Sequence(ABC):
         """Frame timestamps in seconds; readers override when they can avoid loading images."""
         return np.array([f.timestamp for f in self])
 
+    def frame_numbers(self) -> list[int]:
+        """The recording's own number of each frame (its file name); readers whose files are numbered
+        with gaps override this. Default: the position."""
+        return list(range(len(self)))
+
     def info(self) -> SequenceInfo:
         """Summarise the sequence by loading its first frame only."""
         first = self[0] if len(self) else None
@@ -95,6 +100,10 @@ class FileSequence(Sequence):
     def timestamps(self) -> np.ndarray:
         return self._times.copy()
 
+    def frame_numbers(self) -> list[int]:
+        numbers = getattr(self, "_frame_numbers", None)
+        return list(numbers) if numbers is not None else list(range(len(self)))
+
     def _load(self, i: int) -> Frame:
         return Frame(
             index=i,
@@ -128,3 +137,7 @@ class SequenceView(Sequence):
 
     def timestamps(self) -> np.ndarray:
         return self.base.timestamps()[self.indices]
+
+    def frame_numbers(self) -> list[int]:
+        numbers = self.base.frame_numbers()
+        return [numbers[i] for i in self.indices]

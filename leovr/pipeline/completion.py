@@ -117,7 +117,8 @@ def run_completion(
     if out is not None:
         checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.method == "generator" else None
         start_run(out, "complete", run_identity("complete", cfg.model_dump(), [seq.path], checkpoint), resume,
-                  method=cfg.method, input=cfg.input, sequence=str(seq.path))
+                  method=cfg.method, input=cfg.input, sequence=str(seq.path),
+                  frame_numbers=seq.frame_numbers())
     for i in tqdm(indices, desc=f"complete {cfg.method}/{cfg.input}", unit="frame", disable=not progress):
         sample = prepare_sample(seq[i], cfg)
         kinds.add(sample.gt_kind)

@@ -170,7 +170,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     stamps = seq.timestamps()
     checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.depth_source == "generator" else None
     start_run(out, "refine", run_identity("refine", cfg.model_dump(), [seq.path], checkpoint), resume,
-              input=cfg.input if has_lidar else "none", sequence=str(seq.path))
+              input=cfg.input if has_lidar else "none", sequence=str(seq.path),
+              frame_numbers=seq.frame_numbers())
     frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
     def finish(results) -> None:
