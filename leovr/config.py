@@ -256,9 +256,11 @@ class AdaptConfig(_Model):
     lr: float = Field(1e-4, gt=0)
     weight_smooth: float = Field(0.01, ge=0)  # edge-aware smoothness of the inverse depth
     weight_nll: float = Field(1.0, ge=0)  # Gaussian NLL of the uncertainty head at the hidden returns
-    depth_loss: Literal["l1", "log_l1"] = "l1"  # at the hidden returns: metres, or log depth (relative)
-    span_rings: bool = False  # hidden-return parallax filter reaches the next rings (selfsup.masked_lidar)
-    weight_anchor: float = Field(0.0, ge=0)  # |log depth - starting network's| on the whole input (selfsup.adapt)
+    # the next three chosen on frames 0-37 of the KITTI raw clip, VLP-16-like, never its test frames 38-47
+    # (tools/adapt_dev.py; runs in docs/results/adapt_dev.jsonl)
+    depth_loss: Literal["l1", "log_l1"] = "log_l1"  # at the hidden returns: metres, or log depth (relative)
+    span_rings: bool = True  # hidden-return parallax filter reaches the next rings (selfsup.masked_lidar)
+    weight_anchor: float = Field(5.0, ge=0)  # |log depth - starting network's| on the whole input (selfsup.adapt)
 
     @field_validator("input")
     @classmethod
