@@ -112,3 +112,33 @@ def test_missing_folder_and_file_instead_of_folder(tmp_path):
     (tmp_path / "f.txt").write_text("x")
     with pytest.raises(DataError, match="a sequence is a folder"):
         open_sequence(tmp_path / "f.txt")
+
+
+def test_checkpoint_with_nan_weights_is_refused(tmp_path):
+    import torch
+
+    from leovr.depth.inference import load_generator
+    from leovr.paths import shipped_checkpoint
+
+    state = torch.load(shipped_checkpoint(), map_location="cpu", weights_only=False)
+    key = next(k for k, v in state["model"].items() if v.is_floating_point())
+    state["model"][key] = torch.full_like(state["model"][key], float("nan"))
+    torch.save(state, tmp_path / "nan.pt")
+    with pytest.raises(DataError, match=r"nan\.pt: 1 weight tensors hold NaN"):
+        load_generator(tmp_path / "nan.pt")
+
+
+def test_depth_png_of_another_size_names_file_and_sizes(tmp_path):
+    import cv2
+
+    from leovr.data.io import read_depth_png, write_depth_png
+    from leovr.data.run_info import read_run_depth, write_run_info
+
+    write_run_info(tmp_path, "complete")
+    write_depth_png(tmp_path / "depth" / "000003.png", np.full((20, 30), 5.0))
+    assert read_run_depth(tmp_path, "depth", 3, (20, 30)).max() == 5.0
+    with pytest.raises(DataError, match=r"000003\.png: depth image is 30x20, the frame is 40x10"):
+        read_run_depth(tmp_path, "depth", 3, (10, 40))
+    cv2.imwrite(str(tmp_path / "rgb.png"), np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(DataError, match=r"rgb\.png: depth image must be single-channel uint16"):
+        read_depth_png(tmp_path / "rgb.png")

@@ -40,14 +40,17 @@ DEPTH_SCALE = 256.0  # KITTI depth-completion convention: uint16 = metres x 256,
 LEGACY_DEPTH_SCALE = 1000.0  # millimetres: what leovr wrote before (cut at 65.5 m); read where a file says so
 
 
-def read_depth_png(path: Path, scale: float = DEPTH_SCALE) -> np.ndarray:
-    """Read a 16-bit depth PNG as float32 metres (0 = unknown); `scale` is units per metre."""
+def read_depth_png(path: Path, scale: float = DEPTH_SCALE, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Read a 16-bit depth PNG as float32 metres (0 = unknown); `scale` is units per metre; with
+    `shape` (rows, cols) a map of another size is refused."""
     require_file(path, "depth image")
     d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if d is None:
         raise DataError(path, "corrupt depth image (OpenCV could not decode it)")
     if d.dtype != np.uint16 or d.ndim != 2:
         raise DataError(path, f"depth image must be single-channel uint16, got {d.dtype} with shape {d.shape}")
+    if shape is not None and d.shape != tuple(shape):
+        raise DataError(path, f"depth image is {d.shape[1]}x{d.shape[0]}, the frame is {shape[1]}x{shape[0]}")
     return d.astype(np.float32) / scale
 
 

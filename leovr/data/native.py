@@ -130,11 +130,13 @@ class NativeSequence(Sequence):
             points = np.ascontiguousarray(raw[:, keep[:4]])
             if "time" in self.fields:
                 times = raw[:, self.fields.index("time")].astype(np.float64)
-        depth = read_depth_png(self.path / "depth" / frame_name(i, "png"), self.depth_scale) if self.has_depth else None
+        image = read_image(self.image_files[i])
+        depth = None
+        if self.has_depth:
+            depth = read_depth_png(self.path / "depth" / frame_name(i, "png"), self.depth_scale, image.shape[:2])
         mask = None
         if self.has_masks:
             mask = read_image(self.path / "masks" / frame_name(i, "png"), gray=True) > 0
-        image = read_image(self.image_files[i])
         if self.width and image.shape[:2] != (self.height, self.width):
             raise DataError(
                 self.image_files[i], f"image is {image.shape[1]}x{image.shape[0]}, sequence.yaml says {self.width}x{self.height}"

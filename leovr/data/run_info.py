@@ -142,6 +142,7 @@ def run_depth_scale(run: Path) -> float:
     return scale
 
 
-def read_run_depth(run: Path, folder: str, index: int) -> np.ndarray:
-    """Depth (metres) of frame `index` from `run/folder/NNNNNN.png`, at the folder's recorded scale."""
-    return read_depth_png(Path(run) / folder / f"{index:06d}.png", run_depth_scale(run))
+def read_run_depth(run: Path, folder: str, index: int, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Depth (metres) of frame `index` from `run/folder/NNNNNN.png`, at the folder's recorded scale
+    (with `shape`, a map of another size is refused)."""
+    return read_depth_png(Path(run) / folder / f"{index:06d}.png", run_depth_scale(run), shape)

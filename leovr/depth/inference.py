@@ -31,6 +31,10 @@ def load_generator(path: str | Path) -> DepthGenerator:
         model.load_state_dict(state["model"])
     except RuntimeError as exc:
         raise DataError(path, f"checkpoint does not match the network it describes: {str(exc)[:300]}") from exc
+    bad = [k for k, v in state["model"].items() if torch.is_tensor(v) and v.is_floating_point() and not torch.isfinite(v).all()]
+    if bad:
+        raise DataError(path, f"{len(bad)} weight tensors hold NaN or infinite values (first: {bad[0]}); "
+                              "the training that wrote it diverged")
     return model.eval()
 
 

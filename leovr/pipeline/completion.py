@@ -124,7 +124,7 @@ def run_completion(
         kinds.add(sample.gt_kind)
         png = out / "depth" / f"{sample.frame.index:06d}.png" if out is not None else None
         if resume and png is not None and png.is_file():
-            pred = read_run_depth(out, "depth", sample.frame.index)
+            pred = read_run_depth(out, "depth", sample.frame.index, sample.frame.shape)
         else:
             t0 = time.perf_counter()
             pred = complete(sample)

@@ -45,7 +45,7 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
     for n, i in enumerate(indices):
         f = seq[i]
         feats[n] = detect(f.image)
-        pts[n] = feature_points(feats[n], read_run_depth(run, "depth", i), f.K)
+        pts[n] = feature_points(feats[n], read_run_depth(run, "depth", i, f.shape), f.K)
         t0 = time.perf_counter()
         cand = det.add(n, voc.bow(feats[n].desc))
         t_query.append(time.perf_counter() - t0)

@@ -259,7 +259,7 @@ def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lida
         fs.add("nearest", complete_depth(sample.sparse, "nearest"))
     for method, folder in PNG_FOLDER.items():
         if method != "ipbasic" or has_lidar:
-            fs.add(method, read_run_depth(out, folder, i))
+            fs.add(method, read_run_depth(out, folder, i, sample.frame.shape))
     return fs
 
 

@@ -157,7 +157,7 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
         for kind, folder in folders.items():
             png = run / folder / f"{i:06d}.png" if run is not None else None
             if png is not None and png.is_file():
-                d = read_depth_png(png, run_depth_scale(run))
+                d = read_depth_png(png, run_depth_scale(run), f.shape)
                 rec.log(f"world/camera/image/depth_{kind}", _depth_image(d))
                 if kind == "refined" and ref is not None:
                     rec.log("world/camera/error", rr.Image(_error_image(d, ref)))
