@@ -60,6 +60,9 @@ def complete(
     cfg = override(load_config(config).complete, method=method, input=input, seed=seed, start=start, end=end, step=step,
                    checkpoint=None if checkpoint is None else str(checkpoint))
     m = run_completion(open_sequence(seq), cfg, out, resume=resume)
+    if not m.get("n"):
+        typer.echo(f"nothing scored: no held-out point fell inside the image ({m['frames']} frames) -> {out / 'metrics.json'}")
+        return
     typer.echo(f"MAE {m['mae_m']:.3f} m  RMSE {m['rmse_m']:.3f} m  delta1 {m['delta1']:.3f}  "
                f"({m['n']} points, {m['frames']} frames) -> {out / 'metrics.json'}")
 

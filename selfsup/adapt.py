@@ -200,7 +200,6 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
     identity = run_identity("adapt", settings, [s.path for s in seqs], init)
-    out.mkdir(parents=True, exist_ok=True)
     start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
     state = torch.load(last, map_location="cpu", weights_only=False) if resume and last.is_file() else None
     torch.manual_seed(cfg.seed)

@@ -87,6 +87,22 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
             os.unlink(tmp)
 
 
+def check_output_dir(out: Path) -> Path:
+    """Create the output folder `out` if needed and prove it writable, before any work starts: an
+    output path that is a file or a read-only folder fails now, not after hours of computing."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise DataError(out, "output path is a file, not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".leovr-write-test.", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise DataError(out, f"output folder cannot be written: {exc.strerror or exc}") from exc
+    return out
+
+
 def write_depth_png(path: Path, depth: np.ndarray, scale: float = DEPTH_SCALE) -> None:
     """Write depth in metres as a uint16 PNG (metres x 256 by default), atomically."""
 

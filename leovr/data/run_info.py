@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from leovr import __version__
-from leovr.data.io import DEPTH_SCALE, LEGACY_DEPTH_SCALE, read_depth_png, write_text
+from leovr.data.io import DEPTH_SCALE, LEGACY_DEPTH_SCALE, check_output_dir, read_depth_png, write_text
 from leovr.errors import DataError
 
 RUN_FILE = "run.json"
@@ -111,8 +111,9 @@ def check_identity(out: Path, identity: dict) -> None:
 
 
 def start_run(out: Path, command: str, identity: dict, resume: bool, **extra) -> None:
-    """Before any work: refuse a resume into a folder another run wrote (or an older leovr wrote in
-    millimetres), then record this run in `out/run.json`."""
+    """Before any work: check the folder can be written, refuse a resume into a folder another run
+    wrote (or an older leovr wrote in millimetres), then record this run in `out/run.json`."""
+    check_output_dir(out)
     if resume:
         check_resumable(out)
         check_identity(out, identity)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,6 +54,14 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
     every = sparse_depth(frame.points, frame.K, frame.T_cam_lidar, frame.shape)
     gt = parallax_filter(held, every, cfg.parallax_window, cfg.parallax_rel)
     return EvalSample(frame, sparse, gt, "heldout", split.kept)
+
+
+def warn_empty_input(seq: Sequence, frames: list[int]) -> None:
+    """Say which frames had no LiDAR return inside the image (points behind the camera, or a
+    calibration that does not match the recording)."""
+    shown = ", ".join(str(i) for i in frames[:10]) + (f" (+{len(frames) - 10} more)" if len(frames) > 10 else "")
+    warnings.warn(f"{seq.path}: {len(frames)} frame(s) have no LiDAR return inside the image ({shown}); "
+                  "check the scans and the LiDAR-camera calibration", stacklevel=2)
 
 
 def generator_method(cfg: CompleteConfig):
@@ -114,6 +123,7 @@ def run_completion(
     times: list[float] = []
     kinds: set[str] = set()
     indices = frame_indices(len(seq), cfg)
+    empty: list[int] = []  # frames whose input has no return inside the image
     if out is not None:
         checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.method == "generator" else None
         start_run(out, "complete", run_identity("complete", cfg.model_dump(), [seq.path], checkpoint), resume,
@@ -132,6 +142,10 @@ def run_completion(
             if png is not None:
                 write_depth_png(png, pred)
         acc.add(pred, sample.gt)
+        if not (sample.sparse > 0).any():
+            empty.append(sample.frame.index)
+    if empty:
+        warn_empty_input(seq, empty)
     metrics = {
         "sequence": str(seq.path),
         "reader": seq.name,

@@ -39,6 +39,7 @@ from leovr.pipeline.completion import (
     generator_method,
     ground_truth_note,
     prepare_sample,
+    warn_empty_input,
 )
 
 
@@ -166,6 +167,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar)
     graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
     pending: dict[int, np.ndarray] = {}
+    empty: list[int] = []  # frames whose LiDAR input has no return inside the image
     scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
     stamps = seq.timestamps()
     checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.depth_source == "generator" else None
@@ -193,6 +195,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt)
         if sample.frame.shape != shape:
             raise DataError(seq.path, f"frame {i} is {sample.frame.shape}, the sequence started with {shape}")
+        if has_lidar and i != anchor and not (sample.sparse > 0).any():
+            empty.append(i)
         t0 = time.perf_counter()
         depth, log_sigma = generator(sample)
         t1 = time.perf_counter()
@@ -219,6 +223,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         for k, dt in zip(("generator_ms", "frontend_ms", "graph_ms"), (t1 - t0, t2 - t1, t3 - t2)):
             state.times[k].append(1000.0 * dt)
     finish(graph.flush())
+    if empty:
+        warn_empty_input(seq, empty)
     landmarks, seen_by = graph.all_landmarks()
     if len(landmarks):
         landmarks = transform_points(T_start, landmarks)

@@ -1,0 +1,76 @@
+"""Bad input through the command line, one row per class: exit code 2, a one-line error naming the
+file or option, no traceback, and no partial output left behind."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import write_kitti_raw
+
+from leovr.paths import REPO_ROOT
+
+
+def _calib(drive: Path, text: str) -> None:
+    (drive.parent / "calib_cam_to_cam.txt").write_text(text)
+
+
+def _nan_checkpoint(path: Path) -> Path:
+    import torch
+
+    from leovr.paths import shipped_checkpoint
+
+    state = torch.load(shipped_checkpoint(), map_location="cpu", weights_only=False)
+    for k, v in state["model"].items():
+        if v.is_floating_point():
+            state["model"][k] = torch.full_like(v, float("nan"))
+            break
+    torch.save(state, path)
+    return path
+
+
+EYE = "1 0 0 0 1 0 0 0 1"
+# (id, how to break the drive -> extra args, command, what the message must name)
+ROWS = [
+    ("missing sequence", lambda d, t: [str(t / "nope")], "info", "nope: "),
+    ("P_rect_02 of 9 numbers", lambda d, t: (_calib(d, f"P_rect_02: {EYE}\nR_rect_00: {EYE}\n"), [str(d)])[1], "info",
+     "calib_cam_to_cam.txt: missing or malformed 'P_rect_02'"),
+    ("R_rect_00 of 12 numbers", lambda d, t: (_calib(d, f"P_rect_02: 100 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {EYE} 0 0 0\n"),
+                                              [str(d)])[1], "info", "'R_rect_00': needs 9 numbers"),
+    ("singular projection", lambda d, t: (_calib(d, f"P_rect_02: {' '.join(['0'] * 12)}\nR_rect_00: {EYE}\n"), [str(d)])[1],
+     "info", "'P_rect_02' is singular"),
+    ("corrupt scan size", lambda d, t: ((d / "velodyne_points/data/0000000001.bin").write_bytes(b"\0" * 18), [str(d)])[1],
+     "complete", "0000000001.bin: size 18 bytes"),
+    ("output path is a file", lambda d, t: ((t / "f").write_text("x"), [str(d), "--out", str(t / "f")])[1], "complete",
+     "f: output path is a file"),
+    ("NaN checkpoint", lambda d, t: [str(d), "--method", "generator", "--checkpoint", str(_nan_checkpoint(t / "nan.pt"))],
+     "complete", "nan.pt: 1 weight tensors hold NaN"),
+    ("unknown input option", lambda d, t: [str(d), "--input", "vlp99"], "complete", "vlp99"),
+    ("corrupt metrics.json to viz", lambda d, t: ((t / "run").mkdir(), (t / "run" / "metrics.json").write_text("{oops"),
+                                                  (t / "run" / "poses_kitti.txt").write_text(" ".join(["0"] * 12) + "\n"),
+                                                  [str(t / "run"), "--out", str(t / "r.rrd")])[3], "viz", "metrics.json: not readable JSON"),
+]
+
+
+@pytest.mark.parametrize("name,breaks,command,named", ROWS, ids=[r[0] for r in ROWS])
+def test_bad_input_is_one_clear_line(tmp_path, name, breaks, command, named):
+    drive = write_kitti_raw(tmp_path / "raw", frames=2)
+    args = breaks(drive, tmp_path)
+    if command == "complete" and "--out" not in args:
+        args += ["--out", str(tmp_path / "out")]
+    before = {p for p in tmp_path.rglob("*")}
+    r = subprocess.run([sys.executable, "-c", "from leovr.cli import main; main()", command, *args],
+                       capture_output=True, text=True, cwd=REPO_ROOT)
+    assert r.returncode == 2, (r.returncode, r.stdout[-500:], r.stderr[-1500:])
+    assert "Traceback" not in r.stderr and named in r.stderr, r.stderr[-1500:]
+    errors = [ln for ln in r.stderr.splitlines() if ln.startswith("error:") or "Error" in ln]
+    assert len(errors) == 1, r.stderr
+    left = [p for p in set(tmp_path.rglob("*")) - before if p.is_file()]
+    assert not [p for p in left if p.name.startswith(".") or p.suffix == ".part"], left  # no half-written file
+    if name == "corrupt scan size":  # found at frame 1: frame 0 stays, resumable, with its run.json
+        assert sorted(p.name for p in left) == ["000000.png", "run.json"]
+    else:  # found before any work
+        assert not left, left
