@@ -32,6 +32,21 @@ def _nan_checkpoint(path: Path) -> Path:
     return path
 
 
+def _native(drive: Path, tmp: Path, edit) -> list[str]:
+    """The drive converted to the native format, then broken by `edit(folder)`."""
+    from leovr.data import open_sequence, write_native
+
+    out = tmp / "native"
+    write_native(open_sequence(drive), out)
+    edit(out)
+    return [str(out)]
+
+
+def _yaml_value(folder: Path, line: str, new: str) -> None:
+    y = folder / "sequence.yaml"
+    y.write_text(y.read_text().replace(line, new))
+
+
 EYE = "1 0 0 0 1 0 0 0 1"
 # (id, how to break the drive -> extra args, command, what the message must name)
 ROWS = [
@@ -48,6 +63,10 @@ ROWS = [
      "f: output path is a file"),
     ("NaN checkpoint", lambda d, t: [str(d), "--method", "generator", "--checkpoint", str(_nan_checkpoint(t / "nan.pt"))],
      "complete", "nan.pt: 1 weight tensors hold NaN"),
+    ("non-numeric sequence.yaml", lambda d, t: _native(d, t, lambda f: _yaml_value(f, "rate_hz: 10.0", "rate_hz: fast")),
+     "info", "sequence.yaml: 'rate_hz' must be a positive number, not 'fast'"),
+    ("NaN in a poses file", lambda d, t: _native(d, t, lambda f: (f / "poses_tum.txt").write_text(
+        "0 0 0 0 0 0 0 1\n0.1 nan 0 0 0 0 0 1\n")), "info", "poses_tum.txt: line 2 holds NaN"),
     ("unknown input option", lambda d, t: [str(d), "--input", "vlp99"], "complete", "vlp99"),
     ("corrupt metrics.json to viz", lambda d, t: ((t / "run").mkdir(), (t / "run" / "metrics.json").write_text("{oops"),
                                                   (t / "run" / "poses_kitti.txt").write_text(" ".join(["0"] * 12) + "\n"),

@@ -48,6 +48,9 @@ def read_tum_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise DataError(path, f"unreadable TUM poses: {exc}") from exc
     if rows.shape[1] != 8:
         raise DataError(path, f"expected 8 columns (t tx ty tz qx qy qz qw), got {rows.shape[1]}")
+    bad = np.nonzero(~np.isfinite(rows).all(1))[0]
+    if len(bad):
+        raise DataError(path, f"line {int(bad[0]) + 1} holds NaN or infinite values ({len(bad)} line(s) in all)")
     return rows[:, 0], np.stack([pose_from_tum(r[1:]) for r in rows]) if len(rows) else np.zeros((0, 4, 4))
 
 
@@ -67,6 +70,20 @@ def _matrix(meta: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndar
     return m
 
 
+def _number(d: dict, key: str, default, kind: type, source: Path):
+    """A numeric field of sequence.yaml (int or float), finite and not negative where present."""
+    v = d.get(key, default)
+    try:
+        out = kind(v)
+        if isinstance(v, bool) or not np.isfinite(out) or (kind is float and out <= 0 and key != "frames"):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise DataError(source, f"'{key}' must be a {'whole' if kind is int else 'positive'} number, not {v!r}") from None
+    if kind is int and out != float(v):
+        raise DataError(source, f"'{key}' must be a whole number, not {v!r}")
+    return out
+
+
 class NativeSequence(Sequence):
     """Reader for folders holding `sequence.yaml`."""
 
@@ -83,14 +100,18 @@ class NativeSequence(Sequence):
             raise DataError(meta_file, f"not a {FORMAT} description (missing 'format: {FORMAT}')")
         self.meta = meta
         cam = meta.get("camera") or {}
+        if not isinstance(cam, dict):
+            raise DataError(meta_file, "'camera' must be a mapping (K, width, height)")
         self.K = _matrix(cam, "K", (3, 3), meta_file)
-        self.width, self.height = int(cam.get("width", 0)), int(cam.get("height", 0))
-        self.rate_hz = float(meta.get("rate_hz", 10.0))
-        n = int(meta.get("frames", -1))
+        self.width, self.height = _number(cam, "width", 0, int, meta_file), _number(cam, "height", 0, int, meta_file)
+        self.rate_hz = _number(meta, "rate_hz", 10.0, float, meta_file)
+        n = _number(meta, "frames", -1, int, meta_file)
         self.image_files = sorted((path / "images").glob("*.png"))
         if n < 0 or len(self.image_files) != n:
             raise DataError(path / "images", f"{len(self.image_files)} images but sequence.yaml says frames: {n}")
         lidar = meta.get("lidar")
+        if lidar and not isinstance(lidar, dict):
+            raise DataError(meta_file, "'lidar' must be a mapping (name, fields, T_cam_lidar)")
         self.has_lidar = bool(lidar)
         self.fields: list[str] = []
         self.T_cam_lidar = np.eye(4)
@@ -113,7 +134,7 @@ class NativeSequence(Sequence):
         self.has_poses = self._poses is not None
         self.has_depth = (path / "depth").is_dir()
         # PNG units per metre; files from before the key existed were written in millimetres
-        self.depth_scale = float(meta.get("depth_scale", LEGACY_DEPTH_SCALE))
+        self.depth_scale = _number(meta, "depth_scale", LEGACY_DEPTH_SCALE, float, meta_file)
         self.has_masks = (path / "masks").is_dir()
 
     def _num_frames(self) -> int:
