@@ -146,7 +146,7 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
     use = np.zeros(n, bool)
     if with_refined:
         for k, f in enumerate(frames):
-            d = read_run_depth(graph.depth_dir.parent, graph.depth_dir.name, f.index, f.shape)
+            d = read_run_depth(graph.depth_dir.parent, graph.depth_dir.name, f.index)
             refined[k] = cv2.resize(d, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
             use[k] = refined_agrees(refined[k], fdepth[k], cfg.refined_agree_rel)
     prev: list[np.ndarray | None] = [None] * n
