@@ -5,6 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 
+def brief(items, limit: int = 10, sep: str = ", ") -> str:
+    """The first `limit` items joined, with how many more there are: for messages naming frames or fields."""
+    items = [str(x) for x in items]
+    return sep.join(items[:limit]) + (f" (+{len(items) - limit} more)" if len(items) > limit else "")
+
+
 class LeovrError(Exception):
     """Base class for errors reported to the user without a traceback."""
 

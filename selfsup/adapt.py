@@ -75,7 +75,7 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
     whole_small = torch.from_numpy(whole if (hs, ws) == shape else rescale_sparse(whole, scale, (hs, ws)))[None]
     splits = []
     for _ in range(n):
-        sp = masked_split(points, K, T_cam_lidar, shape, rng, span_rings=span_rings)
+        sp = masked_split(points, K, T_cam_lidar, shape, rng, span_rings=span_rings, every=whole)
         rows, cols = np.nonzero(sp.target > 0)
         small_sparse = sp.sparse if (hs, ws) == shape else rescale_sparse(sp.sparse, scale, (hs, ws))
         s = torch.from_numpy(small_sparse)[None]
@@ -114,16 +114,22 @@ def _forward(model: DepthGenerator, image: torch.Tensor, sparse: torch.Tensor, p
     return {k: v[..., :hs, :ws] for k, v in model.parts(img_p, sp_p, prior_p).items()}
 
 
-def anchor_loss(model: DepthGenerator, frames: list[AdaptFrame]) -> torch.Tensor:
-    """Mean |log depth - the starting network's log depth| on the frames' whole input (what inference
-    sees): the masked task may teach what the thinner input needs, but not move the inference output
-    beyond what that teaches without a cost."""
+def _log(depth: torch.Tensor) -> torch.Tensor:
+    return torch.log(depth.clamp(min=1e-3))
+
+
+def whole_log_depth(model: DepthGenerator, frames: list[AdaptFrame]) -> torch.Tensor:
+    """B x 1 x hs x ws log depth of the frames' whole input (what inference sees)."""
     image = torch.stack([fr.image for fr in frames])
     sparse = torch.stack([fr.sparse for fr in frames])
     prior = torch.stack([fr.prior for fr in frames])
-    depth = model.combine(_forward(model, image, sparse, prior), prior, sparse)
-    teacher = torch.stack([fr.teacher for fr in frames])
-    return (torch.log(depth.clamp(min=1e-3)) - teacher).abs().mean()
+    return _log(model.combine(_forward(model, image, sparse, prior), prior, sparse))
+
+
+def anchor_loss(model: DepthGenerator, frames: list[AdaptFrame]) -> torch.Tensor:
+    """Mean |log depth - the starting network's log depth| on the frames' whole input: the masked
+    task may teach what the thinner input needs, but not move the inference output without a cost."""
+    return (whole_log_depth(model, frames) - torch.stack([fr.teacher for fr in frames])).abs().mean()
 
 
 @torch.no_grad()
@@ -131,8 +137,7 @@ def set_teachers(model: DepthGenerator, frames: list[AdaptFrame]) -> None:
     """The starting network's log depth on each frame's whole input (AdaptFrame.teacher)."""
     model.eval()
     for fr in frames:
-        d = model.combine(_forward(model, fr.image[None], fr.sparse[None], fr.prior[None]), fr.prior[None], fr.sparse[None])
-        fr.teacher = torch.log(d[0].clamp(min=1e-3))
+        fr.teacher = whole_log_depth(model, [fr])[0]
 
 
 def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]], weight_smooth: float,
@@ -151,7 +156,7 @@ def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]
               for k, v in parts.items()}
         depth = model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
         err = (depth - s.target).abs()
-        loss = (torch.log(depth.clamp(min=1e-3)) - torch.log(s.target)).abs().mean() if log_loss else err.mean()
+        loss = (_log(depth) - torch.log(s.target)).abs().mean() if log_loss else err.mean()
         if weight_nll > 0:
             sigma = at["log_sigma"].view(-1)
             loss = loss + weight_nll * gaussian_nll(depth.detach(), sigma, s.target, torch.ones_like(sigma))

@@ -73,20 +73,22 @@ def ring_gap_px(depth: np.ndarray) -> int:
 
 
 def masked_split(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int],
-                 rng: np.random.Generator, window: int = 7, rel: float = 0.15, span_rings: bool = False) -> MaskedSplit:
+                 rng: np.random.Generator, window: int = 7, rel: float = 0.15, span_rings: bool = False,
+                 every: np.ndarray | None = None) -> MaskedSplit:
     """Split the input scan `points` (N x >=3, LiDAR frame) into a thinner input and hidden targets.
 
     Hidden returns the camera may not see are dropped by the evaluation's parallax filter (a return
     within `window` px nearer by `rel`). With `span_rings`, a ring scan's window reaches one ring
     above and below (the evaluation's 7 px reach the next rings of a 64-ring scan; in a sparser
-    user scan they would find only the hidden ring's own neighbours and keep points behind edges)."""
+    user scan they would find only the hidden ring's own neighbours and keep points behind edges).
+    `every`: the whole scan's sparse map when the caller has it (the same for every split of a frame)."""
     rings = stored_rings(points)
     keep = _ring_split(rings, rng) if rings is not None else _cone_split(points, rng)
     if keep.all() or not keep.any():  # too few points to split: hide a random half
         keep = rng.random(len(points)) < 0.5
     sparse = sparse_depth(points[keep], K, T_cam_lidar, shape)
     hidden = sparse_depth(points[~keep], K, T_cam_lidar, shape)
-    every = sparse_depth(points, K, T_cam_lidar, shape)
+    every = sparse_depth(points, K, T_cam_lidar, shape) if every is None else every
     size: int | tuple[int, int] = window
     if span_rings and rings is not None:
         size = (max(window, 2 * ring_gap_px(every) + 1), window)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 import warnings
@@ -122,6 +123,25 @@ def write_image(path: Path, image: np.ndarray) -> None:
             raise DataError(path, "could not write image")
 
     atomic_write(path, _write)
+
+
+def require_finite_rows(rows: np.ndarray, path: Path) -> np.ndarray:
+    """`rows` (one per line of `path`) unchanged, or a DataError naming the first line with NaN or inf."""
+    bad = np.nonzero(~np.isfinite(rows).all(1))[0]
+    if len(bad):
+        raise DataError(path, f"line {int(bad[0]) + 1} holds NaN or infinite values ({len(bad)} line(s) in all)")
+    return rows
+
+
+def read_json_object(path: Path) -> dict:
+    """A JSON file holding an object; a missing, corrupt or non-object file is a DataError naming it."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DataError(path, f"not readable JSON: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise DataError(path, "must hold a JSON object")
+    return doc
 
 
 def write_text(path: Path, text: str) -> None:

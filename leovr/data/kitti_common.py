@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from leovr.data.io import require_finite_rows
 from leovr.errors import DataError
 
 
@@ -25,9 +26,7 @@ def read_kitti_poses(path: Path) -> np.ndarray:
         raise DataError(path, f"unreadable pose file: {exc}") from exc
     if rows.shape[1] != 12:
         raise DataError(path, f"expected 12 numbers per line (a 3x4 matrix), got {rows.shape[1]}")
-    bad = np.nonzero(~np.isfinite(rows).all(1))[0]
-    if len(bad):
-        raise DataError(path, f"line {int(bad[0]) + 1} holds NaN or infinite values ({len(bad)} line(s) in all)")
+    require_finite_rows(rows, path)
     T = np.tile(np.eye(4), (len(rows), 1, 1))
     T[:, :3, :4] = rows.reshape(-1, 3, 4)
     return T

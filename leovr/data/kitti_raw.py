@@ -11,7 +11,7 @@ import numpy as np
 from leovr.data.io import check_timestamps, read_matrix_rows
 from leovr.data.kitti_common import split_projection
 from leovr.data.sequence import FileSequence
-from leovr.errors import DataError
+from leovr.errors import DataError, brief
 from leovr.geometry import invert_T, make_T
 
 EARTH_RADIUS_M = 6378137.0
@@ -84,10 +84,7 @@ def _numbered(folder: Path, pattern: str) -> dict[int, Path]:
 
 
 def _frames(numbers: list[int]) -> str:
-    if not numbers:
-        return "no frame"
-    shown = ", ".join(str(n) for n in numbers[:10])
-    return f"frame{'s' if len(numbers) > 1 else ''} {shown}" + (f" (+{len(numbers) - 10} more)" if len(numbers) > 10 else "")
+    return f"frame{'s' if len(numbers) > 1 else ''} {brief(numbers)}" if numbers else "no frame"
 
 
 class KittiRawSequence(FileSequence):

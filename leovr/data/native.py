@@ -17,6 +17,7 @@ from leovr.data.io import (
     read_point_file,
     read_timestamp_file,
     require_file,
+    require_finite_rows,
     write_depth_png,
     write_image,
     write_text,
@@ -48,9 +49,7 @@ def read_tum_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise DataError(path, f"unreadable TUM poses: {exc}") from exc
     if rows.shape[1] != 8:
         raise DataError(path, f"expected 8 columns (t tx ty tz qx qy qz qw), got {rows.shape[1]}")
-    bad = np.nonzero(~np.isfinite(rows).all(1))[0]
-    if len(bad):
-        raise DataError(path, f"line {int(bad[0]) + 1} holds NaN or infinite values ({len(bad)} line(s) in all)")
+    require_finite_rows(rows, path)
     return rows[:, 0], np.stack([pose_from_tum(r[1:]) for r in rows]) if len(rows) else np.zeros((0, 4, 4))
 
 
@@ -71,11 +70,11 @@ def _matrix(meta: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndar
 
 
 def _number(d: dict, key: str, default, kind: type, source: Path):
-    """A numeric field of sequence.yaml (int or float), finite and not negative where present."""
+    """A numeric field of sequence.yaml: a whole number (`kind=int`) or a positive finite one (`float`)."""
     v = d.get(key, default)
     try:
         out = kind(v)
-        if isinstance(v, bool) or not np.isfinite(out) or (kind is float and out <= 0 and key != "frames"):
+        if isinstance(v, bool) or not np.isfinite(out) or (kind is float and out <= 0):
             raise ValueError
     except (TypeError, ValueError):
         raise DataError(source, f"'{key}' must be a {'whole' if kind is int else 'positive'} number, not {v!r}") from None

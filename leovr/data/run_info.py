@@ -16,8 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from leovr import __version__
-from leovr.data.io import DEPTH_SCALE, LEGACY_DEPTH_SCALE, check_output_dir, read_depth_png, write_text
-from leovr.errors import DataError
+from leovr.data.io import (
+    DEPTH_SCALE,
+    LEGACY_DEPTH_SCALE,
+    check_output_dir,
+    read_depth_png,
+    read_json_object,
+    write_text,
+)
+from leovr.errors import DataError, brief
 
 RUN_FILE = "run.json"
 
@@ -53,12 +60,9 @@ def folder_fingerprint(path: Path) -> str:
     return h.hexdigest()
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
+def _sha256(path: Path) -> str:
     with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 def run_identity(command: str, settings: dict, sequences: list[Path], checkpoint: Path | None = None) -> dict:
@@ -67,7 +71,7 @@ def run_identity(command: str, settings: dict, sequences: list[Path], checkpoint
         "command": command,
         "settings": settings,
         "sequences": [{"path": str(Path(p).resolve()), "files_sha1": folder_fingerprint(p)} for p in sequences],
-        "checkpoint_sha256": file_sha256(checkpoint) if checkpoint is not None else None,
+        "checkpoint_sha256": _sha256(checkpoint) if checkpoint is not None else None,
         "leovr_version": __version__,
     }, default=str))
 
@@ -98,16 +102,12 @@ def check_identity(out: Path, identity: dict) -> None:
             raise DataError(out, "holds files but no run.json (not a leovr run, or written by an older "
                                  "version): resume into a new output folder")
         return
-    try:
-        old = json.loads(path.read_text()).get("identity")
-    except (OSError, ValueError, AttributeError) as exc:
-        raise DataError(path, f"unreadable run description: {exc}") from exc
+    old = read_json_object(path).get("identity")
     if old is None:
         raise DataError(path, "records no run identity (written by an older leovr): resume into a new output folder")
     diff = _differences(old, identity)
     if diff:
-        raise DataError(out, "was written by another run; --resume refused: " + "; ".join(diff[:6])
-                        + (f" (+{len(diff) - 6} more)" if len(diff) > 6 else ""))
+        raise DataError(out, "was written by another run; --resume refused: " + brief(diff, 6, "; "))
 
 
 def start_run(out: Path, command: str, identity: dict, resume: bool, **extra) -> None:

@@ -91,6 +91,7 @@ class FileSequence(Sequence):
     scan_files: list[Path]
     _times: np.ndarray
     _poses: np.ndarray | None
+    _frame_numbers: list[int] | None = None  # readers whose file names number the frames with gaps
     K: np.ndarray
     T_cam_lidar: np.ndarray
 
@@ -101,8 +102,7 @@ class FileSequence(Sequence):
         return self._times.copy()
 
     def frame_numbers(self) -> list[int]:
-        numbers = getattr(self, "_frame_numbers", None)
-        return list(numbers) if numbers is not None else list(range(len(self)))
+        return list(self._frame_numbers) if self._frame_numbers is not None else list(range(len(self)))
 
     def _load(self, i: int) -> Frame:
         return Frame(

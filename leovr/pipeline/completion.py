@@ -19,7 +19,7 @@ from leovr.data.records import Frame
 from leovr.data.run_info import read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
-from leovr.errors import DataError
+from leovr.errors import DataError, brief
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.heldout import parallax_filter
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
@@ -59,16 +59,20 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
 def warn_empty_input(seq: Sequence, frames: list[int]) -> None:
     """Say which frames had no LiDAR return inside the image (points behind the camera, or a
     calibration that does not match the recording)."""
-    shown = ", ".join(str(i) for i in frames[:10]) + (f" (+{len(frames) - 10} more)" if len(frames) > 10 else "")
-    warnings.warn(f"{seq.path}: {len(frames)} frame(s) have no LiDAR return inside the image ({shown}); "
+    warnings.warn(f"{seq.path}: {len(frames)} frame(s) have no LiDAR return inside the image ({brief(frames)}); "
                   "check the scans and the LiDAR-camera calibration", stacklevel=2)
+
+
+def generator_checkpoint(cfg: CompleteConfig) -> Path:
+    """The generator weights a run uses: the configured checkpoint or the shipped one."""
+    return Path(cfg.checkpoint or shipped_checkpoint())
 
 
 def generator_method(cfg: CompleteConfig):
     """A function EvalSample -> (depth, log-sigma) running the configured generator (loaded once)."""
     from leovr.depth.inference import load_generator, predict_at_focal
 
-    model = load_generator(cfg.checkpoint or shipped_checkpoint())
+    model = load_generator(generator_checkpoint(cfg))
 
     def run(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
         f = sample.frame
@@ -125,7 +129,7 @@ def run_completion(
     indices = frame_indices(len(seq), cfg)
     empty: list[int] = []  # frames whose input has no return inside the image
     if out is not None:
-        checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.method == "generator" else None
+        checkpoint = generator_checkpoint(cfg) if cfg.method == "generator" else None
         start_run(out, "complete", run_identity("complete", cfg.model_dump(), [seq.path], checkpoint), resume,
                   method=cfg.method, input=cfg.input, sequence=str(seq.path),
                   frame_numbers=seq.frame_numbers())

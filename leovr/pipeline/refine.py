@@ -32,10 +32,10 @@ from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import interpolate_poses, invert_T, transform_points
 from leovr.lidar.deskew import deskew
-from leovr.paths import shipped_checkpoint
 from leovr.pipeline.completion import (
     EvalSample,
     frame_indices,
+    generator_checkpoint,
     generator_method,
     ground_truth_note,
     prepare_sample,
@@ -170,7 +170,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     empty: list[int] = []  # frames whose LiDAR input has no return inside the image
     scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
     stamps = seq.timestamps()
-    checkpoint = Path(cfg.checkpoint or shipped_checkpoint()) if cfg.depth_source == "generator" else None
+    checkpoint = generator_checkpoint(ccfg) if cfg.depth_source == "generator" else None
     start_run(out, "refine", run_identity("refine", cfg.model_dump(), [seq.path], checkpoint), resume,
               input=cfg.input if has_lidar else "none", sequence=str(seq.path),
               frame_numbers=seq.frame_numbers())

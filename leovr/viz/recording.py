@@ -5,7 +5,6 @@ depth images, so the viewer back-projects them) and the error map against ground
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
@@ -14,7 +13,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from leovr.data import open_sequence
-from leovr.data.io import read_depth_png
+from leovr.data.io import read_depth_png, read_json_object
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.data.run_info import run_depth_scale
 from leovr.errors import DataError
@@ -68,7 +67,7 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     if run is not None:
         seq = open_sequence(_json_field(run / "metrics.json", "sequence"))
         poses = read_kitti_poses(run / "poses_kitti.txt")
-        progress = _read_json(run / "progress.json") if (run / "progress.json").is_file() else {}
+        progress = read_json_object(run / "progress.json") if (run / "progress.json").is_file() else {}
         indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
     else:
         seq, poses, progress = open_sequence(target), None, {}
@@ -87,18 +86,8 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     return {"frames": len(indices), "trajectories": sorted(strips), "path": str(out)}
 
 
-def _read_json(path: Path) -> dict:
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DataError(path, f"not readable JSON: {exc}") from exc
-    if not isinstance(doc, dict):
-        raise DataError(path, "must hold a JSON object")
-    return doc
-
-
 def _json_field(path: Path, key: str):
-    doc = _read_json(path)
+    doc = read_json_object(path)
     if key not in doc:
         raise DataError(path, f"has no '{key}' field")
     return doc[key]
