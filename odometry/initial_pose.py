@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from leovr.data.io import MIN_SCAN_POINTS
 from leovr.geometry import invert_T
 
 
@@ -39,7 +40,7 @@ class LidarOdometry:
     def register(self, points: np.ndarray) -> np.ndarray | None:
         """Camera pose (camera to world) after registering this scan, or None when it has too few points."""
         xyz = np.ascontiguousarray(points[:, :3], np.float64)
-        if len(xyz) < 100:
+        if len(xyz) < MIN_SCAN_POINTS:
             return None
         self.icp.register_frame(xyz, np.array([]))
         self.frames += 1

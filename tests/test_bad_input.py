@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from conftest import ring_scan, write_kitti_raw
@@ -71,6 +73,32 @@ def test_frames_are_paired_by_number_not_by_position(tmp_path):
     assert [p.stem for p in seq.image_files] == [p.stem for p in seq.scan_files] == ["0000000000", "0000000002", "0000000004"]
     assert np.allclose(seq.timestamps(), [0.0, 0.2, 0.4])
     assert seq[1:].frame_numbers() == [2, 4]
+
+
+def test_outputs_are_named_by_the_recordings_frame_numbers(tmp_path):
+    """With frames 1 and 3 missing, refine writes 000000/000002/000004.png (the drive's numbers, not
+    positions), TUM poses at the real times, and reads its own files back by number on resume."""
+    import warnings
+
+    from leovr.config import RefineConfig
+    from leovr.data.run_info import read_run_depth
+    from leovr.pipeline.refine import run_refine
+
+    drive = write_kitti_raw(tmp_path / "raw", frames=5)
+    (drive / "image_02" / "data" / "0000000001.png").unlink()
+    (drive / "velodyne_points" / "data" / "0000000003.bin").unlink()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        seq = open_sequence(drive)
+    out = tmp_path / "out"
+    run_refine(seq, RefineConfig(input="vlp16"), out, progress=False)
+    for folder in ("depth", "depth_generator", "depth_ipbasic"):
+        assert sorted(p.name for p in (out / folder).glob("*.png")) == ["000000.png", "000002.png", "000004.png"]
+    assert np.allclose(np.loadtxt(out / "poses_tum.txt")[:, 0], [0.0, 0.2, 0.4])
+    assert json.loads((out / "run.json").read_text())["frame_numbers"] == [0, 2, 4]
+    assert read_run_depth(out, "depth", 2).shape == seq[2].shape
+    run_refine(seq, RefineConfig(input="vlp16"), out, resume=True, progress=False)  # all three found, none redone
+    assert json.loads((out / "timing.json").read_text())["frames_timed"] == 3
 
 
 def test_calibration_of_the_wrong_size_or_singular_names_key_and_file(kitti_raw_tiny):

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from conftest import write_kitti_raw
 
@@ -58,6 +60,8 @@ ROWS = [
      "info", "'P_rect_02' is singular"),
     ("corrupt scan size", lambda d, t: ((d / "velodyne_points/data/0000000001.bin").write_bytes(b"\0" * 18), [str(d)])[1],
      "complete", "0000000001.bin: size 18 bytes"),
+    ("image of another size", lambda d, t: (cv2.imwrite(str(d / "image_02/data/0000000001.png"), np.zeros((40, 60, 3), np.uint8)),
+                                            [str(d)])[1], "complete", "0000000001.png: image is 60x40 but frame 0"),
     ("output path is a file", lambda d, t: ((t / "f").write_text("x"), [str(d), "--out", str(t / "f")])[1], "complete",
      "f: output path is a file"),
     ("NaN checkpoint", lambda d, t: [str(d), "--method", "generator", "--checkpoint", str(_nan_checkpoint(t / "nan.pt"))],
@@ -88,7 +92,17 @@ def test_bad_input_is_one_clear_line(tmp_path, name, breaks, command, named):
     assert len(errors) == 1, r.stderr
     left = [p for p in set(tmp_path.rglob("*")) - before if p.is_file()]
     assert not [p for p in left if p.name.startswith(".") or p.suffix == ".part"], left  # no half-written file
-    if name == "corrupt scan size":  # found at frame 1: frame 0 stays, resumable, with its run.json
+    if name in ("corrupt scan size", "image of another size"):  # found at frame 1: frame 0 stays, resumable, with its run.json
         assert sorted(p.name for p in left) == ["000000.png", "run.json"]
     else:  # found before any work
         assert not left, left
+
+
+def test_a_scan_of_one_point_is_named_in_a_warning(tmp_path):
+    """A truncated scan is still a scan: the run goes on, but the user hears which file it was."""
+    drive = write_kitti_raw(tmp_path / "raw", frames=2)
+    np.array([[5.0, 0.0, 0.0, 1.0]], np.float32).tofile(drive / "velodyne_points/data/0000000001.bin")
+    r = subprocess.run([sys.executable, "-c", "from leovr.cli import main; main()", "complete", str(drive),
+                        "--out", str(tmp_path / "out")], capture_output=True, text=True, cwd=REPO_ROOT)
+    assert r.returncode == 0, r.stderr[-1500:]
+    assert "0000000001.bin: only 1 valid point(s)" in r.stderr and "Traceback" not in r.stderr

@@ -164,6 +164,9 @@ def read_point_file(path: Path, fields: int = 4) -> np.ndarray:
     return clean_points(pts, path)
 
 
+MIN_SCAN_POINTS = 100  # fewer and a scan is suspect (KISS-ICP skips such scans too)
+
+
 def clean_points(pts: np.ndarray, source: str | Path) -> np.ndarray:
     """Drop non-finite points (warning with the source name); an empty result is an error."""
     finite = np.isfinite(pts).all(axis=1)
@@ -172,6 +175,9 @@ def clean_points(pts: np.ndarray, source: str | Path) -> np.ndarray:
         pts = pts[finite]
     if len(pts) == 0:
         raise DataError(Path(source), "empty LiDAR scan (no valid points)")
+    if len(pts) < MIN_SCAN_POINTS:
+        warnings.warn(f"{source}: only {len(pts)} valid point(s); a LiDAR sweep has thousands (a truncated file?), "
+                      "so this frame's depth and LiDAR odometry rest on almost nothing", stacklevel=3)
     return pts
 
 

@@ -143,7 +143,23 @@ def run_depth_scale(run: Path) -> float:
     return scale
 
 
+def png_name(numbers: list[int], index: int) -> str:
+    """A frame's output file name: the recording's own frame number (`Sequence.frame_numbers`), so that
+    `000042.png` is the drive's frame 42 even when the drive starts later or skips frames."""
+    return f"{numbers[index]:06d}.png"
+
+
+def run_frame_png(run: Path, folder: str, index: int) -> Path:
+    """Where a run folder holds frame `index` (position in its sequence): named by the frame number
+    recorded in run.json; folders without one (older runs) by position."""
+    path = Path(run) / RUN_FILE
+    numbers = read_json_object(path).get("frame_numbers") if path.is_file() else None
+    if not isinstance(numbers, list) or index >= len(numbers):
+        numbers = range(index + 1)
+    return Path(run) / folder / png_name(list(numbers), index)
+
+
 def read_run_depth(run: Path, folder: str, index: int, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Depth (metres) of frame `index` from `run/folder/NNNNNN.png`, at the folder's recorded scale
+    """Depth (metres) of frame `index` from its PNG in `run/folder`, at the folder's recorded scale
     (with `shape`, a map of another size is refused)."""
-    return read_depth_png(Path(run) / folder / f"{index:06d}.png", run_depth_scale(run), shape)
+    return read_depth_png(run_frame_png(run, folder, index), run_depth_scale(run), shape)

@@ -10,6 +10,7 @@ import numpy as np
 
 from leovr.data.io import read_image, read_point_file
 from leovr.data.records import Frame, SequenceInfo
+from leovr.errors import DataError
 
 
 class Sequence(ABC):
@@ -45,7 +46,22 @@ class Sequence(ABC):
             i += n
         if not 0 <= i < n:
             raise IndexError(f"frame {key} out of range for {n} frames in {self.path}")
-        return self._load(i)
+        frame = self._load(i)
+        self._check_size(i, frame)
+        return frame
+
+    def _check_size(self, i: int, frame: Frame) -> None:
+        """Every image of a sequence has one size: its one calibration cannot fit two (the first frame
+        loaded sets the size)."""
+        size = frame.image.shape[:2]
+        seen = getattr(self, "_image_size", None)
+        if seen is None:
+            self._image_size = (i, size)
+        elif seen[1] != size:
+            files = getattr(self, "image_files", None) or getattr(self, "rgb_files", None)
+            where = files[i] if files else f"{self.path} frame {i}"
+            raise DataError(where, f"image is {size[1]}x{size[0]} but frame {seen[0]} of the same sequence is "
+                            f"{seen[1][1]}x{seen[1][0]}; one calibration cannot fit both")
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):

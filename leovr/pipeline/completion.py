@@ -16,7 +16,7 @@ from tqdm import tqdm
 from leovr.config import CompleteConfig
 from leovr.data.io import write_depth_png, write_text
 from leovr.data.records import Frame
-from leovr.data.run_info import read_run_depth, run_identity, start_run
+from leovr.data.run_info import png_name, read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError, brief
@@ -128,15 +128,16 @@ def run_completion(
     kinds: set[str] = set()
     indices = frame_indices(len(seq), cfg)
     empty: list[int] = []  # frames whose input has no return inside the image
+    names = seq.frame_numbers()
     if out is not None:
         checkpoint = generator_checkpoint(cfg) if cfg.method == "generator" else None
         start_run(out, "complete", run_identity("complete", cfg.model_dump(), [seq.path], checkpoint), resume,
                   method=cfg.method, input=cfg.input, sequence=str(seq.path),
-                  frame_numbers=seq.frame_numbers())
+                  frame_numbers=names)
     for i in tqdm(indices, desc=f"complete {cfg.method}/{cfg.input}", unit="frame", disable=not progress):
         sample = prepare_sample(seq[i], cfg)
         kinds.add(sample.gt_kind)
-        png = out / "depth" / f"{sample.frame.index:06d}.png" if out is not None else None
+        png = out / "depth" / png_name(names, sample.frame.index) if out is not None else None
         if resume and png is not None and png.is_file():
             pred = read_run_depth(out, "depth", sample.frame.index, sample.frame.shape)
         else:

@@ -5,14 +5,16 @@ Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 2
 depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
 `depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
 truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
-continues from (a resumed run restarts the window at the first unfinished frame, anchored at the last
-finished pose).
+continues from. A resumed run replays its finished frames through the front end and the window without
+rewriting their outputs, so that it ends as the uninterrupted run would: resuming saves the writing and
+scoring of finished frames, not their computation.
 """
 
 from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -24,7 +26,7 @@ from leovr.data.io import atomic_write, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.records import Frame
-from leovr.data.run_info import read_run_depth, run_identity, start_run
+from leovr.data.run_info import png_name, read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError
@@ -89,6 +91,7 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
     return EvalSample(f, np.zeros(f.shape, np.float32), gt, "dense" if f.depth is not None else "none", None)
 
 
+TIMED = ("generator_ms", "frontend_ms", "graph_ms")  # per frame, in timing.json as means
 SCORED = ("nearest", "ipbasic", "generator", "refined")  # depth methods in metrics.json, same pixels
 PNG_FOLDER = {"ipbasic": "depth_ipbasic", "generator": "depth_generator", "refined": "depth"}
 
@@ -122,7 +125,7 @@ class Progress:
     icp_poses: dict[int, list[float]] = field(default_factory=dict)
     sources: dict[int, str] = field(default_factory=dict)
     poses_no_loop: dict[int, list[float]] = field(default_factory=dict)  # before loop closure, when it ran
-    times: dict[str, list[float]] = field(default_factory=lambda: {"generator_ms": [], "frontend_ms": [], "graph_ms": []})
+    times: dict[int, list[float]] = field(default_factory=dict)  # frame -> [generator, front end, graph] ms
 
     @classmethod
     def load(cls, path: Path) -> "Progress":
@@ -130,8 +133,8 @@ class Progress:
             d = json.loads(path.read_text())
             d.setdefault("poses_no_loop", {})  # only runs with loop closure have it
             keyed = {name: {int(k): v for k, v in d[name].items()}
-                     for name in ("poses", "icp_poses", "sources", "poses_no_loop")}
-            return cls(**keyed, times=d["times"])
+                     for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times")}
+            return cls(**keyed)
         except (OSError, ValueError, KeyError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
 
@@ -154,48 +157,50 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     indices = frame_indices(len(seq), ccfg)
     state_path = out / "progress.json"
     state = Progress.load(state_path) if resume and state_path.is_file() else Progress()
-    todo = [i for i in indices if not (i in state.poses and (out / "depth" / f"{i:06d}.png").is_file())]
+    # a resumed run replays its finished frames through the front end and the window (their outputs are
+    # kept, not rewritten) so that the window, the landmarks and KISS-ICP's map are the uninterrupted run's
+    names = seq.frame_numbers()
+    done = {i for i in indices if i in state.poses and (out / "depth" / png_name(names, i)).is_file()}
     has_lidar = seq.has_lidar
     generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
     first = seq[indices[0]]
     K, shape = first.K, first.shape
-    # a resumed run re-enters the last finished frame first (outputs kept) so the new window starts at its pose
-    anchor = max((i for i in state.poses if todo and i < todo[0]), default=None)
-    T_start = np.array(state.poses[anchor]).reshape(4, 4) if anchor is not None else np.eye(4)
-    if anchor is not None:
-        todo = [anchor] + todo
     front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar)
     graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
     pending: dict[int, np.ndarray] = {}
+    replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
     empty: list[int] = []  # frames whose LiDAR input has no return inside the image
     scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
     stamps = seq.timestamps()
     checkpoint = generator_checkpoint(ccfg) if cfg.depth_source == "generator" else None
     start_run(out, "refine", run_identity("refine", cfg.model_dump(), [seq.path], checkpoint), resume,
               input=cfg.input if has_lidar else "none", sequence=str(seq.path),
-              frame_numbers=seq.frame_numbers())
+              frame_numbers=names)
     frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
     def finish(results) -> None:
         for r in results:
             gen_depth = pending.pop(r.index)
-            if r.index == anchor:
+            if r.index in done:
+                replayed[r.index] = r.T_world_cam
                 continue
             refined = np.where(gen_depth > 0, gen_depth * np.exp(r.log_offset), 0.0)
             if r.index in scored:
                 scored[r.index].add("generator", gen_depth)
                 scored[r.index].add("refined", refined)
-            write_depth_png(out / "depth_generator" / f"{r.index:06d}.png", gen_depth)
-            write_depth_png(out / "depth" / f"{r.index:06d}.png", refined)
-            state.poses[r.index] = (T_start @ r.T_world_cam).ravel().tolist()
+            write_depth_png(out / "depth_generator" / png_name(names, r.index), gen_depth)
+            write_depth_png(out / "depth" / png_name(names, r.index), refined)
+            state.poses[r.index] = r.T_world_cam.ravel().tolist()
             state.save(state_path)
 
-    for i in tqdm(todo, desc=f"refine {input_label(cfg.input, has_lidar)} (window {cfg.window})", unit="frame",
-                  disable=not progress):
+    desc = f"refine {input_label(cfg.input, has_lidar)} (window {cfg.window})"
+    if done:
+        desc += f", replaying {len(done)} finished"
+    for i in tqdm(indices, desc=desc, unit="frame", disable=not progress):
         sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt)
         if sample.frame.shape != shape:
             raise DataError(seq.path, f"frame {i} is {sample.frame.shape}, the sequence started with {shape}")
-        if has_lidar and i != anchor and not (sample.sparse > 0).any():
+        if has_lidar and i not in done and not (sample.sparse > 0).any():
             empty.append(i)
         t0 = time.perf_counter()
         depth, log_sigma = generator(sample)
@@ -204,30 +209,29 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                            sample.kept_points, graph)
         t2 = time.perf_counter()
         pending[i] = depth
-        fs = FrameScore.of(sample) if score and i != anchor else None
+        fs = FrameScore.of(sample) if score and i not in done else None
         if fs is not None:
             scored[i] = fs
-        if has_lidar and i != anchor:  # the classical baselines on the very same input, for the metrics
+        if has_lidar and i not in done:  # the classical baselines on the very same input, for the metrics
             ipb = complete_depth(sample.sparse, "ipbasic")
-            write_depth_png(out / "depth_ipbasic" / f"{i:06d}.png", ipb)
+            write_depth_png(out / "depth_ipbasic" / png_name(names, i), ipb)
             if fs is not None:
                 fs.add("ipbasic", ipb)
                 fs.add("nearest", complete_depth(sample.sparse, "nearest"))
         finish(graph.add_frame(fi))
         t3 = time.perf_counter()
-        if i == anchor:
+        if i in done:
             continue
         state.sources[i] = front.sources[-1]
         if front.prev is not None and front.prev.T_icp is not None:
-            state.icp_poses[i] = (T_start @ front.prev.T_icp).ravel().tolist()
-        for k, dt in zip(("generator_ms", "frontend_ms", "graph_ms"), (t1 - t0, t2 - t1, t3 - t2)):
-            state.times[k].append(1000.0 * dt)
+            state.icp_poses[i] = front.prev.T_icp.ravel().tolist()
+        state.times[i] = [1000.0 * (t1 - t0), 1000.0 * (t2 - t1), 1000.0 * (t3 - t2)]
     finish(graph.flush())
     if empty:
         warn_empty_input(seq, empty)
+    if replayed:
+        check_replay(out, state, replayed)
     landmarks, seen_by = graph.all_landmarks()
-    if len(landmarks):
-        landmarks = transform_points(T_start, landmarks)
     if cfg.loop_closure:
         from leovr.pipeline.loops import loop_pass
 
@@ -246,6 +250,17 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     lidar_backed = graph.lidar_backed()
     atomic_write(out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect)
+
+
+def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], tol_m: float = 0.05) -> None:
+    """Warn when replaying the finished frames of a resumed run did not give back the poses written
+    before the interruption (another leovr version, or the recording changed in between)."""
+    gap = {i: float(np.linalg.norm(T[:3, 3] - np.array(state.poses[i]).reshape(4, 4)[:3, 3])) for i, T in replayed.items()}
+    worst = max(gap, key=gap.get)
+    if gap[worst] > tol_m:
+        warnings.warn(f"{out}: resuming replayed the finished frames but frame {worst}'s pose moved {gap[worst]:.2f} m "
+                      "from the one written before the interruption; the outputs mix two runs: rerun without --resume",
+                      stacklevel=2)
 
 
 def input_label(name: str, has_lidar: bool) -> str:
@@ -279,8 +294,9 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     write_kitti_poses(out / "poses_kitti.txt", poses)
     write_tum_poses(out / "poses_tum.txt", stamps, poses)
     counts = {s: list(state.sources.values()).count(s) for s in sorted(set(state.sources.values()))}
-    timing = {k: float(np.mean(v)) if v else None for k, v in state.times.items()}
-    timing.update({"frames_timed": len(state.times["graph_ms"]), "initial_pose_sources": counts})
+    ms = np.array([state.times[i] for i in indices if i in state.times]).reshape(-1, 3)
+    timing = {k: float(np.mean(ms[:, n])) if len(ms) else None for n, k in enumerate(TIMED)}
+    timing.update({"frames_timed": len(ms), "initial_pose_sources": counts})
     write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
     accs = {m: DepthMetricAccumulator(cfg.bins) for m in SCORED}
     scored = scored or {}

@@ -13,9 +13,9 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from leovr.data import open_sequence
-from leovr.data.io import read_depth_png, read_json_object
+from leovr.data.io import read_json_object
 from leovr.data.kitti_common import read_kitti_poses
-from leovr.data.run_info import run_depth_scale
+from leovr.data.run_info import read_run_depth, run_frame_png
 from leovr.errors import DataError
 from leovr.geometry import invert_T, transform_points
 
@@ -144,9 +144,8 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
             rec.log("world/lidar", rr.Points3D(transform_points(T, cam), colors=_range_colours(np.linalg.norm(f.points[:, :3], axis=1)), radii=0.04))
         ref = f.depth
         for kind, folder in folders.items():
-            png = run / folder / f"{i:06d}.png" if run is not None else None
-            if png is not None and png.is_file():
-                d = read_depth_png(png, run_depth_scale(run), f.shape)
+            if run is not None and run_frame_png(run, folder, i).is_file():
+                d = read_run_depth(run, folder, i, f.shape)
                 rec.log(f"world/camera/image/depth_{kind}", _depth_image(d))
                 if kind == "refined" and ref is not None:
                     rec.log("world/camera/error", rr.Image(_error_image(d, ref)))
