@@ -58,6 +58,8 @@ ROWS = [
                                               [str(d)])[1], "info", "'R_rect_00': needs 9 numbers"),
     ("singular projection", lambda d, t: (_calib(d, f"P_rect_02: {' '.join(['0'] * 12)}\nR_rect_00: {EYE}\n"), [str(d)])[1],
      "info", "'P_rect_02' is singular"),
+    ("NaN projection", lambda d, t: (_calib(d, f"P_rect_02: nan 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {EYE}\n"), [str(d)])[1],
+     "info", "'P_rect_02' holds NaN"),
     ("corrupt scan size", lambda d, t: ((d / "velodyne_points/data/0000000001.bin").write_bytes(b"\0" * 18), [str(d)])[1],
      "complete", "0000000001.bin: size 18 bytes"),
     ("image of another size", lambda d, t: (cv2.imwrite(str(d / "image_02/data/0000000001.png"), np.zeros((40, 60, 3), np.uint8)),
