@@ -35,6 +35,10 @@ def test_refine_writes_every_output(refined):
     timing = json.loads((out / "timing.json").read_text())
     assert all(timing[k] > 0 for k in ("generator_ms", "frontend_ms", "graph_ms"))
     assert sum(timing["initial_pose_sources"].values()) == 7
+    assert timing["series"]["frame"] == list(range(7)) and len(timing["series"]["graph_ms"]) == 7
+    g = np.array(timing["series"]["graph_ms"])
+    assert timing["stats"]["graph_ms"]["max"] == pytest.approx(g.max(), abs=0.01)
+    assert timing["stats"]["graph_ms"]["median"] <= timing["stats"]["graph_ms"]["p95"] <= timing["stats"]["graph_ms"]["max"]
 
 
 def test_refine_tracks_the_camera_and_does_not_degrade_depth(refined):

@@ -284,6 +284,20 @@ def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lida
     return fs
 
 
+def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
+    """timing.json: per stage the mean (`generator_ms`, ...), median, p95 and max over the frames, and
+    the per-frame series (to see whether a stage grows along the sequence)."""
+    timed = [i for i in indices if i in times]
+    ms = np.array([times[i] for i in timed], float).reshape(-1, 3)
+    stages = {k: ms[:, n] for n, k in enumerate(TIMED)} | {"total_ms": ms.sum(axis=1)}
+    record: dict = {k: float(np.mean(v)) if len(v) else None for k, v in stages.items()}
+    record["frames_timed"] = len(timed)
+    record["stats"] = {k: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+                       for k, v in stages.items() if len(v)}
+    record["series"] = {"frame": timed} | {k: np.round(v, 2).tolist() for k, v in stages.items()}
+    return record
+
+
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
                   out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
                   scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None) -> dict:
@@ -294,9 +308,8 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     write_kitti_poses(out / "poses_kitti.txt", poses)
     write_tum_poses(out / "poses_tum.txt", stamps, poses)
     counts = {s: list(state.sources.values()).count(s) for s in sorted(set(state.sources.values()))}
-    ms = np.array([state.times[i] for i in indices if i in state.times]).reshape(-1, 3)
-    timing = {k: float(np.mean(ms[:, n])) if len(ms) else None for n, k in enumerate(TIMED)}
-    timing.update({"frames_timed": len(ms), "initial_pose_sources": counts})
+    timing = timing_record(state.times, indices)
+    timing["initial_pose_sources"] = counts
     write_text(out / "timing.json", json.dumps(timing, indent=2) + "\n")
     accs = {m: DepthMetricAccumulator(cfg.bins) for m in SCORED}
     scored = scored or {}
@@ -320,7 +333,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         "mode": "visual-LiDAR" if has_lidar else "vision and depth only (the sequence has no LiDAR)",
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),
         "depth": {m: a.result() for m, a in accs.items() if a._gt},
-        "timing": timing,
+        "timing": {k: v for k, v in timing.items() if k != "series"},  # the series is in timing.json
     }
     if score and all(T is not None for T in gt_poses) and len(indices) >= 3:
         ref = np.stack([invert_T(gt_poses[0]) @ T for T in gt_poses])
