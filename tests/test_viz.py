@@ -16,10 +16,14 @@ from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording
 
 
-def _read(path):
+def _read(path, timed=None):
+    """Entities and frame numbers of a recording; `timed` (if given) collects the entities logged on the
+    frame timeline, and the column names of each entity."""
     entities, frames = set(), set()
     for chunk in rr.chunk.RrdReader(path).stream():
         entities.add(str(chunk.entity_path))
+        if timed is not None:
+            timed.setdefault(str(chunk.entity_path), set()).update(chunk.to_record_batch().schema.names)
         if "frame" in chunk.timeline_names:
             col = chunk.to_record_batch().column("frame")
             frames.update(int(x) for x in pc.cast(col, "int64").to_pylist())
@@ -33,10 +37,15 @@ def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
     (tmp_path / "run" / "loops.json").write_text(json.dumps({"loops": [loop, {**loop, "frame": 2, "accepted": False}]}))
     summary = write_recording(tmp_path / "run", tmp_path / "r.rrd")
     assert summary["trajectories"] == ["ground_truth", "kiss_icp", "leovr"]
-    entities, frames = _read(tmp_path / "r.rrd")
+    columns: dict = {}
+    entities, frames = _read(tmp_path / "r.rrd", columns)
+    assert "frame" not in columns["/world/camera/image"]  # the pinhole is static, logged once
+    assert any("DepthImage" in c for c in columns["/world/camera/image/error"])  # metres, not RGB
     for e in ("/world/trajectory/ground_truth", "/world/trajectory/leovr", "/world/trajectory/kiss_icp", "/world/landmarks",
               "/world/camera", "/world/camera/image", "/world/camera/image/rgb", "/world/camera/image/depth_generator",
-              "/world/camera/image/depth_refined", "/world/camera/error", "/world/lidar", "/world/loops"):
+              "/world/camera/image/depth_refined", "/world/camera/image/error", "/world/depth_cloud", "/world/lidar",
+              "/world/loops", "/metrics/mae_m/refined", "/metrics/mae_m/generator", "/metrics/time_ms/graph_ms",
+              "/metrics/landmarks_last_seen", "/metrics/loop_closed"):
         assert e in entities, e
     assert frames == {0, 1, 2, 3}
     assert not (tmp_path / "r.rrd.part").exists()

@@ -1,7 +1,12 @@
 """Write a Rerun recording (.rrd) of a sequence, or of a `leovr refine` run over its sequence, with a
-`frame` timeline: trajectories (ground truth, KISS-ICP, leovr) as line strips, accepted loops as edges, landmarks, the LiDAR
-input coloured by range, and under the camera pinhole the image, generator and refined depth (uint16
-depth images, so the viewer back-projects them) and the error map against ground truth."""
+`frame` timeline.
+
+The first 3D view is framed on the trajectory and shows the trajectories (ground truth, KISS-ICP,
+leovr), accepted loops as edges, the landmarks, the LiDAR input coloured by range and one depth cloud
+(the refined depth, subsampled, up to `CLOUD_MAX_M`). Under the camera pinhole (logged once, static):
+the image, the refined and generator depth and the error against ground truth as float images (metres
+on hover; unknown ground truth left empty), shown in the 2D views and hidden in the 3D one. Per-frame
+scalars (MAE per method, time per stage, landmarks, loops) go to a time-series view."""
 
 from __future__ import annotations
 
@@ -17,22 +22,49 @@ from leovr.data.io import read_json_object
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.data.run_info import read_run_depth, run_frame_png
 from leovr.errors import DataError
-from leovr.geometry import invert_T, transform_points
+from leovr.geometry import back_project, invert_T, transform_points
 
 COLOURS = {"ground_truth": (40, 200, 80), "leovr": (255, 140, 0), "kiss_icp": (60, 120, 255)}
+LANDMARK_COLOUR = (0, 150, 170)  # dark cyan: visible on the dark and the light theme
+DEPTH_RANGE_M = (0.0, 80.0)  # colour scale of every depth layer
+ERROR_RANGE_M = (0.0, 5.0)
+CLOUD_MAX_M, CLOUD_STEP = 80.0, 4  # the 3D depth cloud: refined depth up to 80 m, every 4th pixel each way
+HIDDEN_IN_3D = ("world/camera/image/depth_refined", "world/camera/image/depth_generator",
+                "world/camera/image/depth_ground_truth", "world/camera/image/error")
 
 
-def blueprint() -> rrb.Blueprint:
+def blueprint(track: np.ndarray | None = None) -> rrb.Blueprint:
+    """3D world (framed on `track`, camera positions N x 3, when given) left; image, depths and error
+    right; per-frame scalars below."""
+    eye = None
+    if track is not None and len(track):
+        lo, hi = track.min(axis=0), track.max(axis=0)
+        centre, size = (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)), 20.0)
+        # RDF axes: y points down, so "above and behind" the start is -y, -z
+        eye = rrb.EyeControls3D(position=centre + np.array([0.0, -0.6, -0.8]) * size, look_target=centre,
+                                eye_up=[0.0, -1.0, 0.0])
+    image = "world/camera/image"
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="world"),
-            rrb.Vertical(
-                rrb.Spatial2DView(origin="world/camera/image", contents=["$origin/rgb"], name="image"),
-                rrb.Spatial2DView(origin="world/camera/image", contents=["$origin/depth_refined"], name="refined depth"),
-                rrb.Spatial2DView(origin="world/camera/image", contents=["$origin/depth_generator"], name="generator depth"),
-                rrb.Spatial2DView(origin="world/camera/error", name="|error| vs ground truth"),
+        rrb.Vertical(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin="world", name="world", eye_controls=eye,
+                                  overrides={e: rrb.EntityBehavior(visible=False) for e in HIDDEN_IN_3D}),
+                rrb.Vertical(
+                    rrb.Spatial2DView(origin=image, contents=["$origin/rgb"], name="image"),
+                    rrb.Spatial2DView(origin=image, contents=["$origin/depth_refined", "$origin/depth_ground_truth"],
+                                      name="refined depth (m)"),
+                    rrb.Spatial2DView(origin=image, contents=["$origin/depth_generator"], name="generator depth (m)"),
+                    rrb.Spatial2DView(origin=image, contents=["$origin/error"], name="|refined - ground truth| (m)"),
+                ),
+                column_shares=[3, 2],
             ),
-            column_shares=[3, 2],
+            rrb.Horizontal(
+                rrb.TimeSeriesView(origin="metrics/mae_m", name="MAE per frame (m)"),
+                rrb.TimeSeriesView(origin="metrics/time_ms", name="time per stage (ms)"),
+                rrb.TimeSeriesView(origin="metrics", contents=["$origin/landmarks_last_seen", "$origin/loop_closed"],
+                                   name="landmarks, loops"),
+            ),
+            row_shares=[4, 1],
         ),
         collapse_panels=True,
     )
@@ -43,21 +75,30 @@ def _range_colours(d: np.ndarray, max_range: float = 80.0) -> np.ndarray:
     return cv2.applyColorMap(x[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
 
 
-def _error_image(pred: np.ndarray, gt: np.ndarray, max_err: float = 5.0) -> np.ndarray:
-    """RGB heat map of |pred - gt| where ground truth exists (dilated so sparse points show), black elsewhere."""
+def _error_image(pred: np.ndarray, gt: np.ndarray) -> "rr.DepthImage":
+    """|pred - gt| in metres where ground truth exists (dilated so sparse points show), 0 (drawn
+    empty) elsewhere; a float image so hovering shows metres."""
     valid = gt > 0
-    err = np.where(valid, np.abs(pred - gt), 0.0)
-    img = cv2.applyColorMap(np.clip(err / max_err * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_INFERNO)[..., ::-1]
+    err = np.where(valid, np.maximum(np.abs(pred - gt), 1e-3), 0.0).astype(np.float32)
     if valid.mean() < 0.2:
-        grow = cv2.dilate(valid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-        img = cv2.dilate(np.where(valid[..., None], img, 0).astype(np.uint8), np.ones((3, 3), np.uint8))
-        valid = grow
-    return np.where(valid[..., None], img, 0).astype(np.uint8)
+        err = cv2.dilate(err, np.ones((3, 3), np.uint8))
+    return rr.DepthImage(err, meter=1.0, colormap="inferno", depth_range=ERROR_RANGE_M)
 
 
 def _depth_image(d: np.ndarray) -> "rr.DepthImage":
     """Float metres (no 16-bit cap; hovering shows metres), 0 = unknown."""
-    return rr.DepthImage(np.nan_to_num(d, nan=0.0).astype(np.float32), meter=1.0, colormap="turbo")
+    return rr.DepthImage(np.nan_to_num(d, nan=0.0).astype(np.float32), meter=1.0, colormap="turbo",
+                         depth_range=DEPTH_RANGE_M)
+
+
+def _depth_cloud(d: np.ndarray, K: np.ndarray, T: np.ndarray) -> "rr.Points3D":
+    """Every CLOUD_STEP-th pixel of a depth map with depth in (0, CLOUD_MAX_M], in the world, coloured by depth."""
+    v, u = np.mgrid[0 : d.shape[0] : CLOUD_STEP, 0 : d.shape[1] : CLOUD_STEP]
+    z = d[v, u]
+    keep = (z > 0) & (z <= CLOUD_MAX_M)
+    uv = np.stack([u[keep], v[keep]], 1).astype(float)
+    pts = transform_points(T, back_project(uv, z[keep].astype(float), K))
+    return rr.Points3D(pts, colors=_range_colours(z[keep], CLOUD_MAX_M), radii=0.03)
 
 
 def write_recording(target: str | Path, out: str | Path, max_frames: int | None = None) -> dict:
@@ -96,7 +137,7 @@ def _json_field(path: Path, key: str):
 def _record(tmp: Path, run: Path | None, seq, poses: np.ndarray | None, progress: dict, indices: list[int]) -> dict:
     """Log everything into the recording file `tmp`; returns the trajectory strips logged."""
     rec = rr.RecordingStream("leovr")
-    rec.save(tmp, default_blueprint=blueprint())
+    rec.save(tmp, default_blueprint=blueprint(poses[: len(indices), :3, 3] if poses is not None else None))
     try:
         strips = _log_all(rec, run, seq, poses, progress, indices)
         rec.flush()
@@ -122,7 +163,13 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
             rec.log("world/loops", rr.LineStrips3D([poses[[a, b], :3, 3] for a, b in pairs], colors=[(220, 40, 200)], radii=0.1),
                     static=True)
     if run is not None and (run / "landmarks.npy").is_file():
-        rec.log("world/landmarks", rr.Points3D(np.load(run / "landmarks.npy"), colors=[(230, 230, 230)], radii=0.05), static=True)
+        rec.log("world/landmarks", rr.Points3D(np.load(run / "landmarks.npy"), colors=[LANDMARK_COLOUR], radii=0.06),
+                static=True)
+    first = seq[indices[0]]
+    rec.log("world/camera/image", rr.Pinhole(image_from_camera=first.K, resolution=[first.width, first.height],
+                                             camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=2.0), static=True)
+    scalars = _frame_scalars(run, indices)
+    held_out = _held_out_truth(run, seq)
     folders = {"generator": "depth_generator", "refined": "depth"}
     gt: list[np.ndarray] = []  # ground-truth positions relative to the first camera, while every frame has one
     T0_inv = None
@@ -136,23 +183,73 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
             T0_inv = None
         T = poses[n] if poses is not None else (gt[n] if T0_inv is not None else np.eye(4))
         rec.log("world/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
-        rec.log("world/camera/image", rr.Pinhole(image_from_camera=f.K, resolution=[f.width, f.height],
-                                                 camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=2.0))
         rec.log("world/camera/image/rgb", rr.Image(f.image))
         if f.points is not None and len(f.points):
             cam = transform_points(f.T_cam_lidar, f.points[:, :3])
             rec.log("world/lidar", rr.Points3D(transform_points(T, cam), colors=_range_colours(np.linalg.norm(f.points[:, :3], axis=1)), radii=0.04))
-        ref = f.depth
+        ref = f.depth if f.depth is not None else (held_out(i) if held_out is not None else None)
         for kind, folder in folders.items():
-            if run is not None and run_frame_png(run, folder, i).is_file():
-                d = read_run_depth(run, folder, i, f.shape)
-                rec.log(f"world/camera/image/depth_{kind}", _depth_image(d))
-                if kind == "refined" and ref is not None:
-                    rec.log("world/camera/error", rr.Image(_error_image(d, ref)))
-        if run is None and ref is not None:
-            rec.log("world/camera/image/depth_ground_truth", _depth_image(ref))
+            if run is None or not run_frame_png(run, folder, i).is_file():
+                continue
+            d = read_run_depth(run, folder, i, f.shape)
+            rec.log(f"world/camera/image/depth_{kind}", _depth_image(d))
+            if kind == "refined":
+                rec.log("world/depth_cloud", _depth_cloud(d, f.K, T))
+            if ref is not None and (ref > 0).any():
+                rec.log(f"metrics/mae_m/{kind}", rr.Scalars(float(np.abs(d - ref)[ref > 0].mean())))
+                if kind == "refined":
+                    rec.log("world/camera/image/error", _error_image(d, ref))
+        for name, value in scalars.get(i, {}).items():
+            rec.log(f"metrics/{name}", rr.Scalars(value))
+        if run is None and f.depth is not None:
+            rec.log("world/camera/image/depth_ground_truth", _depth_image(f.depth))
     if T0_inv is not None:
         strips["ground_truth"] = np.stack([T[:3, 3] for T in gt])
     for name, xyz in strips.items():
         rec.log(f"world/trajectory/{name}", rr.LineStrips3D([xyz], colors=[COLOURS[name]], radii=0.08), static=True)
     return strips
+
+
+def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, float]]:
+    """Per frame: time per stage (timing.json's series), landmarks last seen there, accepted loops."""
+    out: dict[int, dict[str, float]] = {i: {} for i in indices}
+    if run is None:
+        return out
+    if (run / "timing.json").is_file():
+        series = read_json_object(run / "timing.json").get("series", {})
+        for k, name in enumerate(series.get("frame", [])):
+            for stage in ("generator_ms", "frontend_ms", "graph_ms"):
+                if name in out and stage in series:
+                    out[name][f"time_ms/{stage}"] = float(series[stage][k])
+    if (run / "landmarks_frame.npy").is_file():
+        seen = np.load(run / "landmarks_frame.npy")
+        for i in indices:
+            out[i]["landmarks_last_seen"] = float((seen == i).sum())
+    if (run / "loops.json").is_file():
+        for r in _json_field(run / "loops.json", "loops"):
+            if r.get("accepted") and r.get("frame") in out:
+                out[r["frame"]]["loop_closed"] = 1.0
+    return out
+
+
+def _held_out_truth(run: Path | None, seq):
+    """For a refine run that held LiDAR points out (`--input vlp16|mid40|ratio:R`): frame -> the
+    held-out depth it was scored on, rebuilt from the settings in run.json; None otherwise."""
+    if run is None or not (run / "run.json").is_file() or not seq.has_lidar:
+        return None
+    settings = (read_json_object(run / "run.json").get("identity") or {}).get("settings")
+    if not isinstance(settings, dict) or settings.get("input", "full") == "full":
+        return None
+    from leovr.config import RefineConfig
+    from leovr.pipeline.refine import completion_config, frame_sample
+
+    try:
+        ccfg = completion_config(RefineConfig(**settings))
+    except ValueError:  # settings of another leovr version: no error layer rather than a wrong one
+        return None
+
+    def truth(i: int) -> np.ndarray | None:
+        sample = frame_sample(seq, i, ccfg)
+        return sample.gt if sample.gt_kind == "heldout" else None
+
+    return truth
