@@ -65,3 +65,17 @@ def test_sequence_recording_without_a_run(tmp_path):
     write_recording(tmp_path / "seq", tmp_path / "s.rrd")
     entities, frames = _read(tmp_path / "s.rrd")
     assert "/world/camera/image/depth_ground_truth" in entities and frames == {0, 1}
+
+
+def test_a_run_made_from_a_relative_path_is_found_from_another_folder(tmp_path, monkeypatch):
+    """`leovr demo` ran from the repository root records `runs/demo/sequence`; viz run from elsewhere
+    still finds it (looked up from the folders above the run)."""
+    simulate(SimulateConfig(lidar="mid40", frames=2, seed=9), tmp_path / "runs" / "seq", progress=False)
+    monkeypatch.chdir(tmp_path)
+    run_refine(open_sequence("runs/seq"), RefineConfig(input="full"), tmp_path / "runs" / "run", progress=False)
+    m = json.loads((tmp_path / "runs" / "run" / "metrics.json").read_text())
+    assert m["sequence"] == str((tmp_path / "runs" / "seq").resolve())  # recorded absolute from now on
+    m["sequence"] = "runs/seq"  # as older runs recorded it
+    (tmp_path / "runs" / "run" / "metrics.json").write_text(json.dumps(m))
+    monkeypatch.chdir(tmp_path / "runs" / "run")
+    assert write_recording(tmp_path / "runs" / "run", tmp_path / "r.rrd")["frames"] == 2

@@ -132,7 +132,7 @@ def run_completion(
     if out is not None:
         checkpoint = generator_checkpoint(cfg) if cfg.method == "generator" else None
         start_run(out, "complete", run_identity("complete", cfg.model_dump(), [seq.path], checkpoint), resume,
-                  method=cfg.method, input=cfg.input, sequence=str(seq.path),
+                  method=cfg.method, input=cfg.input, sequence=str(Path(seq.path).resolve()),
                   frame_numbers=names)
     for i in tqdm(indices, desc=f"complete {cfg.method}/{cfg.input}", unit="frame", disable=not progress):
         sample = prepare_sample(seq[i], cfg)
@@ -152,7 +152,7 @@ def run_completion(
     if empty:
         warn_empty_input(seq, empty)
     metrics = {
-        "sequence": str(seq.path),
+        "sequence": str(Path(seq.path).resolve()),
         "reader": seq.name,
         "method": cfg.method,
         "input": cfg.input,

@@ -174,7 +174,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     stamps = seq.timestamps()
     checkpoint = generator_checkpoint(ccfg) if cfg.depth_source == "generator" else None
     start_run(out, "refine", run_identity("refine", cfg.model_dump(), [seq.path], checkpoint), resume,
-              input=cfg.input if has_lidar else "none", sequence=str(seq.path),
+              input=cfg.input if has_lidar else "none", sequence=str(Path(seq.path).resolve()),
               frame_numbers=names)
     frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
@@ -327,7 +327,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
                 if method in target:
                     target[method].add(pred, fs.gt)
     metrics: dict = {
-        "sequence": str(seq.path), "reader": seq.name, "input": cfg.input if has_lidar else "none (no LiDAR)",
+        "sequence": str(Path(seq.path).resolve()), "reader": seq.name, "input": cfg.input if has_lidar else "none (no LiDAR)",
         "input_note": input_label(cfg.input, has_lidar),
         "frames": len(indices), "window": cfg.window,
         "mode": "visual-LiDAR" if has_lidar else "vision and depth only (the sequence has no LiDAR)",

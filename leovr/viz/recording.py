@@ -82,7 +82,7 @@ def _error_image(pred: np.ndarray, gt: np.ndarray) -> "rr.DepthImage":
     err = np.where(valid, np.maximum(np.abs(pred - gt), 1e-3), 0.0).astype(np.float32)
     if valid.mean() < 0.2:
         err = cv2.dilate(err, np.ones((3, 3), np.uint8))
-    return rr.DepthImage(err, meter=1.0, colormap="inferno", depth_range=ERROR_RANGE_M)
+    return rr.DepthImage(err, meter=1.0, colormap="viridis", depth_range=ERROR_RANGE_M)  # 0 m is purple, not black
 
 
 def _depth_image(d: np.ndarray) -> "rr.DepthImage":
@@ -106,7 +106,7 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     target, out = Path(target), Path(out)
     run = target if (target / "metrics.json").is_file() and (target / "poses_kitti.txt").is_file() else None
     if run is not None:
-        seq = open_sequence(_json_field(run / "metrics.json", "sequence"))
+        seq = open_sequence(_run_sequence(run))
         poses = read_kitti_poses(run / "poses_kitti.txt")
         progress = read_json_object(run / "progress.json") if (run / "progress.json").is_file() else {}
         indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
@@ -125,6 +125,18 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     finally:
         tmp.unlink(missing_ok=True)  # a failed recording leaves nothing behind
     return {"frames": len(indices), "trajectories": sorted(strips), "path": str(out)}
+
+
+def _run_sequence(run: Path) -> Path:
+    """The sequence a run was made from. Runs written before leovr recorded absolute paths hold the
+    path as typed; it is then looked up from the current folder and from each folder above the run."""
+    p = Path(_json_field(run / "metrics.json", "sequence"))
+    if p.is_absolute() or p.exists():
+        return p
+    for base in run.resolve().parents:
+        if (base / p).exists():
+            return base / p
+    return p  # open_sequence names it as missing
 
 
 def _json_field(path: Path, key: str):
