@@ -30,6 +30,7 @@ class Sequence(ABC):
 
     # optional capabilities, overridden by readers that know them without loading data
     has_lidar: bool = False
+    _image_size: tuple[int, tuple[int, int]] | None = None  # (frame, rows x cols) of the first frame loaded
     has_poses: bool = False
     has_depth: bool = False
     rate_hz: float = 10.0
@@ -54,7 +55,7 @@ class Sequence(ABC):
         """Every image of a sequence has one size: its one calibration cannot fit two (the first frame
         loaded sets the size)."""
         size = frame.image.shape[:2]
-        seen = getattr(self, "_image_size", None)
+        seen = self._image_size
         if seen is None:
             self._image_size = (i, size)
         elif seen[1] != size:

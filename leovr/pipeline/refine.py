@@ -198,8 +198,6 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         desc += f", replaying {len(done)} finished"
     for i in tqdm(indices, desc=desc, unit="frame", disable=not progress):
         sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt)
-        if sample.frame.shape != shape:
-            raise DataError(seq.path, f"frame {i} is {sample.frame.shape}, the sequence started with {shape}")
         if has_lidar and i not in done and not (sample.sparse > 0).any():
             empty.append(i)
         t0 = time.perf_counter()

@@ -17,12 +17,15 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from leovr.config import RefineConfig
 from leovr.data import open_sequence
-from leovr.data.io import read_json_object
+from leovr.data.io import read_depth_png, read_json_object
 from leovr.data.kitti_common import read_kitti_poses
-from leovr.data.run_info import read_run_depth, run_frame_png
+from leovr.data.run_info import run_depth_scale, run_frame_png
 from leovr.errors import DataError
 from leovr.geometry import back_project, invert_T, transform_points
+from leovr.pipeline.completion import prepare_sample
+from leovr.pipeline.refine import TIMED, completion_config
 
 COLOURS = {"ground_truth": (40, 200, 80), "leovr": (255, 140, 0), "kiss_icp": (60, 120, 255)}
 LANDMARK_COLOUR = (0, 150, 170)  # dark cyan: visible on the dark and the light theme
@@ -182,6 +185,7 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
                                              camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=2.0), static=True)
     scalars = _frame_scalars(run, indices)
     held_out = _held_out_truth(run, seq)
+    scale = run_depth_scale(run) if run is not None else None
     folders = {"generator": "depth_generator", "refined": "depth"}
     gt: list[np.ndarray] = []  # ground-truth positions relative to the first camera, while every frame has one
     T0_inv = None
@@ -199,11 +203,12 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
         if f.points is not None and len(f.points):
             cam = transform_points(f.T_cam_lidar, f.points[:, :3])
             rec.log("world/lidar", rr.Points3D(transform_points(T, cam), colors=_range_colours(np.linalg.norm(f.points[:, :3], axis=1)), radii=0.04))
-        ref = f.depth if f.depth is not None else (held_out(i) if held_out is not None else None)
+        ref = f.depth if f.depth is not None else (held_out(f) if held_out is not None else None)
         for kind, folder in folders.items():
-            if run is None or not run_frame_png(run, folder, i).is_file():
+            png = run_frame_png(run, folder, i) if run is not None else None
+            if png is None or not png.is_file():
                 continue
-            d = read_run_depth(run, folder, i, f.shape)
+            d = read_depth_png(png, scale, f.shape)
             rec.log(f"world/camera/image/depth_{kind}", _depth_image(d))
             if kind == "refined":
                 rec.log("world/depth_cloud", _depth_cloud(d, f.K, T))
@@ -230,7 +235,7 @@ def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, 
     if (run / "timing.json").is_file():
         series = read_json_object(run / "timing.json").get("series", {})
         for k, name in enumerate(series.get("frame", [])):
-            for stage in ("generator_ms", "frontend_ms", "graph_ms"):
+            for stage in TIMED:
                 if name in out and stage in series:
                     out[name][f"time_ms/{stage}"] = float(series[stage][k])
     if (run / "landmarks_frame.npy").is_file():
@@ -245,23 +250,20 @@ def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, 
 
 
 def _held_out_truth(run: Path | None, seq):
-    """For a refine run that held LiDAR points out (`--input vlp16|mid40|ratio:R`): frame -> the
+    """For a refine run that held LiDAR points out (`--input vlp16|mid40|ratio:R`): Frame -> the
     held-out depth it was scored on, rebuilt from the settings in run.json; None otherwise."""
     if run is None or not (run / "run.json").is_file() or not seq.has_lidar:
         return None
     settings = (read_json_object(run / "run.json").get("identity") or {}).get("settings")
     if not isinstance(settings, dict) or settings.get("input", "full") == "full":
         return None
-    from leovr.config import RefineConfig
-    from leovr.pipeline.refine import completion_config, frame_sample
-
     try:
         ccfg = completion_config(RefineConfig(**settings))
     except ValueError:  # settings of another leovr version: no error layer rather than a wrong one
         return None
 
-    def truth(i: int) -> np.ndarray | None:
-        sample = frame_sample(seq, i, ccfg)
+    def truth(frame) -> np.ndarray | None:
+        sample = prepare_sample(frame, ccfg)  # the frame already loaded, as refine scores it
         return sample.gt if sample.gt_kind == "heldout" else None
 
     return truth
