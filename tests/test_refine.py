@@ -70,8 +70,9 @@ def test_refine_resumes_after_an_interruption(refined, tmp_path):
 @needs_shared
 def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_path, monkeypatch):
     """KITTI raw, VLP-16-like input, 8 frames: killed after 4 frames were finished (later ones were already
-    in the window), then resumed. Two uninterrupted runs agree to about 1e-7 m; the resumed one must too:
-    same poses, the same depth PNGs, the same landmarks, and every frame timed once."""
+    in the window), then resumed. Two uninterrupted runs agree to about 1e-7 m in pose and to one PNG
+    step (1/256 m) at a rare pixel (`tools/resume_check.py`); the resumed one must too: same poses, the
+    same depth up to that step, the same IP-Basic PNGs, the same landmarks, and every frame timed once."""
     from leovr.paths import kitti_raw_dir
     from leovr.pipeline import refine
 
@@ -93,9 +94,14 @@ def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_pat
     run_refine(seq, cfg, tmp_path / "cut", resume=True, progress=False)
     a, b = tmp_path / "whole", tmp_path / "cut"
     assert np.abs(np.loadtxt(a / "poses_kitti.txt") - np.loadtxt(b / "poses_kitti.txt")).max() < 1e-5
-    for folder in ("depth", "depth_generator", "depth_ipbasic"):
-        for png in sorted((a / folder).glob("*.png")):
-            assert (b / folder / png.name).read_bytes() == png.read_bytes(), (folder, png.name)
+    from leovr.data.run_info import read_run_depth
+
+    for png in sorted((a / "depth_ipbasic").glob("*.png")):  # the input alone decides these
+        assert (b / "depth_ipbasic" / png.name).read_bytes() == png.read_bytes(), png.name
+    for folder in ("depth", "depth_generator"):  # rounding to 1/256 m can flip at a pixel, as between two whole runs
+        for i in range(8):
+            diff = np.abs(read_run_depth(a, folder, i) - read_run_depth(b, folder, i))
+            assert diff.max() <= 1.01 / 256 and (diff > 0).mean() < 1e-3, (folder, i)
     la, lb = np.load(a / "landmarks.npy"), np.load(b / "landmarks.npy")
     assert la.shape == lb.shape and len(la) > 100 and np.abs(la - lb).max() < 1e-4
     assert json.loads((b / "timing.json").read_text())["frames_timed"] == 8
