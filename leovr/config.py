@@ -112,7 +112,7 @@ class BenchDepthConfig(_Model):
 class RefineConfig(FrameSelection):
     """`leovr refine`: generator depth, visual-LiDAR front end and the sliding-window graph (LeoVR Sec. III)."""
 
-    input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R simulate a cheaper sensor (evaluation)
+    input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R simulate a cheaper sensor (evaluation); none: camera only
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
     depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
     depth_factors: bool = True  # False: point factors only (no depth-consistency / LiDAR-depth factors)
@@ -139,6 +139,16 @@ class RefineConfig(FrameSelection):
     lidar_depth_sigma_log: float = 0.03
     prior_sigma_min: float = 0.02  # generator prior on the field: sigma / depth per cell, clipped
     prior_sigma_max: float = 0.5
+    mono_depth_sigma_log: float = 0.2  # no LiDAR: how far one frame's depth-based step length may be off
+    mono_track_sigma_log: float = 0.05  # no LiDAR: how far the tracks' relative scale may be off
+    mono_speed_sigma_log: float = 0.02  # no LiDAR: step-length change per frame (inertia; chosen on development clips)
+    mono_odometry_sigma_rad: float = 0.005  # no LiDAR: the epipolar motion's weight in the graph
+    mono_odometry_sigma_rel: float = 0.05  # no LiDAR: its translation sigma per metre of step
+
+    @field_validator("input")
+    @classmethod
+    def _check_input(cls, v: str) -> str:
+        return "none" if v.strip().lower() == "none" else str(parse_input(v))
 
 
 class BenchRefineConfig(_Model):

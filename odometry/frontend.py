@@ -1,7 +1,12 @@
 """The visual-LiDAR front end: per new frame, ORB features matched to the previous frame, LiDAR depth
 associated to features, an initial pose (KISS-ICP or PnP, by a reprojection quality test, or constant
 velocity), landmarks from consistent matches, and the trusted region for the depth factor: the convex
-hull of the matches that agree with the camera motion (features on moving objects do not)."""
+hull of the matches that agree with the camera motion (features on moving objects do not).
+
+Without LiDAR the initial pose is the epipolar one (`odometry.mono_motion`: essential matrix, step
+length from tracks and generator depth); a PnP pose is taken only where that fails and only if the
+tracks' epipolar geometry agrees with it; new landmarks are triangulated from the two poses where the
+parallax allows, seeded from the generator's depth elsewhere."""
 
 from __future__ import annotations
 
@@ -19,6 +24,7 @@ from odometry.initial_pose import (
     reprojection_inliers,
 )
 from odometry.lidar_assoc import associate
+from odometry.mono_motion import MonoMotion, triangulate
 from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
 
 
@@ -46,6 +52,8 @@ class FrontEnd:
 
     def __post_init__(self) -> None:
         self.icp = LidarOdometry(self.T_cam_lidar) if self.use_lidar else None
+        self.mono = None if self.use_lidar else MonoMotion(self.K, self.cfg.mono_depth_sigma_log,
+                                                             self.cfg.mono_track_sigma_log, self.cfg.mono_speed_sigma_log)
 
     def _feature_points(self, feats: Features, depth: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, list]:
         uv = feats.uv
@@ -74,6 +82,8 @@ class FrontEnd:
         observations: list[Observation] = []
         new_landmarks: dict[int, np.ndarray] = {}
         trusted = None
+        step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
+        odo_sigmas = None
         if self.prev is None:
             T_init, source, T_rel = np.eye(4), "first", None
         else:
@@ -87,12 +97,23 @@ class FrontEnd:
                 cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
             cands["pnp"] = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
             guess = choose_pose(cands, obj, img, self.K, cfg.pnp_reproj_px)
-            if guess is None or guess.inliers < 6 and "icp" not in cands:
+            if step is not None and step.scale_source != "constant_speed":
+                T_init, source = T_prev @ step.T_rel, f"epipolar ({step.scale_source})"
+                length = float(np.linalg.norm(step.T_rel[:3, 3]))
+                odo_sigmas = np.r_[np.full(3, cfg.mono_odometry_sigma_rad),
+                                   np.full(3, max(cfg.mono_odometry_sigma_rel * length, 0.01))]
+            elif step is not None and cands["pnp"] is not None and epipolar_agrees(
+                    invert_T(T_prev) @ cands["pnp"], p.feats.uv[ia], feats.uv[ib], self.K):
+                T_init, source = cands["pnp"], "pnp"
+            elif guess is None or guess.inliers < 6 and "icp" not in cands or step is not None:
                 T_init, source = T_prev @ self.velocity, "constant_velocity"
             else:
                 T_init, source = guess.T_world_cam, guess.source
             T_rel = invert_T(T_prev) @ T_init
             inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px) if len(ia) else np.zeros(0, bool)
+            if step is not None and len(ia):  # camera only: the epipolar test picks the matches
+                inl = sampson_px(T_rel, p.feats.uv[ia], feats.uv[ib], self.K) < cfg.pnp_reproj_px
+                obj = self._triangulated(obj, T_prev, T_rel, p.feats.uv[ia], feats.uv[ib])
             if inl.sum() >= 6:
                 trusted = convex_hull_mask(img[inl], self.shape) & (depth > 0)
             for m in np.nonzero(inl)[0]:
@@ -114,4 +135,46 @@ class FrontEnd:
         rel_sigma = np.exp(log_sigma) / np.maximum(depth, 1e-3)
         self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
-                          trusted, lidar_uvz, T_rel)
+                          trusted, lidar_uvz, T_rel, odo_sigmas)
+
+    def _triangulated(self, obj: np.ndarray, T_prev: np.ndarray, T_rel: np.ndarray, uv0: np.ndarray,
+                      uv1: np.ndarray, min_angle_deg: float = 1.0) -> np.ndarray:
+        """World points of matches triangulated from the two poses where the rays part by at least
+        `min_angle_deg`; the depth-seeded point `obj` elsewhere."""
+        if np.linalg.norm(T_rel[:3, 3]) < 1e-6:
+            return obj
+        X0 = triangulate(T_rel, uv0.astype(float), uv1.astype(float), self.K)  # previous camera
+        ray0 = X0 / np.maximum(np.linalg.norm(X0, axis=1, keepdims=True), 1e-9)
+        d1 = X0 - T_rel[:3, 3]
+        ray1 = d1 / np.maximum(np.linalg.norm(d1, axis=1, keepdims=True), 1e-9)
+        angle = np.degrees(np.arccos(np.clip(np.sum(ray0 * ray1, axis=1), -1, 1)))
+        ok = (X0[:, 2] > 0.5) & ((X0 - T_rel[:3, 3]) @ T_rel[:3, 2] > 0.5) & (angle >= min_angle_deg)
+        world = X0 @ T_prev[:3, :3].T + T_prev[:3, 3]
+        return np.where(ok[:, None], world, obj)
+
+
+def sampson_px(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """First-order distance (pixels) of each match from the epipolar geometry of the motion T_rel
+    (pose of the second camera in the first)."""
+    T_1_0 = invert_T(T_rel)
+    t = T_1_0[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    Kinv = np.linalg.inv(K)
+    F = Kinv.T @ tx @ T_1_0[:3, :3] @ Kinv
+    x0 = np.c_[uv0, np.ones(len(uv0))]
+    x1 = np.c_[uv1, np.ones(len(uv1))]
+    Fx0, Ftx1 = x0 @ F.T, x1 @ F
+    num = np.sum(x1 * Fx0, axis=1) ** 2
+    den = Fx0[:, 0] ** 2 + Fx0[:, 1] ** 2 + Ftx1[:, 0] ** 2 + Ftx1[:, 1] ** 2
+    return np.sqrt(num / np.maximum(den, 1e-12))
+
+
+def epipolar_agrees(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float = 2.0,
+                    min_fraction: float = 0.5) -> bool:
+    """Whether most matches satisfy the epipolar geometry of a candidate motion (a PnP pose built on
+    wrong depth does not); a motion too small to define it is judged by the matches' plain distance."""
+    if len(uv0) < 8:
+        return False
+    if np.linalg.norm(T_rel[:3, 3]) < 1e-3:
+        return True
+    return float(np.mean(sampson_px(T_rel, uv0, uv1, K) < px)) >= min_fraction

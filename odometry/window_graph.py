@@ -63,6 +63,7 @@ class FrameInput:
     trusted: np.ndarray | None  # H x W bool: where depth consistency may be sampled
     lidar_uvz: np.ndarray | None  # M x 3: the frame's own LiDAR returns (u, v, depth)
     T_prev_rel: np.ndarray | None = None  # front-end motion from the previous frame
+    odometry_sigmas: np.ndarray | None = None  # its sigmas (rotation rad x3, translation m x3); None: the config's weak ones
 
 
 @dataclass
@@ -111,7 +112,10 @@ class WindowGraph:
             graph.add(gtsam.PriorFactorPose3(X(f.index), gtsam.Pose3(f.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
         else:
             rel = f.T_prev_rel if f.T_prev_rel is not None else invert_T(self.poses[self.last]) @ f.T_init
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, cfg.odometry_sigma_rad), np.full(3, cfg.odometry_sigma_m)])
+            sigmas = f.odometry_sigmas
+            if sigmas is None:
+                sigmas = np.r_[np.full(3, cfg.odometry_sigma_rad), np.full(3, cfg.odometry_sigma_m)]
+            noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
             graph.add(gtsam.BetweenFactorPose3(X(self.last), X(f.index), gtsam.Pose3(rel), noise))
         fd = FrameDepth(f.log_depth, self.grid)
         self.depths[f.index] = fd

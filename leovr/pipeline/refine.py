@@ -31,9 +31,11 @@ from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
 from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
+from leovr.eval.heldout import parallax_filter
 from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import interpolate_poses, invert_T, transform_points
 from leovr.lidar.deskew import deskew
+from leovr.lidar.projection import sparse_depth
 from leovr.pipeline.completion import (
     EvalSample,
     frame_indices,
@@ -48,7 +50,10 @@ from leovr.pipeline.completion import (
 def completion_config(cfg: RefineConfig) -> CompleteConfig:
     """The generator with the run's input and scoring settings, as `complete` would run it."""
     shared = set(FrameSelection.model_fields)
-    return CompleteConfig(method="generator", **cfg.model_dump(include=shared))
+    settings = cfg.model_dump(include=shared)
+    if settings["input"] == "none":  # camera only: the generator gets no LiDAR (frame_sample), the scan is truth
+        settings["input"] = "full"
+    return CompleteConfig(method="generator", **settings)
 
 
 def classical_source(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
@@ -81,14 +86,20 @@ def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Fr
 
 
 def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.ndarray | None = None,
-                 frame_dt: float = 0.1) -> EvalSample:
+                 frame_dt: float = 0.1, camera_only: bool = False) -> EvalSample:
     """The frame with its cheap LiDAR input (deskewed when a motion is given) and ground truth; without
-    LiDAR an empty input."""
+    LiDAR (or `camera_only`, `--input none`) an empty input, and the whole scan, if any, held out."""
     f = deskew_frame(seq[i], motion_cam, frame_dt)
-    if f.points is not None and len(f.points):
+    has_points = f.points is not None and len(f.points) > 0
+    if has_points and not camera_only:
         return prepare_sample(f, ccfg)
-    gt = f.depth if f.depth is not None else np.zeros(f.shape, np.float32)
-    return EvalSample(f, np.zeros(f.shape, np.float32), gt, "dense" if f.depth is not None else "none", None)
+    empty = np.zeros(f.shape, np.float32)
+    if f.depth is not None:
+        return EvalSample(f, empty, f.depth, "dense", None)
+    if has_points:
+        every = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+        return EvalSample(f, empty, parallax_filter(every, every, ccfg.parallax_window, ccfg.parallax_rel), "heldout", None)
+    return EvalSample(f, empty, empty, "none", None)
 
 
 TIMED = ("generator_ms", "frontend_ms", "graph_ms")  # per frame, in timing.json as means
@@ -161,7 +172,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     # kept, not rewritten) so that the window, the landmarks and KISS-ICP's map are the uninterrupted run's
     names = seq.frame_numbers()
     done = {i for i in indices if i in state.poses and (out / "depth" / png_name(names, i)).is_file()}
-    has_lidar = seq.has_lidar
+    camera_only = cfg.input == "none"
+    has_lidar = seq.has_lidar and not camera_only
     generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
     first = seq[indices[0]]
     K, shape = first.K, first.shape
@@ -197,7 +209,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     if done:
         desc += f", replaying {len(done)} finished"
     for i in tqdm(indices, desc=desc, unit="frame", disable=not progress):
-        sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt)
+        sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt,
+                              camera_only)
         if has_lidar and i not in done and not (sample.sparse > 0).any():
             empty.append(i)
         t0 = time.perf_counter()
@@ -263,14 +276,16 @@ def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], to
 
 def input_label(name: str, has_lidar: bool) -> str:
     """What the progress bar and metrics say the graph runs on."""
+    if name == "none":
+        return "camera only (the recording's LiDAR held out)"
     if not has_lidar:
-        return "vision + depth (no LiDAR)"
+        return "camera only (no LiDAR)"
     return "own scan" if name == "full" else f"{name} simulated from the scan"
 
 
 def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lidar: bool) -> FrameScore | None:
     """Score of a frame finished before a resume: its maps read back from the PNGs at the run's scale."""
-    sample = frame_sample(seq, i, ccfg)
+    sample = frame_sample(seq, i, ccfg, camera_only=not has_lidar)
     fs = FrameScore.of(sample)
     if fs is None:
         return None

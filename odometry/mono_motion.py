@@ -1,0 +1,171 @@
+"""Camera motion without LiDAR: the geometry of the textbook VO (`odometry.mono_vo`) with a metric
+step length. Rotation and translation direction come from the essential matrix of Lucas-Kanade
+tracks; the step length comes from two sources fused by a Kalman filter on its logarithm:
+
+- relative scale: corners triangulated at the previous step, with metric depth, are tracked on;
+  triangulating them again with a unit step gives the change of step length. With a vehicle's
+  inertia as a second opinion on that change (the step length of a car at 10 Hz changes by a few
+  per cent per frame);
+- absolute scale (noisy, unbiased over time only as far as the generator is): the generator's depth
+  at the tracked corners divided by their unit-step triangulated depth.
+
+Both are medians weighted by how well each corner's depth is known: the generator's predicted
+uncertainty, and the triangulation's, which falls with the corner's parallax.
+
+So the generator's depth fixes the scale only, averaged over frames, and never shapes the motion.
+A step whose rotation-compensated parallax is too small to triangulate (the vehicle stands) keeps
+the rotation and moves by nothing."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from leovr.geometry import invert_T
+from odometry.mono_vo import gray, relative_motion
+
+
+@dataclass
+class MonoStep:
+    """One frame's motion from the previous frame (pose_cur = pose_prev @ T_rel)."""
+
+    T_rel: np.ndarray
+    inliers: int
+    parallax_px: float
+    scale_source: str  # "depth", "depth+tracks", "standing" or "constant_speed"
+
+
+def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    order = np.argsort(x)
+    c = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def triangulate(T_0_1: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Points (N x 3, in camera 0) seen at p0 in camera 0 and p1 in camera 1; T_0_1 = pose of 1 in 0."""
+    T_1_0 = invert_T(T_0_1)
+    X = cv2.triangulatePoints(K @ np.eye(3, 4), K @ T_1_0[:3], p0.T.astype(np.float64), p1.T.astype(np.float64))
+    return (X[:3] / np.where(np.abs(X[3]) > 1e-12, X[3], 1e-12)).T
+
+
+def rotation_parallax(p0: np.ndarray, p1: np.ndarray, R_1_0: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixel displacement left once the rotation is taken out (the part that carries depth)."""
+    h = np.c_[p0, np.ones(len(p0))] @ (K @ R_1_0 @ np.linalg.inv(K)).T
+    return np.linalg.norm(h[:, :2] / h[:, 2:3] - p1, axis=1)
+
+
+@dataclass
+class MonoMotion:
+    """Frame-to-frame motion with a metric step length; `step(image, depth, log_sigma)` per frame,
+    with the generator's depth and log-sigma of that frame."""
+
+    K: np.ndarray
+    depth_sigma_log: float = 0.2  # how far one frame's depth-based step length may be off (log)
+    track_sigma_log: float = 0.05  # how far the relative scale of tracked corners may be off (log)
+    speed_sigma_log: float = 0.02  # how much the step length changes from one frame to the next (log)
+    min_parallax_px: float = 1.0  # below: the camera stands
+    max_corners: int = 2000
+
+    def __post_init__(self) -> None:
+        self.prev_gray: np.ndarray | None = None
+        self.prev_depth: np.ndarray | None = None
+        self.prev_w: np.ndarray | None = None
+        self.carried_uv = np.zeros((0, 2))  # corners of the previous frame with metric depth
+        self.carried_z = np.zeros(0)
+        self.log_len: float | None = None  # Kalman state: log step length (m) and its variance
+        self.var = 0.0
+        self.last = MonoStep(np.eye(4), 0, 0.0, "constant_speed")
+
+    def _depth_at(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h, w = self.prev_depth.shape
+        ui = np.clip(np.rint(uv[:, 0]).astype(int), 0, w - 1)
+        vi = np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
+        return self.prev_depth[vi, ui], self.prev_w[vi, ui]
+
+    def _fuse(self, log_meas: float | None, log_ratio: float | None) -> str:
+        """Kalman update of the log step length: predict the change from the tracks' relative scale
+        fused with the vehicle's inertia (no change), then correct by the depth measurement."""
+        if self.log_len is None:
+            if log_meas is None:
+                return "constant_speed"
+            self.log_len, self.var = log_meas, self.depth_sigma_log**2
+            return "depth"
+        q, r = self.speed_sigma_log**2, self.track_sigma_log**2
+        if log_ratio is not None:
+            self.log_len += log_ratio * q / (q + r)
+            self.var += q * r / (q + r)
+        else:
+            self.var += q
+        if log_meas is not None:
+            gain = self.var / (self.var + self.depth_sigma_log**2)
+            self.log_len += gain * (log_meas - self.log_len)
+            self.var *= 1.0 - gain
+        return ("depth+tracks" if log_ratio is not None else "depth") if log_meas is not None else "constant_speed"
+
+    def step(self, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
+        """The motion from the previous frame to this one; None for the first frame."""
+        cur = gray(image)
+        prev = self.prev_gray
+        result = None
+        if prev is not None:
+            fresh = cv2.goodFeaturesToTrack(prev, maxCorners=self.max_corners, qualityLevel=0.01, minDistance=7)
+            fresh = np.zeros((0, 2)) if fresh is None else fresh.reshape(-1, 2).astype(np.float64)
+            n_old = len(self.carried_uv)
+            p0 = np.r_[self.carried_uv, fresh]
+            result = self._motion(prev, cur, p0, n_old)
+        self.prev_gray, self.prev_depth = cur, depth
+        self.prev_w = 1.0 / np.maximum(np.exp(log_sigma) / np.maximum(depth, 1e-3), 1e-3) ** 2
+        if result is not None:
+            self.last = result
+        return result
+
+    def _motion(self, prev: np.ndarray, cur: np.ndarray, p0: np.ndarray, n_old: int) -> MonoStep:
+        keep_last = MonoStep(self.last.T_rel, 0, 0.0, "constant_speed")
+        if len(p0) < 8:
+            self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
+            return keep_last
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0.astype(np.float32).reshape(-1, 1, 2), None,
+                                             winSize=(21, 21), maxLevel=3)
+        ok = st.ravel() == 1
+        p1 = p1.reshape(-1, 2).astype(np.float64)
+        idx = np.nonzero(ok)[0]
+        motion, inl = relative_motion(p0[idx], p1[idx], self.K)
+        if motion is None:
+            self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
+            return keep_last
+        good = idx[inl]
+        R_1_0 = motion[:3, :3].T
+        parallax = float(np.median(rotation_parallax(p0[good], p1[good], R_1_0, self.K)))
+        if parallax < self.min_parallax_px:  # standing: rotation only, tracks carried on unchanged
+            T = np.eye(4)
+            T[:3, :3] = motion[:3, :3]
+            self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
+            return MonoStep(T, len(good), parallax, "standing")
+        X = triangulate(motion, p0[good], p1[good], self.K)  # unit step, camera 0
+        z = X[:, 2]
+        front = (z > 1e-3) & np.isfinite(z)
+        # a corner's triangulated depth is known to about (1 px / its parallax), relatively
+        tri_var = (1.0 / np.maximum(rotation_parallax(p0[good], p1[good], R_1_0, self.K), 0.1)) ** 2
+        # absolute: generator depth over unit-step depth
+        gd, gw = self._depth_at(p0[good])
+        use = front & (gd > 0)
+        log_meas = None
+        if use.sum() >= 20:
+            log_meas = float(np.log(weighted_median(gd[use] / z[use], 1.0 / (1.0 / gw[use] + tri_var[use]))))
+        # relative: corners carried from the last step with metric depth
+        old = front & (good < n_old)
+        log_ratio = None
+        if old.sum() >= 20 and self.log_len is not None:
+            log_ratio = float(np.log(weighted_median(self.carried_z[good[old]] / z[old], 1.0 / tri_var[old])))
+            log_ratio -= float(self.log_len)
+        source = self._fuse(log_meas, log_ratio)
+        length = float(np.exp(self.log_len)) if self.log_len is not None else 0.0
+        T = motion.copy()
+        T[:3, 3] *= length
+        # carry this step's corners on, with metric depth in the new frame
+        X1 = (X * length) @ invert_T(T)[:3, :3].T + invert_T(T)[:3, 3]
+        carry = front & (X1[:, 2] > 0.5)
+        self.carried_uv, self.carried_z = p1[good][carry], X1[carry, 2]
+        return MonoStep(T, len(good), parallax, source)

@@ -1,0 +1,85 @@
+"""The textbook monocular visual odometry, kept as the named baseline `mono_vo` that leovr's poses
+must beat: Shi-Tomasi corners tracked by pyramidal Lucas-Kanade into the next frame, the essential
+matrix by RANSAC, the relative pose recovered from it, every step given unit length (monocular: the
+scale is unknown, so trajectories are compared after a Sim(3) alignment). Nothing learnt, no LiDAR,
+no depth: what a user could write in thirty lines of OpenCV."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+
+
+def gray(image: np.ndarray) -> np.ndarray:
+    """8-bit single-channel image (RGB float in [0, 1] or uint8, or already gray)."""
+    img = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+    if img.dtype != np.uint8:
+        img = np.clip(img * (255.0 if img.max() <= 1.0 else 1.0), 0, 255).astype(np.uint8)
+    return img
+
+
+def track(prev: np.ndarray, cur: np.ndarray, max_corners: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """Corners of `prev` and where Lucas-Kanade finds them in `cur` (N x 2 each, tracked ones only)."""
+    p0 = cv2.goodFeaturesToTrack(prev, maxCorners=max_corners, qualityLevel=0.01, minDistance=7)
+    if p0 is None or len(p0) < 8:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, winSize=(21, 21), maxLevel=3)
+    ok = st.ravel() == 1
+    return p0.reshape(-1, 2)[ok].astype(np.float64), p1.reshape(-1, 2)[ok].astype(np.float64)
+
+
+def relative_motion(p0: np.ndarray, p1: np.ndarray, K: np.ndarray, threshold_px: float = 1.0
+                    ) -> tuple[np.ndarray | None, np.ndarray]:
+    """Motion of the camera from the first frame to the second (4 x 4, camera-to-camera, unit
+    translation) from the essential matrix of the tracks, and the inliers of the pose it recovered;
+    None when too few tracks or no essential matrix."""
+    inl = np.zeros(len(p0), bool)
+    if len(p0) < 8:
+        return None, inl
+    E, mask = cv2.findEssentialMat(p1, p0, K, method=cv2.RANSAC, prob=0.999, threshold=threshold_px)
+    if E is None or E.shape != (3, 3):
+        return None, inl
+    # OpenCV's (R, t) change the basis from the first camera given (here the second frame) to the
+    # other: x_0 = R x_1 + t, i.e. the pose of the second camera in the first
+    n, R, t, mask = cv2.recoverPose(E, p1, p0, K, mask=mask)
+    if n < 8:
+        return None, inl
+    T_0_1 = np.eye(4)
+    T_0_1[:3, :3], T_0_1[:3, 3] = R, t.ravel() / max(np.linalg.norm(t), 1e-12)
+    inl = mask.ravel() > 0
+    return T_0_1, inl
+
+
+@dataclass
+class MonoVO:
+    """Frame-by-frame textbook VO: `add(image)` returns the camera-to-world pose of that frame (the
+    first frame is the world). A frame whose motion cannot be recovered repeats the last motion."""
+
+    K: np.ndarray
+    poses: list[np.ndarray] = field(default_factory=list)
+    _prev: np.ndarray | None = None
+    _last: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def add(self, image: np.ndarray) -> np.ndarray:
+        cur = gray(image)
+        if self._prev is None:
+            self.poses.append(np.eye(4))
+        else:
+            p0, p1 = track(self._prev, cur)
+            motion, _ = relative_motion(p0, p1, self.K)
+            if motion is not None:
+                self._last = motion
+            self.poses.append(self.poses[-1] @ self._last)
+        self._prev = cur
+        return self.poses[-1]
+
+
+def mono_vo_poses(images, K: np.ndarray) -> np.ndarray:
+    """F x 4 x 4 camera-to-world poses of the textbook VO over an iterable of images."""
+    vo = MonoVO(K)
+    for img in images:
+        vo.add(img)
+    return np.stack(vo.poses)
