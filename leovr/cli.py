@@ -162,7 +162,7 @@ def refine(
     config: Optional[Path] = ConfigOpt,
     checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
     window: Optional[int] = typer.Option(None, help="Frames in the sliding window."),
-    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it (evaluation)."),
+    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), vlp16 | mid40 | ratio:R simulated from it, or none (camera only; the scan becomes ground truth)."),
     start: Optional[int] = typer.Option(None),
     end: Optional[int] = typer.Option(None),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
@@ -181,11 +181,12 @@ def poses(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
     config: Optional[Path] = ConfigOpt,
     loop_closure: bool = typer.Option(True, "--loop-closure/--no-loop-closure", help="Close loops (default on)."),
-    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it (evaluation)."),
+    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), vlp16 | mid40 | ratio:R simulated from it, or none (camera only)."),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
+    compare: bool = typer.Option(False, "--compare", help="Also run the textbook monocular VO (mono_vo) and score it beside leovr."),
 ) -> None:
     """The offline pose pass the self-supervised trainer uses: window odometry, then loop closure."""
-    cfg = override(load_config(config).refine, loop_closure=loop_closure, input=input)
+    cfg = override(load_config(config).refine, loop_closure=loop_closure, input=input, compare=compare or None)
     _run_refine(data, out, cfg, resume, None)
 
 
@@ -203,9 +204,12 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
         if r.get("n"):
             typer.echo(f"{method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
     if not any(r.get("n") for r in m["depth"].values()):
-        typer.echo("depth not scored: no ground truth (the whole scan is the input; --input vlp16|mid40 holds points out)")
+        why = ("the whole scan is the input; --input vlp16|mid40|none holds points out" if m["input"] == "full"
+               else "the sequence has neither ground-truth depth nor LiDAR")
+        typer.echo(f"depth not scored: no ground truth ({why})")
     for name, t in m.get("trajectory", {}).items():
-        typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m ({t['align']} aligned)")
+        scale = f", scale {t['scale']:.3f}" if t["align"] == "sim3" else ""
+        typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m ({t['align']} aligned{scale})")
     t = m["timing"]
     typer.echo(f"per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
                f"graph {t['graph_ms']:.0f} ms -> {out}")
@@ -242,7 +246,7 @@ def bench_refine(
         line = "  ".join(f"{m} {r['mae_m']:.3f}" for m, r in methods.items() if isinstance(r, dict) and "mae_m" in r)
         typer.echo(f"{key:16s} MAE (m): {line}")
     for key, t in doc["trajectory"].items():
-        typer.echo(f"{key:16s} ATE (m): " + "  ".join(f"{n} {v['ate_m']:.3f}" for n, v in t.items()))
+        typer.echo(f"{key:16s} ATE (m): " + "  ".join(f"{n} {v['ate_m']:.3f} (scale {v['scale']:.2f})" for n, v in t.items()))
     typer.echo("timing (ms/frame): " + ", ".join(f"{k} {v:.0f}" for k, v in doc["timing"].items()))
     typer.echo(f"-> {out}")
 

@@ -119,6 +119,7 @@ class RefineConfig(FrameSelection):
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
+    compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and score it beside leovr
     vocabulary: str | None = None  # ORB vocabulary (.npz); None = the shipped one
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
     grid_cols: int = Field(14, ge=2)

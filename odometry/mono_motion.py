@@ -1,6 +1,6 @@
 """Camera motion without LiDAR: the geometry of the textbook VO (`odometry.mono_vo`) with a metric
 step length. Rotation and translation direction come from the essential matrix of Lucas-Kanade
-tracks; the step length comes from two sources fused by a Kalman filter on its logarithm:
+tracks (USAC with local optimisation rather than the textbook's RANSAC); the step length comes from two sources fused by a Kalman filter on its logarithm:
 
 - relative scale: corners triangulated at the previous step, with metric depth, are tracked on;
   triangulating them again with a unit step gives the change of step length. With a vehicle's
@@ -104,6 +104,12 @@ class MonoMotion:
             self.var *= 1.0 - gain
         return ("depth+tracks" if log_ratio is not None else "depth") if log_meas is not None else "constant_speed"
 
+    def _implausible(self, log_meas: float, gate_sigmas: float = 3.0) -> bool:
+        """Whether a depth-based step length is further from the predicted one than the filter's and
+        the measurement's uncertainty allow."""
+        spread = self.var + self.speed_sigma_log**2 + self.depth_sigma_log**2
+        return (log_meas - self.log_len) ** 2 > gate_sigmas**2 * spread
+
     def step(self, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
         """The motion from the previous frame to this one; None for the first frame."""
         cur = gray(image)
@@ -131,7 +137,9 @@ class MonoMotion:
         ok = st.ravel() == 1
         p1 = p1.reshape(-1, 2).astype(np.float64)
         idx = np.nonzero(ok)[0]
-        motion, inl = relative_motion(p0[idx], p1[idx], self.K)
+        # USAC_ACCURATE (local optimisation) gets the rotation several times closer than plain RANSAC,
+        # and a tenth of a degree of rotation is a pixel of the parallax the step length is read from
+        motion, inl = relative_motion(p0[idx], p1[idx], self.K, method=cv2.USAC_ACCURATE)
         if motion is None:
             self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
             return keep_last
@@ -160,6 +168,12 @@ class MonoMotion:
         if old.sum() >= 20 and self.log_len is not None:
             log_ratio = float(np.log(weighted_median(self.carried_z[good[old]] / z[old], 1.0 / tri_var[old])))
             log_ratio -= float(self.log_len)
+        if self.log_len is not None and log_meas is not None and self._implausible(log_meas):
+            # both scale readings come from this essential matrix: a wrong one (a rare bad RANSAC draw
+            # in forward motion) shows as a jump in speed no vehicle makes; keep the last motion instead
+            self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
+            self.var += self.speed_sigma_log**2
+            return MonoStep(self.last.T_rel, 0, parallax, "constant_speed")
         source = self._fuse(log_meas, log_ratio)
         length = float(np.exp(self.log_len)) if self.log_len is not None else 0.0
         T = motion.copy()

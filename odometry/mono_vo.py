@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 
 
-
 def gray(image: np.ndarray) -> np.ndarray:
     """8-bit single-channel image (RGB float in [0, 1] or uint8, or already gray)."""
     img = image if image.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
@@ -31,15 +30,17 @@ def track(prev: np.ndarray, cur: np.ndarray, max_corners: int = 2000) -> tuple[n
     return p0.reshape(-1, 2)[ok].astype(np.float64), p1.reshape(-1, 2)[ok].astype(np.float64)
 
 
-def relative_motion(p0: np.ndarray, p1: np.ndarray, K: np.ndarray, threshold_px: float = 1.0
-                    ) -> tuple[np.ndarray | None, np.ndarray]:
-    """Motion of the camera from the first frame to the second (4 x 4, camera-to-camera, unit
-    translation) from the essential matrix of the tracks, and the inliers of the pose it recovered;
-    None when too few tracks or no essential matrix."""
+def relative_motion(p0: np.ndarray, p1: np.ndarray, K: np.ndarray, threshold_px: float = 1.0,
+                    method: int = cv2.RANSAC) -> tuple[np.ndarray | None, np.ndarray]:
+    """Pose of the camera of the second frame in the first (4 x 4, unit translation) from the
+    essential matrix of the tracks, and the inliers of the pose it recovered; None when too few
+    tracks or no essential matrix. `method`: plain RANSAC (the textbook) or an OpenCV USAC variant."""
     inl = np.zeros(len(p0), bool)
     if len(p0) < 8:
         return None, inl
-    E, mask = cv2.findEssentialMat(p1, p0, K, method=cv2.RANSAC, prob=0.999, threshold=threshold_px)
+    E, mask = cv2.findEssentialMat(p1, p0, K, method=method, prob=0.999, threshold=threshold_px)
+    if E is not None and E.shape[0] > 3:  # several solutions: the first, as OpenCV ranks them
+        E = E[:3]
     if E is None or E.shape != (3, 3):
         return None, inl
     # OpenCV's (R, t) change the basis from the first camera given (here the second frame) to the

@@ -4,7 +4,7 @@ VO (`mono_vo`), leovr's monocular motion alone (`mono_motion`), and, with --refi
 --input none`. ATE after Sim(3) alignment and its scale. The KITTI odometry clip, which the benchmark
 reports, is never read here.
 
-    .venv/bin/python tools/mono_dev.py [--refine] [--frames N] SEQ [SEQ ...]
+    .venv/bin/python tools/mono_dev.py [--refine] [--frames N] [--set F=V ...] [--cfg F=V ...] -- SEQ [SEQ ...]
 """
 
 from __future__ import annotations
@@ -41,8 +41,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--refine", action="store_true")
     ap.add_argument("--set", nargs="*", default=[], help="MonoMotion field=value")
+    ap.add_argument("--cfg", nargs="*", default=[], help="RefineConfig field=value (for --refine)")
     a = ap.parse_args()
-    cfg = RefineConfig(input="none")
+    cfg = RefineConfig(input="none", **{k: float(v) for k, v in (s.split("=") for s in a.cfg)})
     gen = generator_method(completion_config(cfg))
     kw = {k: float(v) for k, v in (s.split("=") for s in a.set)}
     for path in a.sequences:

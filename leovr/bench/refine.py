@@ -1,7 +1,9 @@
 """`leovr bench refine`: IP-Basic, the generator and the refined depth, LeoVR's trajectory against
 KISS-ICP's, the time per stage and a window-length ablation, on simulator test sequences (Mid-40 and
 VLP-16, city loop, straight avenue and the dynamic scenario), the shared KITTI raw clip (simulated
-cheap inputs) and the KITTI odometry clip (no LiDAR: ATE after Sim(3) alignment)."""
+cheap inputs) and the KITTI odometry clip (no LiDAR: ATE after Sim(3) alignment). Every trajectory is
+scored beside the textbook monocular VO of the same frames (`mono_vo`, Sim(3)-aligned), and every ATE
+carries its alignment scale (1.0 under SE(3); near 1.0 under Sim(3) when the metric scale is right)."""
 
 from __future__ import annotations
 
@@ -26,18 +28,19 @@ TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
 
 
 def _traj(runs: list[dict]) -> dict:
+    """Per trajectory method: mean ATE, RPE and alignment scale over the runs, and each run's."""
     out = {}
-    for name in ("kiss_icp", "leovr"):
+    for name in ("kiss_icp", "mono_vo", "leovr"):
         rs = [r["trajectory"][name] for r in runs if name in r.get("trajectory", {})]
         if rs:
-            out[name] = {"ate_m": float(np.mean([r["ate_m"] for r in rs])), "rpe_m": float(np.mean([r["rpe_m"] for r in rs])),
-                         "per_sequence": [{k: r[k] for k in TRAJ_KEYS} for r in rs]}
+            out[name] = {k: float(np.mean([r[k] for r in rs])) for k in ("ate_m", "rpe_m", "scale")}
+            out[name]["per_sequence"] = [{k: r[k] for k in TRAJ_KEYS} for r in rs]
     return out
 
 
 def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, progress: bool = True) -> dict:
     started = time.time()
-    base = RefineConfig(checkpoint=cfg.checkpoint, window=cfg.window)
+    base = RefineConfig(checkpoint=cfg.checkpoint, window=cfg.window, compare=True)
     if quick:
         root = make_dataset(QUICK_RECIPE, Path(cfg.dataset) if cfg.dataset else None, progress=progress)
     else:
@@ -78,7 +81,7 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
         odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
         if odo.exists():
             m = refine(odo, base, "kitti_odometry")
-            trajectory["kitti_odometry"] = {"leovr": {k: m["trajectory"]["leovr"][k] for k in TRAJ_KEYS}}
+            trajectory["kitti_odometry"] = {k: {kk: m["trajectory"][k][kk] for kk in TRAJ_KEYS} for k in ("mono_vo", "leovr")}
     for k in ("generator_ms", "frontend_ms", "graph_ms"):
         timing[k] = float(np.mean([r["timing"][k] for r in all_runs]))
     body = {"quick": quick, "synthetic_dataset": str(root), "frames_per_sequence": frames, "window": cfg.window,

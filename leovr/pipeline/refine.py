@@ -260,7 +260,15 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     atomic_write(out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
     lidar_backed = graph.lidar_backed()
     atomic_write(out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
-    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect)
+    baselines = {}
+    if cfg.compare:
+        from odometry.mono_vo import mono_vo_poses
+
+        images = (seq[i].image for i in tqdm(indices, desc="mono_vo (textbook VO)", unit="frame", disable=not progress))
+        baselines["mono_vo"] = mono_vo_poses(images, K)
+        write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"])
+    return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
+                         baselines)
 
 
 def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], tol_m: float = 0.05) -> None:
@@ -313,9 +321,11 @@ def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
 
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
                   out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
-                  scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None) -> dict:
+                  scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None,
+                  baselines: dict[str, np.ndarray] | None = None) -> dict:
     """Poses in KITTI and TUM form, timing, and depth / trajectory metrics. Depth is scored from the
-    arrays the run produced (`scored`); frames finished before a resume are read back from their PNGs."""
+    arrays the run produced (`scored`); frames finished before a resume are read back from their PNGs.
+    `baselines` (name -> poses of the same frames, monocular) are scored after a Sim(3) alignment."""
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
     stamps = seq.timestamps()[indices]
     write_kitti_poses(out / "poses_kitti.txt", poses)
@@ -340,10 +350,10 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
                 if method in target:
                     target[method].add(pred, fs.gt)
     metrics: dict = {
-        "sequence": str(Path(seq.path).resolve()), "reader": seq.name, "input": cfg.input if has_lidar else "none (no LiDAR)",
+        "sequence": str(Path(seq.path).resolve()), "reader": seq.name, "input": cfg.input if seq.has_lidar else "none (no LiDAR)",
         "input_note": input_label(cfg.input, has_lidar),
         "frames": len(indices), "window": cfg.window,
-        "mode": "visual-LiDAR" if has_lidar else "vision and depth only (the sequence has no LiDAR)",
+        "mode": "visual-LiDAR" if has_lidar else f"vision and depth only ({input_label(cfg.input, has_lidar)})",
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),
         "depth": {m: a.result() for m, a in accs.items() if a._gt},
         "timing": {k: v for k, v in timing.items() if k != "series"},  # the series is in timing.json
@@ -358,5 +368,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         if len(state.icp_poses) == len(indices):
             icp = np.stack([np.array(state.icp_poses[i]).reshape(4, 4) for i in indices])
             metrics["trajectory"]["kiss_icp"] = trajectory_metrics(icp, ref, align)
+        for name, est in (baselines or {}).items():
+            metrics["trajectory"][name] = trajectory_metrics(est, ref, "sim3")
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return metrics

@@ -1,0 +1,119 @@
+"""Camera-only poses: the textbook VO baseline (`mono_vo`), the epipolar front end with a metric step
+length (`mono_motion`), and `refine --input none` / `poses --compare` end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from leovr.cli import app
+from leovr.config import RefineConfig, SimulateConfig
+from leovr.data import open_sequence
+from leovr.eval.trajectory import trajectory_metrics
+from leovr.geometry import invert_T
+from leovr.paths import kitti_odometry_dir
+from leovr.pipeline.refine import run_refine
+from leovr.sim.simulate import simulate
+from odometry.frontend import epipolar_agrees, sampson_px
+from odometry.mono_motion import MonoMotion
+from odometry.mono_vo import gray, mono_vo_poses, relative_motion, track
+from tests.conftest import needs_shared
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    seq_dir = tmp_path_factory.mktemp("mono") / "seq"
+    simulate(SimulateConfig(scenario="city_loop", lidar="mid40", frames=8, seed=3001), seq_dir, progress=False)
+    seq = open_sequence(seq_dir)
+    return seq_dir, [seq[i] for i in range(len(seq))]
+
+
+def _truth(frames) -> np.ndarray:
+    return np.stack([invert_T(frames[0].T_world_cam) @ f.T_world_cam for f in frames])
+
+
+def test_epipolar_motion_points_the_way_the_camera_moved(drive):
+    _, frames = drive
+    for a, b in zip(frames[:-1], frames[1:]):
+        T, inl = relative_motion(*track(gray(a.image), gray(b.image)), a.K)
+        true = invert_T(a.T_world_cam) @ b.T_world_cam  # pose of b in a
+        cos = T[:3, 3] @ true[:3, 3] / np.linalg.norm(true[:3, 3])
+        assert cos > np.cos(np.radians(15)), f"direction {T[:3, 3]} vs {true[:3, 3]}"
+        dR = T[:3, :3].T @ true[:3, :3]
+        assert np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))) < 1.0
+        assert inl.sum() > 50
+
+
+def test_textbook_vo_follows_the_drive_up_to_scale(drive):
+    _, frames = drive
+    est = mono_vo_poses((f.image for f in frames), frames[0].K)
+    t = trajectory_metrics(est, _truth(frames), "sim3")
+    path = np.linalg.norm(np.diff(_truth(frames)[:, :3, 3], axis=0), axis=1).sum()
+    assert t["ate_m"] < 0.05 * path and 0.3 < t["scale"] < 3  # unit steps, the drive's own speed after alignment
+
+
+def test_step_length_is_metric_when_the_depth_is(drive):
+    """With the true depth as the 'generator', the step length is the true one: the depth fixes scale."""
+    _, frames = drive
+    mm = MonoMotion(frames[0].K)
+    truth = _truth(frames)
+    sources = []
+    for k, f in enumerate(frames):
+        step = mm.step(f.image, f.depth, np.log(0.05 * np.maximum(f.depth, 1e-3)))
+        if k == 0:
+            assert step is None
+            continue
+        true_len = np.linalg.norm((invert_T(truth[k - 1]) @ truth[k])[:3, 3])
+        sources.append(step.scale_source)
+        assert np.linalg.norm(step.T_rel[:3, 3]) == pytest.approx(true_len, rel=0.1)
+    assert sum(s.startswith("depth") for s in sources) >= len(sources) - 2  # a rare bad draw keeps the last motion
+
+
+def test_a_pnp_pose_that_breaks_the_epipolar_geometry_is_refused(drive):
+    _, frames = drive
+    a, b = frames[2], frames[3]
+    p0, p1 = track(gray(a.image), gray(b.image))
+    true = invert_T(a.T_world_cam) @ b.T_world_cam
+    assert np.median(sampson_px(true, p0, p1, a.K)) < 1.0
+    assert epipolar_agrees(true, p0, p1, a.K)
+    wrong = true.copy()
+    wrong[:3, 3] = np.linalg.norm(true[:3, 3]) * np.array([0.0, 1.0, 0.0])  # downwards instead of forward
+    assert not epipolar_agrees(wrong, p0, p1, a.K)
+
+
+def test_camera_only_refine_holds_the_scan_out_and_scores_the_textbook_beside(drive, tmp_path):
+    seq_dir, frames = drive
+    out = tmp_path / "o"
+    m = run_refine(open_sequence(seq_dir), RefineConfig(input="none", compare=True), out, progress=False)
+    assert "camera only" in m["mode"] and m["input"] == "none"
+    sources = json.loads((out / "timing.json").read_text())["initial_pose_sources"]
+    epipolar = sum(v for k, v in sources.items() if k.startswith("epipolar"))
+    # PnP only where it passed the epipolar test, constant velocity only where the essential matrix failed
+    assert epipolar >= len(frames) - 3 and sum(sources.values()) == len(frames) and sources["first"] == 1
+    assert sources.keys() <= {"first", "pnp", "constant_velocity", "epipolar (depth)", "epipolar (depth+tracks)"}
+    traj = m["trajectory"]
+    assert {"leovr", "mono_vo"} <= traj.keys() and "kiss_icp" not in traj
+    assert traj["leovr"]["align"] == traj["mono_vo"]["align"] == "sim3"
+    assert traj["leovr"]["ate_m"] < 1.0 and 0.2 < traj["leovr"]["scale"] < 5
+    assert len((out / "poses_mono_vo_kitti.txt").read_text().splitlines()) == len(frames)
+    assert m["depth"]["generator"]["n"] > 0 and "nearest" not in m["depth"]  # no LiDAR input to fill
+
+
+@needs_shared
+def test_poses_compare_on_the_real_clip_without_lidar(tmp_path):
+    res = CliRunner().invoke(app, ["poses", str(kitti_odometry_dir()), "--out", str(tmp_path / "p"), "--compare",
+                                   "--no-loop-closure", "--config", str(_short_config(tmp_path, 10))])
+    assert res.exit_code == 0, res.output
+    assert "mono_vo" in res.output and "scale" in res.output
+    m = json.loads((tmp_path / "p" / "metrics.json").read_text())
+    assert m["trajectory"]["mono_vo"]["frames"] == m["trajectory"]["leovr"]["frames"] == 10
+    assert "camera only" in m["mode"]
+
+
+def _short_config(tmp_path, end: int):
+    p = tmp_path / "short.yaml"
+    p.write_text(f"refine:\n  end: {end}\n")
+    return p
