@@ -24,7 +24,7 @@ from odometry.initial_pose import (
     reprojection_inliers,
 )
 from odometry.lidar_assoc import associate
-from odometry.mono_motion import MonoMotion, triangulate
+from odometry.mono_motion import MonoMotion, MonoStep, triangulate
 from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
 
 
@@ -95,20 +95,15 @@ class FrontEnd:
             cands: dict[str, np.ndarray | None] = {}
             if T_icp is not None and p.T_icp is not None:
                 cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
-            cands["pnp"] = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
-            guess = choose_pose(cands, obj, img, self.K, cfg.pnp_reproj_px)
-            if step is not None and step.scale_source != "constant_speed":
-                T_init, source = T_prev @ step.T_rel, f"epipolar ({step.scale_source})"
-                length = float(np.linalg.norm(step.T_rel[:3, 3]))
-                odo_sigmas = np.r_[np.full(3, cfg.mono_odometry_sigma_rad),
-                                   np.full(3, max(cfg.mono_odometry_sigma_rel * length, 0.01))]
-            elif step is not None and cands["pnp"] is not None and epipolar_agrees(
-                    invert_T(T_prev) @ cands["pnp"], p.feats.uv[ia], feats.uv[ib], self.K):
-                T_init, source = cands["pnp"], "pnp"
-            elif guess is None or guess.inliers < 6 and "icp" not in cands or step is not None:
-                T_init, source = T_prev @ self.velocity, "constant_velocity"
+            if step is not None:  # camera only: the epipolar motion, else PnP if the epipolar test agrees
+                T_init, source, odo_sigmas = self._camera_only_pose(step, T_prev, obj, img, p.feats.uv[ia], feats.uv[ib])
             else:
-                T_init, source = guess.T_world_cam, guess.source
+                cands["pnp"] = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
+                guess = choose_pose(cands, obj, img, self.K, cfg.pnp_reproj_px)
+                if guess is None or guess.inliers < 6 and "icp" not in cands:
+                    T_init, source = T_prev @ self.velocity, "constant_velocity"
+                else:
+                    T_init, source = guess.T_world_cam, guess.source
             T_rel = invert_T(T_prev) @ T_init
             inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px) if len(ia) else np.zeros(0, bool)
             if step is not None and len(ia):  # camera only: the epipolar test picks the matches
@@ -136,6 +131,21 @@ class FrontEnd:
         self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
                           trusted, lidar_uvz, T_rel, odo_sigmas)
+
+    def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
+                          uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:
+        """Initial pose without LiDAR, its source and its between-factor sigmas: the epipolar motion with
+        its filtered step length; where that failed, PnP on the landmarks if its motion passes the
+        epipolar test of the matches; else constant velocity."""
+        cfg = self.cfg
+        if step.scale_source != "constant_speed":
+            length = float(np.linalg.norm(step.T_rel[:3, 3]))
+            sigmas = np.r_[np.full(3, cfg.mono_odometry_sigma_rad), np.full(3, max(cfg.mono_odometry_sigma_rel * length, 0.01))]
+            return T_prev @ step.T_rel, f"epipolar ({step.scale_source})", sigmas
+        T_pnp = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
+        if T_pnp is not None and epipolar_agrees(invert_T(T_prev) @ T_pnp, uv0, uv1, self.K):
+            return T_pnp, "pnp", None
+        return T_prev @ self.velocity, "constant_velocity", None
 
     def _triangulated(self, obj: np.ndarray, T_prev: np.ndarray, T_rel: np.ndarray, uv0: np.ndarray,
                       uv1: np.ndarray, min_angle_deg: float = 1.0) -> np.ndarray:
@@ -172,7 +182,7 @@ def sampson_px(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarra
 def epipolar_agrees(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float = 2.0,
                     min_fraction: float = 0.5) -> bool:
     """Whether most matches satisfy the epipolar geometry of a candidate motion (a PnP pose built on
-    wrong depth does not); a motion too small to define it is judged by the matches' plain distance."""
+    wrong depth does not); a motion too small to define an epipolar geometry is not refused."""
     if len(uv0) < 8:
         return False
     if np.linalg.norm(T_rel[:3, 3]) < 1e-3:

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from leovr.geometry import invert_T
-from odometry.mono_vo import gray, relative_motion
+from odometry.mono_vo import corners, follow, gray, relative_motion
 
 
 @dataclass
@@ -116,10 +116,8 @@ class MonoMotion:
         prev = self.prev_gray
         result = None
         if prev is not None:
-            fresh = cv2.goodFeaturesToTrack(prev, maxCorners=self.max_corners, qualityLevel=0.01, minDistance=7)
-            fresh = np.zeros((0, 2)) if fresh is None else fresh.reshape(-1, 2).astype(np.float64)
             n_old = len(self.carried_uv)
-            p0 = np.r_[self.carried_uv, fresh]
+            p0 = np.r_[self.carried_uv, corners(prev, self.max_corners)]
             result = self._motion(prev, cur, p0, n_old)
         self.prev_gray, self.prev_depth = cur, depth
         self.prev_w = 1.0 / np.maximum(np.exp(log_sigma) / np.maximum(depth, 1e-3), 1e-3) ** 2
@@ -132,10 +130,7 @@ class MonoMotion:
         if len(p0) < 8:
             self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
             return keep_last
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0.astype(np.float32).reshape(-1, 1, 2), None,
-                                             winSize=(21, 21), maxLevel=3)
-        ok = st.ravel() == 1
-        p1 = p1.reshape(-1, 2).astype(np.float64)
+        p1, ok = follow(prev, cur, p0)
         idx = np.nonzero(ok)[0]
         # USAC_ACCURATE (local optimisation) gets the rotation several times closer than plain RANSAC,
         # and a tenth of a degree of rotation is a pixel of the parallax the step length is read from
@@ -145,7 +140,8 @@ class MonoMotion:
             return keep_last
         good = idx[inl]
         R_1_0 = motion[:3, :3].T
-        parallax = float(np.median(rotation_parallax(p0[good], p1[good], R_1_0, self.K)))
+        flow = rotation_parallax(p0[good], p1[good], R_1_0, self.K)
+        parallax = float(np.median(flow))
         if parallax < self.min_parallax_px:  # standing: rotation only, tracks carried on unchanged
             T = np.eye(4)
             T[:3, :3] = motion[:3, :3]
@@ -155,7 +151,7 @@ class MonoMotion:
         z = X[:, 2]
         front = (z > 1e-3) & np.isfinite(z)
         # a corner's triangulated depth is known to about (1 px / its parallax), relatively
-        tri_var = (1.0 / np.maximum(rotation_parallax(p0[good], p1[good], R_1_0, self.K), 0.1)) ** 2
+        tri_var = (1.0 / np.maximum(flow, 0.1)) ** 2
         # absolute: generator depth over unit-step depth
         gd, gw = self._depth_at(p0[good])
         use = front & (gd > 0)
@@ -179,7 +175,8 @@ class MonoMotion:
         T = motion.copy()
         T[:3, 3] *= length
         # carry this step's corners on, with metric depth in the new frame
-        X1 = (X * length) @ invert_T(T)[:3, :3].T + invert_T(T)[:3, 3]
+        T_1_0 = invert_T(T)
+        X1 = (X * length) @ T_1_0[:3, :3].T + T_1_0[:3, 3]
         carry = front & (X1[:, 2] > 0.5)
         self.carried_uv, self.carried_z = p1[good][carry], X1[carry, 2]
         return MonoStep(T, len(good), parallax, source)

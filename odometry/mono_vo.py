@@ -20,14 +20,28 @@ def gray(image: np.ndarray) -> np.ndarray:
     return img
 
 
+def corners(image: np.ndarray, max_corners: int = 2000) -> np.ndarray:
+    """Shi-Tomasi corners of a gray image (N x 2, float64)."""
+    p = cv2.goodFeaturesToTrack(image, maxCorners=max_corners, qualityLevel=0.01, minDistance=7)
+    return np.zeros((0, 2)) if p is None else p.reshape(-1, 2).astype(np.float64)
+
+
+def follow(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where pyramidal Lucas-Kanade finds the points `p0` of `prev` in `cur` (N x 2), and which it found."""
+    if not len(p0):
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0.astype(np.float32).reshape(-1, 1, 2), None,
+                                         winSize=(21, 21), maxLevel=3)
+    return p1.reshape(-1, 2).astype(np.float64), st.ravel() == 1
+
+
 def track(prev: np.ndarray, cur: np.ndarray, max_corners: int = 2000) -> tuple[np.ndarray, np.ndarray]:
     """Corners of `prev` and where Lucas-Kanade finds them in `cur` (N x 2 each, tracked ones only)."""
-    p0 = cv2.goodFeaturesToTrack(prev, maxCorners=max_corners, qualityLevel=0.01, minDistance=7)
-    if p0 is None or len(p0) < 8:
+    p0 = corners(prev, max_corners)
+    if len(p0) < 8:
         return np.zeros((0, 2)), np.zeros((0, 2))
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, winSize=(21, 21), maxLevel=3)
-    ok = st.ravel() == 1
-    return p0.reshape(-1, 2)[ok].astype(np.float64), p1.reshape(-1, 2)[ok].astype(np.float64)
+    p1, ok = follow(prev, cur, p0)
+    return p0[ok], p1[ok]
 
 
 def relative_motion(p0: np.ndarray, p1: np.ndarray, K: np.ndarray, threshold_px: float = 1.0,

@@ -161,6 +161,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     `collect` receives each frame's FrameScore (benchmarks that score subsets of frames).
     `score=False` skips everything that reads ground truth (the self-supervised trainer's pose pass)."""
     from odometry.frontend import FrontEnd
+    from odometry.mono_vo import MonoVO
     from odometry.window_graph import WindowGraph
 
     out = Path(out)
@@ -178,6 +179,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     first = seq[indices[0]]
     K, shape = first.K, first.shape
     front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar)
+    textbook = MonoVO(K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
     graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
     pending: dict[int, np.ndarray] = {}
     replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
@@ -231,6 +233,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 fs.add("nearest", complete_depth(sample.sparse, "nearest"))
         finish(graph.add_frame(fi))
         t3 = time.perf_counter()
+        if textbook is not None:
+            textbook.add(sample.frame.image)
         if i in done:
             continue
         state.sources[i] = front.sources[-1]
@@ -261,11 +265,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     lidar_backed = graph.lidar_backed()
     atomic_write(out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
     baselines = {}
-    if cfg.compare:
-        from odometry.mono_vo import mono_vo_poses
-
-        images = (seq[i].image for i in tqdm(indices, desc="mono_vo (textbook VO)", unit="frame", disable=not progress))
-        baselines["mono_vo"] = mono_vo_poses(images, K)
+    if textbook is not None:
+        baselines["mono_vo"] = np.stack(textbook.poses)
         write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"])
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
