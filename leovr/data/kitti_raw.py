@@ -113,7 +113,7 @@ class KittiRawSequence(FileSequence):
             if no_scan or no_image:
                 warnings.warn(f"{drive}: frames paired by number; skipped {_frames(no_scan)} without a scan"
                               f" and {_frames(no_image)} without an image", stacklevel=2)
-        self._frame_numbers = numbers
+        self._numbers = numbers
         self.image_files = [images[n] for n in numbers]
         self.scan_files = [scans[n] for n in numbers] if self.has_lidar else []
         self.K, self.T_cam_lidar, T_cam_imu = self._read_calibration(drive)
@@ -136,6 +136,10 @@ class KittiRawSequence(FileSequence):
             # world = first camera frame
             self._poses = invert_T(T_w_imu[0] @ T_imu_cam) @ T_w_imu @ T_imu_cam
         self.has_poses = self._poses is not None
+
+    def frame_numbers(self) -> list[int]:
+        """The drive's frame numbers (file names), gaps included."""
+        return list(self._numbers)
 
     def _read_calibration(self, drive: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         c2c_path = _calib_file(drive, "calib_cam_to_cam.txt")

@@ -142,6 +142,9 @@ class NativeSequence(Sequence):
     def timestamps(self) -> np.ndarray:
         return self._times.copy()
 
+    def image_path(self, i: int) -> Path | None:
+        return self.image_files[i]
+
     def _load(self, i: int) -> Frame:
         points = times = None
         if self.has_lidar:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -129,14 +130,30 @@ def check_resumable(out: Path) -> None:
                              "resume into a new output folder")
 
 
+@lru_cache(maxsize=8)
+def _run_record_at(path: Path, stamp: tuple[int, int]) -> dict:
+    return read_json_object(path)
+
+
+def run_record(run: Path) -> dict | None:
+    """A run folder's run.json (None without one), parsed once per version of the file: readers of a
+    run's PNGs ask for it per frame."""
+    path = (Path(run) / RUN_FILE).resolve()
+    if not path.is_file():
+        return None
+    st = path.stat()
+    return _run_record_at(path, (st.st_mtime_ns, st.st_size))
+
+
 def run_depth_scale(run: Path) -> float:
     """Units per metre of the depth PNGs in an output folder (millimetres for folders without run.json)."""
-    path = Path(run) / RUN_FILE
-    if not path.is_file():
+    record = run_record(run)
+    if record is None:
         return LEGACY_DEPTH_SCALE
+    path = Path(run) / RUN_FILE
     try:
-        scale = float(json.loads(path.read_text())["depth_png"]["scale"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        scale = float(record["depth_png"]["scale"])
+    except (ValueError, KeyError, TypeError) as exc:
         raise DataError(path, f"unreadable run description: {exc}") from exc
     if not np.isfinite(scale) or scale <= 0:
         raise DataError(path, f"depth_png.scale must be a positive number, not {scale}")
@@ -152,8 +169,8 @@ def png_name(numbers: list[int], index: int) -> str:
 def run_frame_png(run: Path, folder: str, index: int) -> Path:
     """Where a run folder holds frame `index` (position in its sequence): named by the frame number
     recorded in run.json; folders without one (older runs) by position."""
-    path = Path(run) / RUN_FILE
-    numbers = read_json_object(path).get("frame_numbers") if path.is_file() else None
+    record = run_record(run)
+    numbers = record.get("frame_numbers") if record is not None else None
     if not isinstance(numbers, list) or index >= len(numbers):
         numbers = range(index + 1)
     return Path(run) / folder / png_name(list(numbers), index)

@@ -59,10 +59,13 @@ class Sequence(ABC):
         if seen is None:
             self._image_size = (i, size)
         elif seen[1] != size:
-            files = getattr(self, "image_files", None) or getattr(self, "rgb_files", None)
-            where = files[i] if files else f"{self.path} frame {i}"
+            where = self.image_path(i) or f"{self.path} frame {i}"
             raise DataError(where, f"image is {size[1]}x{size[0]} but frame {seen[0]} of the same sequence is "
                             f"{seen[1][1]}x{seen[1][0]}; one calibration cannot fit both")
+
+    def image_path(self, i: int) -> Path | None:
+        """The image file of frame `i`, for error messages (None for readers without one file per image)."""
+        return None
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
@@ -108,7 +111,6 @@ class FileSequence(Sequence):
     scan_files: list[Path]
     _times: np.ndarray
     _poses: np.ndarray | None
-    _frame_numbers: list[int] | None = None  # readers whose file names number the frames with gaps
     K: np.ndarray
     T_cam_lidar: np.ndarray
 
@@ -118,8 +120,8 @@ class FileSequence(Sequence):
     def timestamps(self) -> np.ndarray:
         return self._times.copy()
 
-    def frame_numbers(self) -> list[int]:
-        return list(self._frame_numbers) if self._frame_numbers is not None else list(range(len(self)))
+    def image_path(self, i: int) -> Path | None:
+        return self.image_files[i]
 
     def _load(self, i: int) -> Frame:
         return Frame(

@@ -112,6 +112,9 @@ class TumRgbdSequence(Sequence):
     def timestamps(self) -> np.ndarray:
         return self._times.copy()
 
+    def image_path(self, i: int) -> Path | None:
+        return self.rgb_files[i]
+
     def _load(self, i: int) -> Frame:
         sensor_depth = read_depth_png(self.depth_files[i], TUM_DEPTH_SCALE)
         points = backproject(sensor_depth, self.K)

@@ -240,8 +240,9 @@ def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, 
                     out[name][f"time_ms/{stage}"] = float(series[stage][k])
     if (run / "landmarks_frame.npy").is_file():
         seen = np.load(run / "landmarks_frame.npy")
+        counts = np.bincount(seen[seen >= 0], minlength=max(indices) + 1) if len(indices) else []
         for i in indices:
-            out[i]["landmarks_last_seen"] = float((seen == i).sum())
+            out[i]["landmarks_last_seen"] = float(counts[i])
     if (run / "loops.json").is_file():
         for r in _json_field(run / "loops.json", "loops"):
             if r.get("accepted") and r.get("frame") in out:
