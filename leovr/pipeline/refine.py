@@ -354,7 +354,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         "sequence": str(Path(seq.path).resolve()), "reader": seq.name, "input": cfg.input if seq.has_lidar else "none (no LiDAR)",
         "input_note": input_label(cfg.input, has_lidar),
         "frames": len(indices), "window": cfg.window,
-        "mode": "visual-LiDAR" if has_lidar else f"vision and depth only ({input_label(cfg.input, has_lidar)})",
+        "mode": "visual-LiDAR" if has_lidar else input_label(cfg.input, has_lidar),
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),
         "depth": {m: a.result() for m, a in accs.items() if a._gt},
         "timing": {k: v for k, v in timing.items() if k != "series"},  # the series is in timing.json
