@@ -149,7 +149,12 @@ class RefineConfig(FrameSelection):
     @field_validator("input")
     @classmethod
     def _check_input(cls, v: str) -> str:
-        return "none" if v.strip().lower() == "none" else str(parse_input(v))
+        if v.strip().lower() == "none":
+            return "none"
+        try:
+            return str(parse_input(v))
+        except ValueError:
+            raise ValueError(f"unknown input '{v}' (choose full, vlp16, mid40, ratio:R or none)") from None
 
 
 class BenchRefineConfig(_Model):
