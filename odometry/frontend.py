@@ -51,7 +51,7 @@ class FrontEnd:
     sources: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.icp = LidarOdometry(self.T_cam_lidar) if self.use_lidar else None
+        self.icp = LidarOdometry(self.T_cam_lidar, cov_inflation=self.cfg.icp_cov_inflation) if self.use_lidar else None
         self.mono = None if self.use_lidar else MonoMotion(self.K, self.cfg.mono_depth_sigma_log,
                                                              self.cfg.mono_track_sigma_log, self.cfg.mono_speed_sigma_log)
 
@@ -83,7 +83,7 @@ class FrontEnd:
         new_landmarks: dict[int, np.ndarray] = {}
         trusted = None
         step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
-        odo_sigmas = None
+        odo_cov = None
         if self.prev is None:
             T_init, source, T_rel = np.eye(4), "first", None
         else:
@@ -96,7 +96,7 @@ class FrontEnd:
             if T_icp is not None and p.T_icp is not None:
                 cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
             if step is not None:  # camera only: the epipolar motion, else PnP if the epipolar test agrees
-                T_init, source, odo_sigmas = self._camera_only_pose(step, T_prev, obj, img, p.feats.uv[ia], feats.uv[ib])
+                T_init, source, odo_cov = self._camera_only_pose(step, T_prev, obj, img, p.feats.uv[ia], feats.uv[ib])
             else:
                 cands["pnp"] = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
                 guess = choose_pose(cands, obj, img, self.K, cfg.pnp_reproj_px)
@@ -129,19 +129,20 @@ class FrontEnd:
             lidar_uvz = np.stack([lu, lv, sparse[lv, lu]], 1).astype(float)
         rel_sigma = np.exp(log_sigma) / np.maximum(depth, 1e-3)
         self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
+        icp_pose = (T_icp, self.icp.covariance) if T_icp is not None and self.icp.covariance is not None else None
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
-                          trusted, lidar_uvz, T_rel, odo_sigmas)
+                          trusted, lidar_uvz, T_rel, odo_cov, icp_pose)
 
     def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
                           uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:
-        """Initial pose without LiDAR, its source and its between-factor sigmas: the epipolar motion with
+        """Initial pose without LiDAR, its source and its between-factor covariance: the epipolar motion with
         its filtered step length; where that failed, PnP on the landmarks if its motion passes the
         epipolar test of the matches; else constant velocity."""
         cfg = self.cfg
         if step.scale_source != "constant_speed":
             length = float(np.linalg.norm(step.T_rel[:3, 3]))
             sigmas = np.r_[np.full(3, cfg.mono_odometry_sigma_rad), np.full(3, max(cfg.mono_odometry_sigma_rel * length, 0.01))]
-            return T_prev @ step.T_rel, f"epipolar ({step.scale_source})", sigmas
+            return T_prev @ step.T_rel, f"epipolar ({step.scale_source})", np.diag(sigmas**2)
         T_pnp = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
         if T_pnp is not None and epipolar_agrees(invert_T(T_prev) @ T_pnp, uv0, uv1, self.K):
             return T_pnp, "pnp", None

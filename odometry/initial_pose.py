@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import gtsam
 import numpy as np
 
 from leovr.data.io import MIN_SCAN_POINTS
@@ -22,9 +23,10 @@ class PoseGuess:
 
 class LidarOdometry:
     """KISS-ICP on raw scans (deskew off: our scans are deskewed before, or carry no times), reported
-    as camera poses in the world frame of the first camera."""
+    as camera poses in the world frame of the first camera, each with the covariance of its
+    registration (`covariance`)."""
 
-    def __init__(self, T_cam_lidar: np.ndarray, max_range: float = 100.0) -> None:
+    def __init__(self, T_cam_lidar: np.ndarray, max_range: float = 100.0, cov_inflation: float = 1.0) -> None:
         from kiss_icp.config import KISSConfig
         from kiss_icp.kiss_icp import KissICP
 
@@ -33,19 +35,68 @@ class LidarOdometry:
         cfg.data.max_range = max_range
         cfg.data.min_range = 1.0
         cfg.mapping.voxel_size = max_range / 100.0
+        cfg.registration.max_num_threads = 1  # deterministic (a parallel reduction sums in a varying order) and no slower on 2 cores
         self.icp = KissICP(cfg)
         self.T_cl = T_cam_lidar
+        self.cov_inflation = cov_inflation
         self.frames = 0
+        self.covariance: np.ndarray | None = None  # 6 x 6, camera frame, gtsam Pose3 order (rotation, translation)
 
     def register(self, points: np.ndarray) -> np.ndarray | None:
         """Camera pose (camera to world) after registering this scan, or None when it has too few points."""
         xyz = np.ascontiguousarray(points[:, :3], np.float64)
+        self.covariance = None
         if len(xyz) < MIN_SCAN_POINTS:
             return None
-        self.icp.register_frame(xyz, np.array([]))
+        local_map = self.icp.local_map.point_cloud() if self.frames else None  # before this scan joins it
+        _, source = self.icp.register_frame(xyz, np.array([]))
         self.frames += 1
         T_l0_l = self.icp.last_pose
+        if local_map is None:  # the first scan defines the map's frame: its pose is exact
+            self.covariance = np.zeros((6, 6))
+        else:
+            cov_l = registration_covariance(source, local_map, T_l0_l, 3.0 * self.icp.adaptive_threshold.get_threshold())
+            if cov_l is not None:
+                Ad = gtsam.Pose3(self.T_cl).AdjointMap()
+                self.covariance = self.cov_inflation * (Ad @ cov_l @ Ad.T)
         return self.T_cl @ T_l0_l @ invert_T(self.T_cl)
+
+
+def registration_covariance(source: np.ndarray, target: np.ndarray, T: np.ndarray, max_dist: float) -> np.ndarray | None:
+    """Covariance (6 x 6, body frame, rotation then translation) of the point-to-point alignment T of
+    `source` onto `target`: the inverse Gauss-Newton Hessian of the matched residuals, scaled by their
+    variance. A poor fit (large residuals), few matches or a narrow spread of points (a Mid-40 cone:
+    little lever arm for the rotation about its axis) give a large covariance. Point-to-point: it
+    does not see surfaces that leave a direction free (a plane, a corridor). It assumes independent
+    residuals, so it is over-confident by a roughly constant factor that the caller calibrates
+    (`icp_cov_inflation`). None with fewer than 30 matches."""
+    from scipy.spatial import cKDTree
+
+    if len(source) < 30 or len(target) < 30:
+        return None
+    q = source @ T[:3, :3].T + T[:3, 3]
+    d, j = cKDTree(target).query(q, distance_upper_bound=max_dist)
+    ok = np.isfinite(d)
+    if ok.sum() < 30:
+        return None
+    p, r = source[ok], q[ok] - target[j[ok]]
+    var = max(float(np.mean(np.sum(r**2, axis=1))) / 3.0, 1e-8)
+    # d(T exp(xi) p) / d xi = R [-[p]x | I]; R drops out of J^T J
+    S = np.sum(p, axis=0)
+    PP = p.T @ p
+    H = np.zeros((6, 6))
+    H[:3, :3] = np.trace(PP) * np.eye(3) - PP  # sum [p]x^T [p]x
+    H[:3, 3:] = _skew(S)  # sum -[p]x^T = sum [p]x
+    H[3:, :3] = H[:3, 3:].T
+    H[3:, 3:] = len(p) * np.eye(3)
+    try:
+        return np.linalg.inv(H / var)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
 def pnp_pose(obj: np.ndarray, img: np.ndarray, K: np.ndarray, reproj_px: float = 2.0) -> tuple[np.ndarray | None, np.ndarray]:

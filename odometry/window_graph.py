@@ -63,7 +63,8 @@ class FrameInput:
     trusted: np.ndarray | None  # H x W bool: where depth consistency may be sampled
     lidar_uvz: np.ndarray | None  # M x 3: the frame's own LiDAR returns (u, v, depth)
     T_prev_rel: np.ndarray | None = None  # front-end motion from the previous frame
-    odometry_sigmas: np.ndarray | None = None  # its sigmas (rotation rad x3, translation m x3); None: the config's weak ones
+    odometry_cov: np.ndarray | None = None  # its 6 x 6 covariance (rotation rad, translation m); None: the config's weak sigmas
+    icp_pose: tuple[np.ndarray, np.ndarray] | None = None  # KISS-ICP's pose (camera to world) and its 6 x 6 covariance
 
 
 @dataclass
@@ -102,6 +103,7 @@ class WindowGraph:
         self.landmark_frame: dict[int, int] = {}  # the latest frame that observed each landmark
         self.landmark_lidar: set[int] = set()  # landmarks with at least one LiDAR point factor
         self.pairs: list[_Pair] = []
+        self.icp_poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.last: int | None = None
 
     # ----------------------------------------------------------------- factors of one new frame
@@ -112,11 +114,13 @@ class WindowGraph:
             graph.add(gtsam.PriorFactorPose3(X(f.index), gtsam.Pose3(f.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
         else:
             rel = f.T_prev_rel if f.T_prev_rel is not None else invert_T(self.poses[self.last]) @ f.T_init
-            sigmas = f.odometry_sigmas
-            if sigmas is None:
-                sigmas = np.r_[np.full(3, cfg.odometry_sigma_rad), np.full(3, cfg.odometry_sigma_m)]
-            noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+            if f.odometry_cov is not None:
+                noise = gtsam.noiseModel.Gaussian.Covariance(f.odometry_cov)
+            else:
+                noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, cfg.odometry_sigma_rad), np.full(3, cfg.odometry_sigma_m)])
             graph.add(gtsam.BetweenFactorPose3(X(self.last), X(f.index), gtsam.Pose3(rel), noise))
+        if f.icp_pose is not None:
+            self._icp_factors(f.index, *f.icp_pose, graph)
         fd = FrameDepth(f.log_depth, self.grid)
         self.depths[f.index] = fd
         values.insert(C(f.index), np.zeros(self.grid.size))
@@ -146,6 +150,21 @@ class WindowGraph:
             self._resample(pair)
             self.pairs.append(pair)
             graph.add(consistency_factor(dc, [X(f.index), X(self.last), C(f.index), C(self.last)]))
+
+    def _icp_factors(self, i: int, T: np.ndarray, cov: np.ndarray, graph: gtsam.NonlinearFactorGraph) -> None:
+        """KISS-ICP as the pose prior. `window`: its motion from every frame still in the window to this
+        one (KISS-ICP registers against a local map, so its motion over several frames is as precise
+        as over one: chaining only consecutive motions would lose that and drift); `pose`: its absolute
+        pose; covariances from the registration (`LidarOdometry.covariance`)."""
+        mode = self.cfg.icp_prior
+        if mode == "pose" and self.last is not None:
+            graph.add(gtsam.PriorFactorPose3(X(i), gtsam.Pose3(T), gtsam.noiseModel.Gaussian.Covariance(cov)))
+        if mode == "window":
+            self.icp_poses = {j: v for j, v in self.icp_poses.items() if j in self.poses}
+            for j, (Tj, cov_j) in self.icp_poses.items():
+                graph.add(gtsam.BetweenFactorPose3(X(j), X(i), gtsam.Pose3(invert_T(Tj) @ T),
+                                                   gtsam.noiseModel.Gaussian.Covariance(cov + cov_j)))
+            self.icp_poses[i] = (T, cov)
 
     def _resample(self, pair: _Pair) -> None:
         u, v = pair.trusted_uv

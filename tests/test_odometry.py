@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from leovr.geometry import make_T
 from odometry.depth_field import CorrectionGrid, bilinear
 from odometry.factors import DepthConsistency, FrameDepth
-from odometry.initial_pose import choose_pose, pnp_pose
+from odometry.initial_pose import choose_pose, pnp_pose, registration_covariance
 from odometry.lidar_assoc import associate
 
 K = np.array([[200.0, 0, 79.5], [0, 200.0, 59.5], [0, 0, 1]])
@@ -86,3 +86,41 @@ def test_depth_consistency_vanishes_for_true_geometry_and_jacobians_match_numeri
 def test_bilinear_matches_linear_ramp():
     img = np.add.outer(np.arange(5.0), 10 * np.arange(6.0))  # v + 10 u
     assert np.allclose(bilinear(img, np.array([2.5, 0.0]), np.array([1.25, 3.0])), [1.25 + 25, 3.0])
+
+
+def test_registration_covariance_grows_with_residuals_and_a_narrow_spread_of_points():
+    rng = np.random.default_rng(0)
+
+    def cov(pts, noise):
+        return registration_covariance(pts, pts + rng.normal(0, noise, pts.shape), np.eye(4), 1.0)
+
+    wide = rng.uniform(-20, 20, (2000, 3))
+    narrow = np.c_[rng.uniform(-1, 1, (2000, 2)), rng.uniform(10, 30, 2000)]  # a thin cone ahead
+    c_wide, c_noisy, c_narrow = cov(wide, 0.02), cov(wide, 0.1), cov(narrow, 0.02)
+    assert np.all(np.linalg.eigvalsh(c_wide) > 0)
+    assert 15 < c_noisy[3, 3] / c_wide[3, 3] < 40  # variance goes with the residuals' (25x here)
+    assert c_narrow[2, 2] > 100 * c_wide[2, 2]  # roll about the cone's axis: hardly any lever arm
+    assert cov(wide[:20], 0.02) is None  # too few matches
+
+
+def test_icp_window_factors_make_the_graph_follow_the_lidar_motion():
+    """Frames with no visual factor at all: the ICP motions inside the window must carry the graph
+    along the LiDAR trajectory (not the weak front-end motion, which is wrong here)."""
+    from leovr.config import RefineConfig
+    from odometry.window_graph import FrameInput, WindowGraph
+
+    cfg = RefineConfig(window=4, depth_factors=False, icp_prior="window")
+    graph = WindowGraph(cfg, K, SHAPE)
+    truth = [make_T(Rotation.from_rotvec([0, 0.01 * i, 0]).as_matrix(), [0.1 * i, 0, 1.0 * i]) for i in range(8)]
+    cov = np.diag(np.r_[np.full(3, 1e-3), np.full(3, 0.02)] ** 2)
+    done = []
+    for i, T in enumerate(truth):
+        wrong = make_T(t=[0, 0, 0.5 * i])  # the front end's guess: half speed, no turn
+        rel = None if i == 0 else np.linalg.inv(make_T(t=[0, 0, 0.5 * (i - 1)])) @ wrong
+        f = FrameInput(i, wrong, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel, None,
+                       (T, np.zeros((6, 6)) if i == 0 else cov))
+        done += graph.add_frame(f)
+    done += graph.flush()
+    est = {r.index: r.T_world_cam for r in done}
+    err = max(np.linalg.norm(est[i][:3, 3] - truth[i][:3, 3]) for i in range(8))
+    assert err < 0.1, err

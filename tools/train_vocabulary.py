@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """Train the ORB bag-of-words vocabulary shipped as odometry/loop/vocabulary.npz, on simulator training
-frames (never the test seeds) and the shared real clips, with a JSON note of how it was made.
+frames only (never the validation or test seeds, never the shared real clips that the benchmarks
+score), with a JSON note of how it was made. `--with-real` adds the shared KITTI clips, which then
+count as seen data for loop closure.
 
-    .venv/bin/python tools/train_vocabulary.py [--frames-per-seq 10] [--k 10] [--levels 4]
+    .venv/bin/python tools/train_vocabulary.py [--frames-per-seq 10] [--k 10] [--levels 4] [--with-real]
 """
 
 from __future__ import annotations
@@ -29,10 +31,12 @@ def main() -> None:
     ap.add_argument("--frames-per-seq", type=int, default=10)
     ap.add_argument("--k", type=int, default=10)
     ap.add_argument("--levels", type=int, default=4)
+    ap.add_argument("--with-real", action="store_true", help="also the shared KITTI clips (seen data)")
     ap.add_argument("--out", type=Path, default=shipped_vocabulary())
     args = ap.parse_args()
     paths = [e["path"] for e in split_entries(args.dataset, "train") if e["light"] == "day"]
-    paths += [p for p in (kitti_raw_dir(), kitti_odometry_dir()) if p.exists()]
+    if args.with_real:
+        paths += [p for p in (kitti_raw_dir(), kitti_odometry_dir()) if p.exists()]
     docs = []
     for p in paths:
         seq = open_sequence(p)
@@ -42,7 +46,8 @@ def main() -> None:
     t0 = time.time()
     voc = Vocabulary.train(desc, args.k, args.levels, seed=0, docs=docs)
     voc.save(args.out)
-    note = {"command": "tools/train_vocabulary.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k != "out"),
+    note = {"command": "tools/train_vocabulary.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k not in ("out", "with_real"))
+            + (" --with-real" if args.with_real else ""), "real_clips_seen": bool(args.with_real),
             "sources": [str(p) for p in paths], "images": len(docs), "descriptors": int(len(desc)),
             "k": args.k, "levels": args.levels, "words": voc.words, "train_s": round(time.time() - t0, 1)}
     write_text(args.out.with_suffix(".json"), json.dumps(note, indent=2) + "\n")
