@@ -41,12 +41,13 @@ def main() -> None:
         n = min(len(seq), a.frames or len(seq))
         with tempfile.TemporaryDirectory() as tmp:
             m = run_refine(seq, cfg.model_copy(update={"end": n}), Path(tmp), progress=False)
-        t = m["trajectory"]
+        t = m.get("trajectory", {})
         row = {"sequence": Path(path).name, "frames": n,
                **{k: round(t[k]["ate_m"], 3) for k in ("leovr", "kiss_icp", "mono_vo") if k in t}}
         if "kiss_icp" in t:
             row["ratio"] = round(t["leovr"]["ate_m"] / max(t["kiss_icp"]["ate_m"], 1e-9), 2)
             ratios.append(row["ratio"])
+        row["ms"] = {k: round(v["median"]) for k, v in m["timing"]["stats"].items()}
         if "refined" in m.get("depth", {}):
             row["refined_mae"] = round(m["depth"]["refined"]["mae_m"], 3)
         print(json.dumps(row), flush=True)
