@@ -129,7 +129,9 @@ class FrontEnd:
             lidar_uvz = np.stack([lu, lv, sparse[lv, lu]], 1).astype(float)
         rel_sigma = np.exp(log_sigma) / np.maximum(depth, 1e-3)
         self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
-        icp_pose = (T_icp, self.icp.covariance) if T_icp is not None and self.icp.covariance is not None else None
+        icp_pose = None  # KISS-ICP as the graph's pose prior: spinning LiDARs only (a Mid-40 cone misleads it)
+        if T_icp is not None and self.icp.covariance is not None and self.icp.spinning:
+            icp_pose = (T_icp, self.icp.covariance)
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
                           trusted, lidar_uvz, T_rel, odo_cov, icp_pose)
 

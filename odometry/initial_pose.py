@@ -41,6 +41,7 @@ class LidarOdometry:
         self.cov_inflation = cov_inflation
         self.frames = 0
         self.covariance: np.ndarray | None = None  # 6 x 6, camera frame, gtsam Pose3 order (rotation, translation)
+        self.spinning: bool | None = None  # a 360-degree scanner (VLP-16, HDL-64), from the first scan
 
     def register(self, points: np.ndarray) -> np.ndarray | None:
         """Camera pose (camera to world) after registering this scan, or None when it has too few points."""
@@ -48,6 +49,8 @@ class LidarOdometry:
         self.covariance = None
         if len(xyz) < MIN_SCAN_POINTS:
             return None
+        if self.spinning is None:
+            self.spinning = is_spinning(xyz)
         local_map = self.icp.local_map.point_cloud() if self.frames else None  # before this scan joins it
         _, source = self.icp.register_frame(xyz, np.array([]))
         self.frames += 1
@@ -60,6 +63,15 @@ class LidarOdometry:
                 Ad = gtsam.Pose3(self.T_cl).AdjointMap()
                 self.covariance = self.cov_inflation * (Ad @ cov_l @ Ad.T)
         return self.T_cl @ T_l0_l @ invert_T(self.T_cl)
+
+
+def is_spinning(xyz: np.ndarray, sectors: int = 12) -> bool:
+    """Whether a scan comes from a spinning LiDAR: returns in most of the azimuth sectors around the
+    sensor (a Mid-40's 38-degree cone fills one or two of twelve; a VLP-16 or HDL-64 sweep nearly all,
+    less what the car body hides)."""
+    az = np.arctan2(xyz[:, 1], xyz[:, 0])
+    counts = np.bincount(((az + np.pi) / (2 * np.pi) * sectors).astype(int) % sectors, minlength=sectors)
+    return bool(np.mean(counts >= max(5, 0.002 * len(xyz))) >= 0.5)
 
 
 def registration_covariance(source: np.ndarray, target: np.ndarray, T: np.ndarray, max_dist: float) -> np.ndarray | None:

@@ -124,3 +124,14 @@ def test_icp_window_factors_make_the_graph_follow_the_lidar_motion():
     est = {r.index: r.T_world_cam for r in done}
     err = max(np.linalg.norm(est[i][:3, 3] - truth[i][:3, 3]) for i in range(8))
     assert err < 0.1, err
+
+
+def test_spinning_lidar_told_from_a_narrow_cone():
+    from odometry.initial_pose import is_spinning
+
+    rng = np.random.default_rng(0)
+    az = rng.uniform(-np.pi, np.pi, 20000)
+    sweep = np.c_[20 * np.cos(az), 20 * np.sin(az), rng.uniform(-2, 2, 20000)]
+    x = rng.uniform(5, 60, 5000)  # a 38-degree cone ahead
+    cone = np.c_[x, x * rng.uniform(-0.35, 0.35, 5000), x * rng.uniform(-0.35, 0.35, 5000)]
+    assert is_spinning(sweep) and not is_spinning(cone)
