@@ -66,3 +66,15 @@ def back_project(uv: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Camera-frame 3D points (N x 3) of pixels `uv` (N x 2) at depths `z` (N)."""
     rays = np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(K).T
     return rays * np.asarray(z, np.float64)[:, None]
+
+
+def skew(t: np.ndarray) -> np.ndarray:
+    """The cross-product matrix [t]x (t x v = [t]x v)."""
+    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+
+
+def fundamental(T_j_i: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """F with p_j^T F p_i = 0 for a static point seen at p_i in frame i and p_j in frame j (LeoVR
+    eq. 18); T_j_i maps camera-i coordinates into camera j."""
+    Ki = np.linalg.inv(K)
+    return Ki.T @ skew(T_j_i[:3, 3]) @ T_j_i[:3, :3] @ Ki

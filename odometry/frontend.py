@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from leovr.config import RefineConfig
-from leovr.geometry import back_project, invert_T
+from leovr.geometry import back_project, fundamental, invert_T
 from odometry.features import Features, detect, match
 from odometry.initial_pose import (
     LidarOdometry,
@@ -130,7 +130,7 @@ class FrontEnd:
         rel_sigma = np.exp(log_sigma) / np.maximum(depth, 1e-3)
         self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
         icp_pose = None  # KISS-ICP as the graph's pose prior: spinning LiDARs only (a Mid-40 cone misleads it)
-        if T_icp is not None and self.icp.covariance is not None and self.icp.spinning:
+        if T_icp is not None and cfg.icp_prior != "off" and self.icp.spinning and self.icp.covariance is not None:
             icp_pose = (T_icp, self.icp.covariance)
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
                           trusted, lidar_uvz, T_rel, odo_cov, icp_pose)
@@ -169,11 +169,7 @@ class FrontEnd:
 def sampson_px(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray) -> np.ndarray:
     """First-order distance (pixels) of each match from the epipolar geometry of the motion T_rel
     (pose of the second camera in the first)."""
-    T_1_0 = invert_T(T_rel)
-    t = T_1_0[:3, 3]
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    Kinv = np.linalg.inv(K)
-    F = Kinv.T @ tx @ T_1_0[:3, :3] @ Kinv
+    F = fundamental(invert_T(T_rel), K)
     x0 = np.c_[uv0, np.ones(len(uv0))]
     x1 = np.c_[uv1, np.ones(len(uv1))]
     Fx0, Ftx1 = x0 @ F.T, x1 @ F

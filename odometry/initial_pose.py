@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 
 from leovr.data.io import MIN_SCAN_POINTS
-from leovr.geometry import invert_T
+from leovr.geometry import invert_T, skew
 
 
 @dataclass
@@ -40,13 +40,14 @@ class LidarOdometry:
         self.T_cl = T_cam_lidar
         self.cov_inflation = cov_inflation
         self.frames = 0
-        self.covariance: np.ndarray | None = None  # 6 x 6, camera frame, gtsam Pose3 order (rotation, translation)
         self.spinning: bool | None = None  # a 360-degree scanner (VLP-16, HDL-64), from the first scan
+        self._fit: tuple | None = None  # the last registration's inputs, for `covariance` (computed on demand)
+        self._covariance: np.ndarray | None = None
 
     def register(self, points: np.ndarray) -> np.ndarray | None:
         """Camera pose (camera to world) after registering this scan, or None when it has too few points."""
         xyz = np.ascontiguousarray(points[:, :3], np.float64)
-        self.covariance = None
+        self._fit, self._covariance = None, None
         if len(xyz) < MIN_SCAN_POINTS:
             return None
         if self.spinning is None:
@@ -55,14 +56,23 @@ class LidarOdometry:
         _, source = self.icp.register_frame(xyz, np.array([]))
         self.frames += 1
         T_l0_l = self.icp.last_pose
-        if local_map is None:  # the first scan defines the map's frame: its pose is exact
-            self.covariance = np.zeros((6, 6))
-        else:
-            cov_l = registration_covariance(source, local_map, T_l0_l, 3.0 * self.icp.adaptive_threshold.get_threshold())
-            if cov_l is not None:
-                Ad = gtsam.Pose3(self.T_cl).AdjointMap()
-                self.covariance = self.cov_inflation * (Ad @ cov_l @ Ad.T)
+        self._fit = (source, local_map, T_l0_l, 3.0 * self.icp.adaptive_threshold.get_threshold())
         return self.T_cl @ T_l0_l @ invert_T(self.T_cl)
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """6 x 6 covariance of the last registered pose (camera frame, gtsam Pose3 order: rotation,
+        translation), x `cov_inflation`; zero for the first scan (it defines the map's frame); None
+        without a registration or with too few matches. Computed on first use (a KD-tree query)."""
+        if self._covariance is None and self._fit is not None:
+            source, local_map, T_l0_l, max_dist = self._fit
+            if local_map is None:
+                self._covariance = np.zeros((6, 6))
+            elif (cov_l := registration_covariance(source, local_map, T_l0_l, max_dist)) is not None:
+                Ad = gtsam.Pose3(self.T_cl).AdjointMap()
+                self._covariance = self.cov_inflation * (Ad @ cov_l @ Ad.T)
+            self._fit = None
+        return self._covariance
 
 
 def is_spinning(xyz: np.ndarray, sectors: int = 12) -> bool:
@@ -98,17 +108,13 @@ def registration_covariance(source: np.ndarray, target: np.ndarray, T: np.ndarra
     PP = p.T @ p
     H = np.zeros((6, 6))
     H[:3, :3] = np.trace(PP) * np.eye(3) - PP  # sum [p]x^T [p]x
-    H[:3, 3:] = _skew(S)  # sum -[p]x^T = sum [p]x
+    H[:3, 3:] = skew(S)  # sum -[p]x^T = sum [p]x
     H[3:, :3] = H[:3, 3:].T
     H[3:, 3:] = len(p) * np.eye(3)
     try:
         return np.linalg.inv(H / var)
     except np.linalg.LinAlgError:
         return None
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
 def pnp_pose(obj: np.ndarray, img: np.ndarray, K: np.ndarray, reproj_px: float = 2.0) -> tuple[np.ndarray | None, np.ndarray]:

@@ -8,6 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from leovr.geometry import fundamental
+
 
 def _gray(image: np.ndarray) -> np.ndarray:
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
@@ -22,18 +24,6 @@ def dense_flow(image_i: np.ndarray, image_j: np.ndarray, method: str = "dis") ->
     if method == "farneback":
         return cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 4, 21, 5, 7, 1.5, 0)
     raise ValueError(f"flow method must be 'dis' or 'farneback', not '{method}'")
-
-
-def skew(t: np.ndarray) -> np.ndarray:
-    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-
-
-def fundamental(T_j_i: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """F with p_j^T F p_i = 0 for a static point seen at p_i in frame i and p_j in frame j (eq. 18);
-    T_j_i maps camera-i coordinates into camera j."""
-    E = skew(T_j_i[:3, 3]) @ T_j_i[:3, :3]
-    Ki = np.linalg.inv(K)
-    return Ki.T @ E @ Ki
 
 
 def epipolar_distance(flow: np.ndarray, F: np.ndarray) -> np.ndarray:
