@@ -268,6 +268,27 @@ def bench_loop(
     typer.echo(f"-> {out}")
 
 
+@bench_app.command("speed")
+def bench_speed(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    quick: bool = typer.Option(False, help="12 rendered and 12 KITTI frames."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Time per frame of refine per stage (median / p95 / max), frames per second, the graph's growth
+    along a 200-frame drive, with the same run's MAE / ATE and IP-Basic's time as the yard stick."""
+    from leovr.bench.speed import run_speed_bench
+
+    doc = run_speed_bench(out, load_config(config).bench_speed, quick)
+    for key, r in doc["results"].items():
+        ms = r["ms_per_frame"]
+        stages = "  ".join(f"{k[:-3]} {v['median']:.0f}/{v['p95']:.0f}" for k, v in ms.items())
+        typer.echo(f"{key:26s} ms/frame median/p95: {stages}  ({r['fps_wall']:.2f} frames/s wall,"
+                   f" graph growth {r['growth']['graph_ms']}, IP-Basic {r['ipbasic_ms_per_frame']:.1f} ms)")
+    for name, met in doc["targets_met"].items():
+        typer.echo(f"target {name}: {'met' if met else 'not met'}")
+    typer.echo(f"-> {out}")
+
+
 @app.command()
 def train(
     sequences: Optional[list[Path]] = typer.Argument(None, help="Raw sequence folders (--mode selfsup)."),

@@ -188,6 +188,22 @@ class BenchLoopConfig(_Model):
     kitti_odometry: str | None = None
 
 
+class BenchSpeedConfig(_Model):
+    """`leovr bench speed`: time per frame of `leovr refine`, per stage, on a long rendered drive and the
+    KITTI raw clip, with the same run's accuracy and IP-Basic's time as the machine's yard stick."""
+
+    frames: int = Field(200, ge=10)  # rendered 448 x 256 drive
+    scenario: Literal["city_loop", "straight", "dynamic"] = "city_loop"
+    lidar: Literal["mid40", "vlp16"] = "mid40"
+    seed: int = 3200  # a drive used for nothing else
+    kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
+    kitti_input: str = "vlp16"
+    quick_frames: int = Field(12, ge=4)  # --quick: this many rendered and KITTI frames
+    target_ms_448: float = 100.0  # end to end, median per frame
+    target_ms_kitti: float = 250.0
+    target_graph_p95_over_median: float = 1.5
+
+
 class TrainConfig(_Model):
     """`leovr train --mode supervised`: the depth generator on simulator splits (LeoVR Sec. V-A defaults)."""
 
@@ -338,6 +354,7 @@ class LeovrConfig(_Model):
     refine: RefineConfig = RefineConfig()
     bench_refine: BenchRefineConfig = BenchRefineConfig()
     bench_loop: BenchLoopConfig = BenchLoopConfig()
+    bench_speed: BenchSpeedConfig = BenchSpeedConfig()
     selfsup: SelfSupConfig = SelfSupConfig()
     adapt: AdaptConfig = AdaptConfig()
     bench_real: BenchRealConfig = BenchRealConfig()

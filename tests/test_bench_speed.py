@@ -1,0 +1,38 @@
+"""`leovr bench speed` on a short rendered drive (no KITTI): the stage statistics come from the run's
+own per-frame series, and speed is reported with the same run's accuracy."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from leovr.bench.speed import growth, run_speed_bench
+from leovr.config import BenchSpeedConfig
+
+
+def test_growth_is_one_for_a_flat_series_and_grows_with_a_rising_one():
+    assert growth([10.0] * 40) == pytest.approx(1.0)
+    assert growth(list(range(1, 41))) == pytest.approx(35.5 / 15.5, rel=0.05)  # last quarter over second
+    assert growth([1.0] * 5) is None  # too short to say
+
+
+def test_bench_speed_contract(tmp_path):
+    cfg = BenchSpeedConfig(quick_frames=8, kitti_raw=str(tmp_path / "absent"))
+    doc = run_speed_bench(tmp_path / "s.json", cfg, quick=True, progress=False)
+    assert json.loads((tmp_path / "s.json").read_text())["benchmark"] == "speed"
+    assert list(doc["results"]) == ["synthetic_mid40_448x256"]  # KITTI skipped: absent
+    r = doc["results"]["synthetic_mid40_448x256"]
+    assert r["frames"] == 8 and (r["width"], r["height"]) == (448, 256)
+    ms = r["ms_per_frame"]
+    for stage in ("generator_ms", "frontend_ms", "graph_ms", "total_ms"):
+        assert 0 < ms[stage]["median"] <= ms[stage]["p95"] <= ms[stage]["max"]
+    # the sum's median is at least the largest stage median and at most the sum of the stage maxima
+    assert max(ms[s]["median"] for s in ("generator_ms", "frontend_ms", "graph_ms")) <= ms["total_ms"]["median"] + 0.01
+    assert ms["total_ms"]["max"] <= sum(ms[s]["max"] for s in ("generator_ms", "frontend_ms", "graph_ms")) + 0.01
+    assert r["fps_stages"] == pytest.approx(1000.0 / ms["total_ms"]["median"], rel=1e-2)
+    assert 0 < r["fps_wall"] < r["fps_stages"]  # the wall clock also reads, scores and writes
+    assert r["ipbasic_ms_per_frame"] > 0 and r["total_over_ipbasic"] > 1
+    assert r["mae_m"]["refined"] > 0 and r["ate_m"]["leovr"] >= 0
+    assert set(doc["targets_met"]) == {"synthetic_mid40_448x256_total_median_ms<=100",
+                                       "synthetic_mid40_448x256_graph_p95/median<=1.5"}
