@@ -19,5 +19,5 @@ def test_bench_refine_contract(tmp_path):
         assert r["n"] > 3 * 4 * 100_000 and set(r["bins"]) and len(r["per_sequence_mae_m"]) == 3  # 3 scenarios
     traj = doc["trajectory"]["synthetic_mid40"]
     assert traj["leovr"]["ate_m"] > 0 and traj["kiss_icp"]["ate_m"] > 0
-    assert set(doc["timing"]) == {"generator_ms", "frontend_ms", "graph_ms"}
+    assert set(doc["timing"]) == {"generator_ms", "frontend_ms", "graph_ms", "output_ms"}
     assert set(doc["window_ablation"]["results"]) == {"2", "3"}

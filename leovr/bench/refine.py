@@ -19,7 +19,7 @@ from leovr.data import open_sequence
 from leovr.depth.dataset import split_entries
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.paths import kitti_odometry_dir, kitti_raw_dir
-from leovr.pipeline.refine import run_refine
+from leovr.pipeline.refine import TIMED, run_refine
 from leovr.sim.dataset import Recipe, default_root, make_dataset
 
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
@@ -82,7 +82,7 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
         if odo.exists():
             m = refine(odo, base, "kitti_odometry")
             trajectory["kitti_odometry"] = {k: {kk: m["trajectory"][k][kk] for kk in TRAJ_KEYS} for k in ("mono_vo", "leovr")}
-    for k in ("generator_ms", "frontend_ms", "graph_ms"):
+    for k in TIMED:
         timing[k] = float(np.mean([r["timing"][k] for r in all_runs]))
     body = {"quick": quick, "synthetic_dataset": str(root), "frames_per_sequence": frames, "window": cfg.window,
             "results": results, "trajectory": trajectory, "timing": timing,

@@ -102,7 +102,9 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
     return EvalSample(f, empty, empty, "none", None)
 
 
-TIMED = ("generator_ms", "frontend_ms", "graph_ms")  # per frame, in timing.json as means
+# per frame, in timing.json as means: the generator (prior included), the front end, the graph update, and the
+# writing of the frames that left the window (depth PNGs, progress.json); the baselines beside them are not timed
+TIMED = ("generator_ms", "frontend_ms", "graph_ms", "output_ms")
 SCORED = ("nearest", "ipbasic", "generator", "refined")  # depth methods in metrics.json, same pixels
 PNG_FOLDER = {"ipbasic": "depth_ipbasic", "generator": "depth_generator", "refined": "depth"}
 
@@ -136,7 +138,7 @@ class Progress:
     icp_poses: dict[int, list[float]] = field(default_factory=dict)
     sources: dict[int, str] = field(default_factory=dict)
     poses_no_loop: dict[int, list[float]] = field(default_factory=dict)  # before loop closure, when it ran
-    times: dict[int, list[float]] = field(default_factory=dict)  # frame -> [generator, front end, graph] ms
+    times: dict[int, list[float]] = field(default_factory=dict)  # frame -> ms per stage of TIMED
 
     @classmethod
     def load(cls, path: Path) -> "Progress":
@@ -225,14 +227,17 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         fs = FrameScore.of(sample) if score and i not in done else None
         if fs is not None:
             scored[i] = fs
-        if has_lidar and i not in done:  # the classical baselines on the very same input, for the metrics
+        if has_lidar and i not in done:  # the classical baselines on the very same input, for the metrics (not timed)
             ipb = complete_depth(sample.sparse, "ipbasic")
             write_depth_png(out / "depth_ipbasic" / png_name(names, i), ipb)
             if fs is not None:
                 fs.add("ipbasic", ipb)
                 fs.add("nearest", complete_depth(sample.sparse, "nearest"))
-        finish(graph.add_frame(fi))
+        t2b = time.perf_counter()
+        left = graph.add_frame(fi)
         t3 = time.perf_counter()
+        finish(left)
+        t4 = time.perf_counter()
         if textbook is not None:
             textbook.add(sample.frame.image)
         if i in done:
@@ -240,7 +245,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         state.sources[i] = front.sources[-1]
         if front.prev is not None and front.prev.T_icp is not None:
             state.icp_poses[i] = front.prev.T_icp.ravel().tolist()
-        state.times[i] = [1000.0 * (t1 - t0), 1000.0 * (t2 - t1), 1000.0 * (t3 - t2)]
+        state.times[i] = [1000.0 * (t1 - t0), 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3)]
     finish(graph.flush())
     if empty:
         warn_empty_input(seq, empty)
@@ -310,7 +315,8 @@ def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
     """timing.json: per stage the mean (`generator_ms`, ...), median, p95 and max over the frames, and
     the per-frame series (to see whether a stage grows along the sequence)."""
     timed = [i for i in indices if i in times]
-    ms = np.array([times[i] for i in timed], float).reshape(-1, 3)
+    # runs from before the output stage was timed apart recorded three stages: their output time is unknown (0)
+    ms = np.array([list(times[i]) + [0.0] * (len(TIMED) - len(times[i])) for i in timed], float).reshape(-1, len(TIMED))
     stages = {k: ms[:, n] for n, k in enumerate(TIMED)} | {"total_ms": ms.sum(axis=1)}
     record: dict = {k: float(np.mean(v)) if len(v) else None for k, v in stages.items()}
     record["frames_timed"] = len(timed)
