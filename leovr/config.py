@@ -124,6 +124,9 @@ class RefineConfig(FrameSelection):
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
     grid_cols: int = Field(14, ge=2)
     lm_iterations: int = Field(3, ge=1)  # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
+    # LM stops raising its damping at this lambda: a step that does not lower the error is retried at most
+    # 4 times (from 1e-5), not 11; on validation drives graph p95 610 -> 410 ms, same MAE and ATE (issue 17)
+    lm_lambda_upper_bound: float = Field(0.01, gt=0)
     n_features: int = Field(1000, ge=50)  # ORB features per frame
     assoc_radius_px: float = 5.0  # feature <-> projected LiDAR point (eq. 10)
     assoc_max_rel_spread: float = 0.1  # reject when depths within the radius spread more than this

@@ -92,6 +92,7 @@ class WindowGraph:
     def __post_init__(self) -> None:
         lm = gtsam.LevenbergMarquardtParams()
         lm.setMaxIterations(self.cfg.lm_iterations)
+        lm.setlambdaUpperBound(self.cfg.lm_lambda_upper_bound)
         self.smoother = gtsam.BatchFixedLagSmoother(self.cfg.window - 0.5, lm)
         self.grid = CorrectionGrid(self.cfg.grid_rows, self.cfg.grid_cols, *self.shape)
         self.cal = gtsam.Cal3_S2(self.K[0, 0], self.K[1, 1], 0.0, self.K[0, 2], self.K[1, 2])
