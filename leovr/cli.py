@@ -212,7 +212,7 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
         typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m ({t['align']} aligned{scale})")
     t = m["timing"]
     typer.echo(f"per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
-               f"graph {t['graph_ms']:.0f} ms -> {out}")
+               f"graph {t['graph_ms']:.0f} ms, output {t['output_ms']:.0f} ms -> {out}")
     if rerun is not None:
         from leovr.viz.recording import write_recording
 
