@@ -105,10 +105,13 @@ class FrontEnd:
                 else:
                     T_init, source = guess.T_world_cam, guess.source
             T_rel = invert_T(T_prev) @ T_init
-            inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px) if len(ia) else np.zeros(0, bool)
-            if step is not None and len(ia):  # camera only: the epipolar test picks the matches
+            if not len(ia):
+                inl = np.zeros(0, bool)
+            elif step is not None:  # camera only: the epipolar test picks the matches
                 inl = sampson_px(T_rel, p.feats.uv[ia], feats.uv[ib], self.K) < cfg.pnp_reproj_px
                 obj = self._triangulated(obj, T_prev, T_rel, p.feats.uv[ia], feats.uv[ib])
+            else:
+                inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px)
             if inl.sum() >= 6:
                 trusted = convex_hull_mask(img[inl], self.shape) & (depth > 0)
             for m in np.nonzero(inl)[0]:
