@@ -358,6 +358,45 @@ def adapt(
                f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns -> {out / 'generator.pt'}")
 
 
+@app.command()
+def batch(
+    source: Path = typer.Argument(..., help="A folder of sequences, or a manifest (.yaml / .csv) listing them."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder: <name>/ per sequence, summary.csv / .md."),
+    job: Optional[str] = typer.Option(None, "--job", help="refine (default) | complete | adapt+refine"),
+    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster to join (auto | HOST:PORT); default: a local instance."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Sequences in flight (default: CPUs / cpus_per_task)."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Many sequences, one Ray task each: outputs as `leovr refine` writes them, a summary, and a re-run
+    that skips finished sequences and resumes interrupted ones."""
+    from leovr.pipeline.batch import run_batch
+    from leovr.pipeline.batch_manifest import read_batch
+
+    cfg = load_config(config)
+    cfg.batch = override(cfg.batch, job=job, address=address, workers=workers)
+    rows = run_batch(read_batch(source), cfg, out)
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("done", "skipped", "failed")}
+    typer.echo(", ".join(f"{n} {s}" for s, n in counts.items()) + f" -> {out / 'summary.md'}")
+    for r in rows:
+        if r["status"] == "failed":
+            typer.echo(f"failed: {r['name']}: {r.get('error', '')}")
+    if counts["failed"]:
+        raise typer.Exit(1)
+
+
+@bench_app.command("batch")
+def bench_batch(
+    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs in <stem>_work/)."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Wall time of `leovr batch` with 1 and 2 workers on the same generated sequences."""
+    from leovr.bench.batch import run_batch_bench
+
+    doc = run_batch_bench(out, load_config(config))
+    typer.echo(f"1 worker {doc['wall_s']['1']:.1f} s, 2 workers {doc['wall_s']['2']:.1f} s: speedup "
+               f"{doc['speedup']:.2f}, {doc['frames_per_core_hour']:.0f} frames per core-hour -> {out}")
+
+
 @bench_app.command("real")
 def bench_real(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),

@@ -346,6 +346,27 @@ class BenchSelfSupConfig(_Model):
     kitti_refresh_every: int = Field(8, ge=1)  # refinement-stage graph re-runs on the clip every N epochs
 
 
+class BatchConfig(_Model):
+    """`leovr batch`: one Ray task per sequence, on a local Ray instance or an existing cluster."""
+
+    job: Literal["refine", "complete", "adapt+refine"] = "refine"
+    address: str | None = None  # None: start a local Ray instance; "auto" or HOST:PORT: join a running cluster
+    workers: int | None = Field(None, ge=1)  # tasks in flight; None = the cluster's CPUs / cpus_per_task
+    cpus_per_task: int = Field(1, ge=1)  # Ray's num_cpus per task; also the task's torch / OpenCV threads
+    max_retries: int = Field(3, ge=0)  # a task whose worker dies is re-run (resuming) up to this often
+    dashboard: bool = False  # start Ray's dashboard with a local instance (needs `pip install "ray[default]"`)
+
+
+class BenchBatchConfig(_Model):
+    """`leovr bench batch`: wall time of `leovr batch` with 1 and 2 workers on the same generated sequences."""
+
+    sequences: int = Field(4, ge=1)
+    frames: int = Field(16, ge=3)
+    lidar: Literal["mid40", "vlp16"] = "mid40"
+    seed: int = 3300  # drives used for nothing else
+    target_speedup: float = 1.7
+
+
 class LeovrConfig(_Model):
     complete: CompleteConfig = CompleteConfig()
     simulate: SimulateConfig = SimulateConfig()
@@ -362,6 +383,8 @@ class LeovrConfig(_Model):
     adapt: AdaptConfig = AdaptConfig()
     bench_real: BenchRealConfig = BenchRealConfig()
     bench_selfsup: BenchSelfSupConfig = BenchSelfSupConfig()
+    batch: BatchConfig = BatchConfig()
+    bench_batch: BenchBatchConfig = BenchBatchConfig()
 
 
 def _describe(exc: ValidationError) -> str:

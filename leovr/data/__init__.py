@@ -15,6 +15,20 @@ from leovr.errors import DataError
 READERS = ("native", "kitti_raw", "kitti_odometry", "tum_rgbd")
 
 
+def detect_reader(path: Path, search: bool = True) -> str | None:
+    """The reader a folder's layout calls for, or None. `search`: a KITTI raw drive may also be the only
+    *_sync folder one or two levels down (`leovr batch` looks at each folder itself instead)."""
+    if is_native(path):
+        return "native"
+    if is_tum(path):
+        return "tum_rgbd"
+    if is_kitti_odometry(path):
+        return "kitti_odometry"
+    if (path / "image_02" / "data").is_dir() or (search and find_drive(path) is not None):
+        return "kitti_raw"
+    return None
+
+
 def open_sequence(path: str | Path, reader: str | None = None) -> Sequence:
     """Open a sequence, choosing the reader from the folder layout unless `reader` names one."""
     path = Path(path)
@@ -23,15 +37,8 @@ def open_sequence(path: str | Path, reader: str | None = None) -> Sequence:
     if not path.is_dir():
         raise DataError(path, "a sequence is a folder, not a file")
     if reader is None:
-        if is_native(path):
-            reader = "native"
-        elif is_tum(path):
-            reader = "tum_rgbd"
-        elif is_kitti_odometry(path):
-            reader = "kitti_odometry"
-        elif find_drive(path) is not None:
-            reader = "kitti_raw"
-        else:
+        reader = detect_reader(path)
+        if reader is None:
             raise DataError(
                 path,
                 "unrecognised layout: expected sequence.yaml (native), rgb.txt + depth.txt (TUM RGB-D), "
@@ -50,6 +57,7 @@ def open_sequence(path: str | Path, reader: str | None = None) -> Sequence:
 
 __all__ = [
     "DataError",
+    "detect_reader",
     "Frame",
     "KittiOdometrySequence",
     "KittiRawSequence",

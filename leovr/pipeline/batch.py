@@ -1,0 +1,236 @@
+"""`leovr batch`: refine (or complete, or adapt then refine) many sequences, one Ray task per sequence.
+
+Ray schedules the tasks (local instance by default, an existing cluster with `address`), re-runs a task
+whose worker died (`max_retries`), and each task resumes its sequence from what was already written:
+`leovr refine` writes every finished frame atomically, so a killed worker or driver loses at most the
+frames in flight. A sequence that fails on its data fails alone: its error goes to the summary and the
+others finish. `DIR/<name>/batch.json` records each sequence's state; a re-run skips those done with
+the same settings.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from leovr.config import BatchConfig, LeovrConfig, override
+from leovr.data.io import check_output_dir, read_json_object, write_text
+from leovr.data.run_info import folder_fingerprint
+from leovr.errors import ConfigError, DataError, LeovrError
+from leovr.pipeline.batch_manifest import BatchItem
+from leovr.pipeline.batch_summary import write_summary
+
+STATE_FILE = "batch.json"
+ADAPT_DIR = "_adapt"  # the adapted generator of an adapt+refine batch
+
+
+def task_settings(job: str, section: dict[str, Any], path: Path | None = None) -> dict[str, Any]:
+    """What a sequence's result depends on (the job, its settings, the sequence's files): a re-run with
+    other settings or changed data does the work again (and a resume into the old outputs is refused)."""
+    files = folder_fingerprint(path) if path is not None and Path(path).is_dir() else None
+    return json.loads(json.dumps({"job": job, "config": section, "files_sha1": files}, default=str))
+
+
+def _read_state(folder: Path) -> dict:
+    try:
+        return read_json_object(folder / STATE_FILE) if (folder / STATE_FILE).is_file() else {}
+    except DataError:
+        return {}
+
+
+def is_done(folder: Path, settings: dict) -> bool:
+    st = _read_state(folder)
+    return st.get("status") == "done" and st.get("settings") == settings and (folder / "metrics.json").is_file()
+
+
+def _set_threads(n: int) -> None:
+    import cv2
+    import torch
+
+    torch.set_num_threads(n)
+    cv2.setNumThreads(n)
+
+
+def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, threads: int = 1) -> dict:
+    """One sequence, in a Ray worker (or in-process): run the job into `out`, resuming what is there.
+    Returns the state record; data and config errors are recorded as a failure, not raised."""
+    from leovr.data import open_sequence
+
+    _set_threads(threads)
+    settings = task_settings(job, section, item.path)
+    if is_done(out, settings):
+        return {**_read_state(out), "status": "skipped"}
+    out.mkdir(parents=True, exist_ok=True)
+    prev = _read_state(out)
+    attempts = int(prev.get("attempts", 0)) + 1 if prev.get("settings") == settings else 1
+    state = {"name": item.name, "path": str(item.path), "job": job, "settings": settings, "attempts": attempts,
+             "pid": os.getpid(), "host": os.uname().nodename}
+    write_text(out / STATE_FILE, json.dumps({**state, "status": "running"}, indent=1) + "\n")
+    t0 = time.perf_counter()
+    resume = (out / "run.json").is_file()
+    try:
+        seq = open_sequence(item.path)
+        if job == "complete":
+            from leovr.config import CompleteConfig
+            from leovr.pipeline.completion import run_completion
+
+            run_completion(seq, CompleteConfig.model_validate(section), out, resume=resume, progress=False)
+        else:
+            from leovr.config import RefineConfig
+            from leovr.pipeline.refine import run_refine
+
+            run_refine(seq, RefineConfig.model_validate(section), out, resume=resume, progress=False)
+        status, error = "done", ""
+    except (LeovrError, ValueError) as exc:  # pydantic's ValidationError is a ValueError
+        status, error = "failed", str(exc).replace("\n", " ")
+    except Exception as exc:  # anything else on this sequence's data: recorded, the batch goes on
+        status, error = "failed", f"{type(exc).__name__}: {exc}".replace("\n", " ")
+    state |= {"status": status, "error": error, "wall_s": round(time.perf_counter() - t0, 2)}
+    write_text(out / STATE_FILE, json.dumps(state, indent=1) + "\n")
+    return state
+
+
+def job_section(cfg: LeovrConfig, job: str, item: BatchItem, checkpoint: str | None = None) -> dict[str, Any]:
+    """The job's config section with the sequence's own options (and an adapted checkpoint) applied."""
+    base = cfg.complete if job == "complete" else cfg.refine
+    opts = dict(item.options)
+    if checkpoint is not None:
+        opts["checkpoint"] = checkpoint
+    unknown = sorted(set(opts) - set(type(base).model_fields))
+    if unknown:
+        raise ConfigError(f"{item.path}: unknown option(s) {', '.join(unknown)} for `{job}` "
+                          f"(known: {', '.join(type(base).model_fields)})")
+    return override(base, **opts).model_dump()
+
+
+def _init_ray(bcfg: BatchConfig) -> bool:
+    """Start or join Ray; True when this call started it (and so shuts it down)."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    if bcfg.address:
+        ray.init(address=bcfg.address, log_to_driver=False)
+    else:
+        os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private local instance needs no token
+        cpus = (bcfg.workers or os.cpu_count() or 1) * bcfg.cpus_per_task
+        ray.init(num_cpus=cpus, include_dashboard=bcfg.dashboard, log_to_driver=False, configure_logging=False)
+    return True
+
+
+def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: bool = True) -> list[dict]:
+    """Run `cfg.batch.job` over `items` into `out/<name>/`; writes out/summary.csv, summary.md and
+    mae_per_sequence.png after every finished sequence. Returns one state record per sequence. Ray is
+    started (or joined) only when there is work left."""
+    bcfg = cfg.batch
+    out = check_output_dir(Path(out))
+    job = "complete" if bcfg.job == "complete" else "refine"
+    rows: dict[str, dict] = {}
+    sections: dict[str, dict] = {}
+    for it in items:  # bad per-sequence options fail that sequence only
+        try:
+            sections[it.name] = job_section(cfg, job, it)
+        except LeovrError as exc:
+            rows[it.name] = {"name": it.name, "path": str(it.path), "status": "failed", "error": str(exc)}
+    live = [it for it in items if it.name not in rows]
+    started = False
+    try:
+        if bcfg.job == "adapt+refine" and live:
+            checkpoint = adapt_done(live, cfg, out / ADAPT_DIR)
+            if checkpoint is None:
+                started = _init_ray(bcfg)
+                checkpoint = adapt_batch(live, cfg, out / ADAPT_DIR)
+            sections |= {it.name: job_section(cfg, job, it, checkpoint) for it in live}
+        todo = []
+        for it in live:
+            if is_done(out / it.name, task_settings(job, sections[it.name], it.path)):
+                rows[it.name] = {**_read_state(out / it.name), "status": "skipped"}
+            else:
+                todo.append(it)
+        if todo:
+            started = _init_ray(bcfg) or started
+            _run_tasks(todo, job, sections, bcfg, out, rows, items, progress)
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
+    ordered = [rows[it.name] for it in items]
+    write_summary(out, ordered, plot=True)
+    return ordered
+
+
+def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], bcfg: BatchConfig, out: Path,
+               rows: dict[str, dict], items: list[BatchItem], progress: bool) -> None:
+    """One Ray task per sequence of `todo`, at most `workers` in flight; the summary after each one."""
+    import ray
+
+    task = ray.remote(run_sequence).options(num_cpus=bcfg.cpus_per_task, max_retries=bcfg.max_retries,
+                                            retry_exceptions=False)
+    limit = bcfg.workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // bcfg.cpus_per_task)
+    todo = list(todo)
+    inflight: dict[Any, BatchItem] = {}
+    bar = tqdm(total=len(items), initial=len(items) - len(todo), desc=f"batch {bcfg.job}", unit="seq",
+               disable=not progress)
+    while todo or inflight:
+        while todo and len(inflight) < limit:
+            it = todo.pop(0)
+            inflight[task.remote(it, job, sections[it.name], out / it.name, bcfg.cpus_per_task)] = it
+        ready, _ = ray.wait(list(inflight), num_returns=1)
+        it = inflight.pop(ready[0])
+        try:
+            rows[it.name] = ray.get(ready[0])
+        except ray.exceptions.RayError as exc:  # the worker died more often than max_retries allows
+            rows[it.name] = {"name": it.name, "path": str(it.path), "status": "failed",
+                             "error": f"{type(exc).__name__}: {str(exc).splitlines()[0]}"}
+        bar.update(1)
+        bar.set_postfix_str(f"{it.name}: {rows[it.name]['status']}")
+        write_summary(out, [rows.get(i.name) or {"name": i.name, "path": str(i.path), "status": "pending"}
+                            for i in items], plot=False)
+    bar.close()
+
+
+def _adapt_settings(items: list[BatchItem], cfg: LeovrConfig) -> dict:
+    return task_settings("adapt", {"sequences": [str(it.path) for it in items], "adapt": cfg.adapt.model_dump()})
+
+
+def adapt_done(items: list[BatchItem], cfg: LeovrConfig, out: Path) -> str | None:
+    """The adapted checkpoint of an earlier run of the same batch and settings, if it finished."""
+    st = _read_state(out)
+    if (out / "generator.pt").is_file() and st.get("status") == "done" and st.get("settings") == _adapt_settings(items, cfg):
+        return str(out / "generator.pt")
+    return None
+
+
+def _adapt_work(paths: list[str], acfg: dict, folder: str, threads: int) -> str:
+    from leovr.config import AdaptConfig
+    from leovr.data import open_sequence
+    from selfsup.adapt import adapt
+
+    _set_threads(threads)
+    resume = (Path(folder) / "checkpoint_last.pt").is_file()
+    adapt([open_sequence(p) for p in paths], AdaptConfig.model_validate(acfg), Path(folder), resume=resume, progress=False)
+    return str(Path(folder) / "generator.pt")
+
+
+def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path) -> str:
+    """Adapt the generator on every sequence of the batch in one Ray task that holds all the CPUs Ray
+    has free (the trainer's torch threads use them); resumes from its last epoch after a worker died.
+    Returns the adapted checkpoint's path."""
+    import ray
+
+    cpus = max(1, int(ray.available_resources().get("CPU", 1)))
+    ref = ray.remote(_adapt_work).options(num_cpus=cpus, max_retries=cfg.batch.max_retries, retry_exceptions=False)
+    try:
+        path = ray.get(ref.remote([str(it.path) for it in items], cfg.adapt.model_dump(), str(out), cpus))
+    except ray.exceptions.RayError as exc:
+        cause = getattr(exc, "cause", None) or exc
+        raise DataError(out, f"adaptation on the batch's sequences failed, nothing refined: {cause}") from exc
+    write_text(out / STATE_FILE, json.dumps({"status": "done", "settings": _adapt_settings(items, cfg),
+                                             "checkpoint": path}) + "\n")
+    return path
