@@ -146,3 +146,40 @@ def test_manifests_yaml_csv_and_bad_entries(tmp_path, drives):
     rows = run_batch(read_batch(y), LeovrConfig(), tmp_path / "out", progress=False)
     assert [r["status"] for r in rows] == ["failed", "failed"]
     assert "window" in rows[0]["error"] and "unknown option(s) colour" in rows[1]["error"]
+
+
+def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
+    """adapt+refine: one adaptation over the batch's sequences (no ground truth), then each sequence
+    refined with the adapted weights; a re-run redoes neither."""
+    import hashlib
+
+    y = tmp_path / "m.yaml"
+    y.write_text("".join(f"- {drives / f'drive{n}'}\n" for n in range(2)))
+    cfg = LeovrConfig.model_validate({"adapt": {"epochs": 1, "batch_size": 3, "splits_per_frame": 1, "val_every": 3},
+                                      "batch": {"job": "adapt+refine", "workers": 2}})
+    out = tmp_path / "out"
+    rows = run_batch(read_batch(y), cfg, out, progress=False)
+    assert [r["status"] for r in rows] == ["done", "done"]
+    sha = hashlib.sha256((out / "_adapt" / "generator.pt").read_bytes()).hexdigest()
+    for name in ("drive0", "drive1"):
+        run = json.loads((out / name / "run.json").read_text())
+        assert run["identity"]["checkpoint_sha256"] == sha
+        assert run["identity"]["settings"]["checkpoint"] == str(out / "_adapt" / "generator.pt")
+    log = [json.loads(line) for line in (out / "_adapt" / "log.jsonl").read_text().splitlines()]
+    assert log[-1]["epoch"] == 1
+    rows = run_batch(read_batch(y), cfg, out, progress=False)
+    assert [r["status"] for r in rows] == ["skipped", "skipped"]
+    assert len((out / "_adapt" / "log.jsonl").read_text().splitlines()) == len(log)
+
+
+def test_bench_batch_contract(tmp_path):
+    from leovr.bench.batch import run_batch_bench
+
+    cfg = LeovrConfig.model_validate({"bench_batch": {"sequences": 2, "frames": 3}})
+    doc = run_batch_bench(tmp_path / "batch.json", cfg, progress=False)
+    assert json.loads((tmp_path / "batch.json").read_text()) == doc
+    assert doc["sequences"] == 2 and doc["frames"] == 6 and set(doc["wall_s"]) == {"1", "2"}
+    assert doc["speedup"] == pytest.approx(doc["wall_s"]["1"] / doc["wall_s"]["2"], rel=1e-2)
+    assert doc["frames_per_core_hour"] == pytest.approx(6 * 3600 / (2 * doc["wall_s"]["2"]), rel=1e-2)
+    for w in ("workers1", "workers2"):
+        assert _rows(tmp_path / "batch_work" / w).keys() == {"drive0", "drive1"}
