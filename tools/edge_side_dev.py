@@ -262,7 +262,6 @@ def main() -> None:
         return [round(float(np.mean(lab == k)), 3) for k in range(3)] + [round(float(np.mean(lab == near)), 3)]
     print("best corner share near/mid/far + nearest-is-best: train", labels(train), "test", labels([t[0] for t in test]))
     model = train_side_model(train, epochs=a.epochs)
-    res: dict[str, float] = {}
     tot = {k: 0.0 for k in ("prior", "near_corner", "far_corner", "learnt", "oracle")}
     n_edge = 0
     all_prior, all_learnt, n_all = 0.0, 0.0, 0
@@ -271,14 +270,12 @@ def main() -> None:
             continue
         t = e.target
         pick = choose(model, e)
-        near = e.corner_depth[np.arange(len(t)), e.nearest_corner]
         tot["prior"] += np.abs(e.prior - t).sum()
         tot["near_corner"] += np.abs(e.corner_depth[:, 0] - t).sum()
         tot["far_corner"] += np.abs(e.corner_depth[:, 2] - t).sum()
         tot["learnt"] += np.abs(pick - t).sum()
         tot["oracle"] += np.abs(e.corner_depth - t[:, None]).min(1).sum()
         n_edge += len(t)
-        del near
         full = prior.copy()
         full[e.index] = pick
         all_prior += np.abs(prior - gt).sum()

@@ -19,7 +19,7 @@ from leovr.sim.simulate import simulate
 def run_batch_bench(out: Path, cfg: LeovrConfig, progress: bool = True) -> dict:
     started = time.time()
     bcfg = cfg.bench_batch
-    work = Path(out).with_suffix("").parent / (Path(out).stem + "_work")
+    work = Path(out).with_name(Path(out).stem + "_work")
     drives = work / "drives"
     for n in range(bcfg.sequences):
         d = drives / f"drive{n}"

@@ -19,11 +19,11 @@ from typing import Any
 from tqdm import tqdm
 
 from leovr.config import BatchConfig, LeovrConfig, override
-from leovr.data.io import check_output_dir, read_json_object, write_text
+from leovr.data.io import check_output_dir, write_text
 from leovr.data.run_info import folder_fingerprint
 from leovr.errors import ConfigError, DataError, LeovrError
 from leovr.pipeline.batch_manifest import BatchItem
-from leovr.pipeline.batch_summary import write_summary
+from leovr.pipeline.batch_summary import read_json_or_empty, write_summary
 
 STATE_FILE = "batch.json"
 ADAPT_DIR = "_adapt"  # the adapted generator of an adapt+refine batch
@@ -37,10 +37,7 @@ def task_settings(job: str, section: dict[str, Any], path: Path | None = None) -
 
 
 def _read_state(folder: Path) -> dict:
-    try:
-        return read_json_object(folder / STATE_FILE) if (folder / STATE_FILE).is_file() else {}
-    except DataError:
-        return {}
+    return read_json_or_empty(folder / STATE_FILE)
 
 
 def is_done(folder: Path, settings: dict) -> bool:
@@ -56,13 +53,15 @@ def _set_threads(n: int) -> None:
     cv2.setNumThreads(n)
 
 
-def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, threads: int = 1) -> dict:
+def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, threads: int = 1,
+                 settings: dict | None = None) -> dict:
     """One sequence, in a Ray worker (or in-process): run the job into `out`, resuming what is there.
-    Returns the state record; data and config errors are recorded as a failure, not raised."""
+    `settings`: its `task_settings` when the caller has them. Returns the state record; data and config
+    errors are recorded as a failure, not raised."""
     from leovr.data import open_sequence
 
     _set_threads(threads)
-    settings = task_settings(job, section, item.path)
+    settings = settings if settings is not None else task_settings(job, section, item.path)
     if is_done(out, settings):
         return {**_read_state(out), "status": "skipped"}
     out.mkdir(parents=True, exist_ok=True)
@@ -146,15 +145,16 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
                 started = _init_ray(bcfg)
                 checkpoint = adapt_batch(live, cfg, out / ADAPT_DIR)
             sections |= {it.name: job_section(cfg, job, it, checkpoint) for it in live}
+        settings = {it.name: task_settings(job, sections[it.name], it.path) for it in live}
         todo = []
         for it in live:
-            if is_done(out / it.name, task_settings(job, sections[it.name], it.path)):
+            if is_done(out / it.name, settings[it.name]):
                 rows[it.name] = {**_read_state(out / it.name), "status": "skipped"}
             else:
                 todo.append(it)
         if todo:
             started = _init_ray(bcfg) or started
-            _run_tasks(todo, job, sections, bcfg, out, rows, items, progress)
+            _run_tasks(todo, job, sections, settings, bcfg, out, rows, items, progress)
     finally:
         if started:
             import ray
@@ -165,8 +165,8 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
     return ordered
 
 
-def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], bcfg: BatchConfig, out: Path,
-               rows: dict[str, dict], items: list[BatchItem], progress: bool) -> None:
+def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], settings: dict[str, dict],
+               bcfg: BatchConfig, out: Path, rows: dict[str, dict], items: list[BatchItem], progress: bool) -> None:
     """One Ray task per sequence of `todo`, at most `workers` in flight; the summary after each one."""
     import ray
 
@@ -180,7 +180,7 @@ def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], bcfg:
     while todo or inflight:
         while todo and len(inflight) < limit:
             it = todo.pop(0)
-            inflight[task.remote(it, job, sections[it.name], out / it.name, bcfg.cpus_per_task)] = it
+            inflight[task.remote(it, job, sections[it.name], out / it.name, bcfg.cpus_per_task, settings[it.name])] = it
         ready, _ = ray.wait(list(inflight), num_returns=1)
         it = inflight.pop(ready[0])
         try:
@@ -196,7 +196,8 @@ def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], bcfg:
 
 
 def _adapt_settings(items: list[BatchItem], cfg: LeovrConfig) -> dict:
-    return task_settings("adapt", {"sequences": [str(it.path) for it in items], "adapt": cfg.adapt.model_dump()})
+    return task_settings("adapt", {"sequences": {str(it.path): folder_fingerprint(it.path) for it in items},
+                                   "adapt": cfg.adapt.model_dump()})
 
 
 def adapt_done(items: list[BatchItem], cfg: LeovrConfig, out: Path) -> str | None:

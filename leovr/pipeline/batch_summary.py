@@ -15,9 +15,10 @@ COLUMNS = ("name", "status", "frames", "attempts", "wall_s", "generator_ms", "fr
 METHODS = ("nearest", "ipbasic", "generator", "refined")
 
 
-def _metrics(folder: Path) -> dict:
+def read_json_or_empty(path: Path) -> dict:
+    """A JSON object file, or {} when it is missing or unreadable (a sequence that never got that far)."""
     try:
-        return read_json_object(folder / "metrics.json") if (folder / "metrics.json").is_file() else {}
+        return read_json_object(path) if path.is_file() else {}
     except DataError:
         return {}
 
@@ -25,7 +26,7 @@ def _metrics(folder: Path) -> dict:
 def summary_row(out: Path, state: dict) -> dict:
     """A state record of `run_sequence` with the figures of the sequence's metrics.json."""
     row = {k: state.get(k, "") for k in COLUMNS}
-    m = _metrics(out / str(state.get("name", ""))) if state.get("status") in ("done", "skipped") else {}
+    m = read_json_or_empty(out / str(state.get("name", "")) / "metrics.json") if state.get("status") in ("done", "skipped") else {}
     row["frames"] = m.get("frames", "")
     for stage in ("generator_ms", "frontend_ms", "graph_ms", "output_ms"):
         v = m.get("timing", {}).get(stage)
