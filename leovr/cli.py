@@ -81,7 +81,7 @@ def convert(
 @app.command()
 def simulate(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (native format)."),
-    scenario: Optional[str] = typer.Option(None, help="city_loop | straight | dynamic"),
+    scenario: Optional[str] = typer.Option(None, help="city_loop | straight | dynamic | traffic"),
     lidar: Optional[str] = typer.Option(None, help="vlp16 | hdl64 | mid40"),
     frames: Optional[int] = typer.Option(None, help="Number of frames."),
     seed: Optional[int] = typer.Option(None, help="World and noise seed."),

@@ -13,6 +13,8 @@ from leovr.errors import ConfigError
 from leovr.eval.depth_metrics import LEOVR_BINS
 from leovr.lidar.cheap_sensor import parse_input
 
+Scenario = Literal["city_loop", "straight", "dynamic", "traffic"]  # leovr.sim.world.SCENARIOS
+
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
@@ -64,7 +66,7 @@ class BenchBaselineConfig(_Model):
 class SimulateConfig(_Model):
     """`leovr simulate`: one rendered sequence of the procedural world."""
 
-    scenario: Literal["city_loop", "straight", "dynamic"] = "city_loop"
+    scenario: Scenario = "city_loop"
     lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"
     frames: int = Field(20, ge=1)
     seed: int = 0
@@ -81,7 +83,7 @@ class DemoConfig(_Model):
 
     data: str | None = None  # a recorded sequence instead of the generated one
     frames: int = Field(12, ge=1)
-    scenario: Literal["city_loop", "straight", "dynamic"] = "city_loop"
+    scenario: Scenario = "city_loop"
     lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"
     seed: int = 0
     input: str | None = None  # None: all of the generated scan, or mid40 on a recorded dense scan
@@ -196,7 +198,7 @@ class BenchSpeedConfig(_Model):
     KITTI raw clip, with the same run's accuracy and IP-Basic's time as the machine's yard stick."""
 
     frames: int = Field(200, ge=10)  # rendered 448 x 256 drive
-    scenario: Literal["city_loop", "straight", "dynamic"] = "city_loop"
+    scenario: Scenario = "city_loop"
     lidar: Literal["mid40", "vlp16"] = "mid40"
     seed: int = 3200  # a drive used for nothing else
     kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
@@ -252,6 +254,12 @@ class SelfSupConfig(_Model):
     flow_mask: bool = True  # eq. 19 motion-optical-flow mask on the photometric loss
     flow_lambda_px: float = Field(1.0, gt=0)  # lambda: largest distance of the flow end point to its epipolar line
     flow_method: Literal["dis", "farneback"] = "dis"
+    rigid_mask: bool = True  # also drop pixels whose flow disagrees with the rigid flow of the graph's pose and depth
+    rigid_abs_px: float = Field(0.5, gt=0)  # rigid test tolerance: px ...
+    rigid_rel: float = Field(0.3, ge=0)  # ... plus this share of the rigid flow's depth-dependent part
+    rigid_support_px: float = Field(4.0, ge=0)  # initialisation stage: rigid test only this close to a LiDAR return (0: everywhere)
+    auto_mask: bool = True  # monodepth2: per-pixel minimum over the neighbours, pixels that match better unwarped dropped
+    weight_nll: float = Field(0.1, ge=0)  # Gaussian NLL of the uncertainty head at the LiDAR-backed landmarks (0: head untrained)
     input: str = "full"  # LiDAR input of the generator and the graph (full, vlp16, mid40, ratio:R)
     train_focal_px: float | None = 260.0  # frames resampled to this focal length (the generator's camera); None = native
     max_frames: int | None = None  # first frames of each sequence only (None = all)
@@ -327,7 +335,8 @@ class BenchSelfSupConfig(_Model):
     models on the same frames and schedule, plus a cold start on the shared KITTI raw clip."""
 
     dataset: str | None = None  # simulator dataset (tools/make_dataset.py); None = the cached default recipe
-    scenarios: list[Literal["city_loop", "straight", "dynamic"]] = ["dynamic", "city_loop"]
+    scenarios: list[Scenario] = ["dynamic", "city_loop"]
+    traffic_sequences: int = Field(3, ge=1)  # traffic scenario (its own dataset recipe): training sequences; 2 test sequences
     lidar: Literal["mid40", "vlp16"] = "mid40"  # LeoVR's self-supervised experiments use the Mid-40
     train_sequences: int = Field(3, ge=1)  # per scenario (day sequences first)
     test_sequences: int = Field(2, ge=1)  # per scenario, from the test split

@@ -11,14 +11,14 @@ import numpy as np
 from leovr.geometry import fundamental
 
 
-def _gray(image: np.ndarray) -> np.ndarray:
+def gray(image: np.ndarray) -> np.ndarray:
     return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
 
 
 def dense_flow(image_i: np.ndarray, image_j: np.ndarray, method: str = "dis") -> np.ndarray:
     """H x W x 2 flow (du, dv) taking frame i's pixels to frame j: OpenCV's DIS (medium preset) or
     Farneback."""
-    a, b = _gray(image_i), _gray(image_j)
+    a, b = gray(image_i), gray(image_j)
     if method == "dis":
         return cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(a, b, None)
     if method == "farneback":
@@ -36,15 +36,20 @@ def epipolar_distance(flow: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.abs((p_j * line).sum(-1)) / np.maximum(np.hypot(line[..., 0], line[..., 1]), 1e-12)
 
 
+def flow_inside(flow: np.ndarray) -> np.ndarray:
+    """H x W: the flow end point lies inside the image."""
+    h, w = flow.shape[:2]
+    v, u = np.mgrid[0:h, 0:w]
+    uj, vj = u + flow[..., 0], v + flow[..., 1]
+    return (uj >= 0) & (uj <= w - 1) & (vj >= 0) & (vj <= h - 1)
+
+
 def motion_flow_mask(image_i: np.ndarray, image_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray,
                      lam_px: float = 1.0, method: str = "dis", min_baseline_m: float = 1e-3) -> np.ndarray:
     """H x W bool confidence mask mu of eq. 19 for the pair (i, j). Without translation the epipolar
     geometry is undefined, so only the inside-the-image test applies."""
     flow = dense_flow(image_i, image_j, method)
-    h, w = flow.shape[:2]
-    v, u = np.mgrid[0:h, 0:w]
-    uj, vj = u + flow[..., 0], v + flow[..., 1]
-    inside = (uj >= 0) & (uj <= w - 1) & (vj >= 0) & (vj <= h - 1)
+    inside = flow_inside(flow)
     if np.linalg.norm(T_j_i[:3, 3]) < min_baseline_m:
         return inside
     return inside & (epipolar_distance(flow, fundamental(T_j_i, K)) < lam_px)

@@ -32,10 +32,16 @@ def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (x * m).sum() / m.sum().clamp(min=1.0)
 
 
-def photometric_loss(target: torch.Tensor, warped: list[torch.Tensor], masks: list[torch.Tensor],
-                     alpha: float = 0.8) -> torch.Tensor:
-    """Eq. 16: the masked photometric error summed over the neighbouring frames."""
-    return sum(masked_mean(photometric_error(target, w, alpha), m) for w, m in zip(warped, masks))
+def photometric_loss(errors: list[torch.Tensor], masks: list[torch.Tensor], per_pixel_min: bool = False) -> torch.Tensor:
+    """Eq. 16: the masked photometric errors (`photometric_error` against each warped neighbour)
+    summed over the neighbours; with `per_pixel_min` (monodepth2), the per-pixel minimum over the
+    neighbours that keep the pixel, times their number so the weights of eq. 22 keep their balance."""
+    if not per_pixel_min:
+        return sum(masked_mean(e, m) for e, m in zip(errors, masks))
+    stacked = torch.stack([torch.where(m, e, torch.full_like(e, float("inf"))) for e, m in zip(errors, masks)])
+    best = stacked.min(0).values
+    valid = torch.isfinite(best)
+    return len(errors) * masked_mean(torch.where(valid, best, torch.zeros_like(best)), valid)
 
 
 def depth_target_error(depth: torch.Tensor, target: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:

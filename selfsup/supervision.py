@@ -24,7 +24,7 @@ from leovr.errors import DataError
 from leovr.geometry import invert_T
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
-from selfsup.flow_mask import motion_flow_mask
+from selfsup.motion_mask import PairKeep, pair_keep
 
 
 @dataclass
@@ -135,6 +135,39 @@ def refined_agrees(refined: np.ndarray, feature_depth: np.ndarray, max_rel: floa
     return bool(np.median(np.abs(refined[ok] - feature_depth[ok]) / feature_depth[ok]) < max_rel)
 
 
+def graph_depth_at(graph: GraphResult, frame: TrainFrame) -> np.ndarray:
+    """The depth the graph pass wrote for a frame, at the training resolution."""
+    d = read_run_depth(graph.depth_dir.parent, graph.depth_dir.name, frame.index)
+    return cv2.resize(d, (frame.sparse.shape[1], frame.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
+
+
+def rigid_support(depth: np.ndarray | None, sparse: np.ndarray, radius_px: float) -> np.ndarray | None:
+    """`depth` where a LiDAR input return lies within `radius_px` (a classical fill is unreliable
+    further out: beyond a Mid-40's cone it extrapolates), 0 elsewhere; all of it when radius_px <= 0."""
+    if depth is None or radius_px <= 0:
+        return depth
+    far = cv2.distanceTransform((sparse <= 0).astype(np.uint8), cv2.DIST_L2, 3) > radius_px
+    return np.where(far, 0.0, depth)
+
+
+def pair_tests(frames: list[TrainFrame], poses: np.ndarray, depth: list[np.ndarray | None], cfg: SelfSupConfig,
+               k: int, j: int) -> PairKeep:
+    """The flow tests of frame k against its neighbour j, with the graph's poses and depth."""
+    T_j_i = invert_T(poses[j]) @ poses[k]
+    return pair_keep(frames[k].image, frames[j].image, T_j_i, frames[k].K, (depth[k], depth[j]) if cfg.rigid_mask else None,
+                     cfg.flow_lambda_px, cfg.rigid_abs_px, cfg.rigid_rel, cfg.flow_method)
+
+
+def keep_mask(t: PairKeep, cfg: SelfSupConfig) -> np.ndarray:
+    """The mask the trainer uses: inside the neighbour, and every test the config switches on."""
+    keep = t.inside.copy()
+    if cfg.flow_mask:
+        keep &= t.epipolar
+    if cfg.rigid_mask:
+        keep &= t.rigid
+    return keep
+
+
 def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSupConfig, with_refined: bool,
                       mask_dir: Path | None = None) -> Supervision:
     """Per-frame targets from a graph pass; masks are written as PNGs to `mask_dir` for inspection."""
@@ -142,24 +175,24 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
     keep = graph.landmark_lidar if cfg.landmarks_lidar_only else np.ones(len(graph.landmarks), bool)
     fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
               for k, f in enumerate(frames)]
+    graph_depth = [graph_depth_at(graph, f) for f in frames] if with_refined or cfg.rigid_mask else [None] * n
+    # initialisation stage: the graph's depth is a classical fill, trusted by the rigid test only near returns
+    rigid_depth = graph_depth if with_refined else [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(graph_depth, frames)]
     refined: list[np.ndarray | None] = [None] * n
     use = np.zeros(n, bool)
     if with_refined:
-        for k, f in enumerate(frames):
-            d = read_run_depth(graph.depth_dir.parent, graph.depth_dir.name, f.index)
-            refined[k] = cv2.resize(d, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
+        for k in range(n):
+            refined[k] = graph_depth[k]
             use[k] = refined_agrees(refined[k], fdepth[k], cfg.refined_agree_rel)
     prev: list[np.ndarray | None] = [None] * n
     nxt: list[np.ndarray | None] = [None] * n
-    if cfg.flow_mask:
+    if cfg.flow_mask or cfg.rigid_mask:
         if mask_dir is not None:
             mask_dir.mkdir(parents=True, exist_ok=True)
         for k in range(n):
             for j, store, tag in ((k - 1, prev, "prev"), (k + 1, nxt, "next")):
                 if 0 <= j < n:
-                    T_j_i = invert_T(graph.poses[j]) @ graph.poses[k]
-                    store[k] = motion_flow_mask(frames[k].image, frames[j].image, T_j_i, frames[k].K,
-                                                cfg.flow_lambda_px, cfg.flow_method)
+                    store[k] = keep_mask(pair_tests(frames, graph.poses, rigid_depth, cfg, k, j), cfg)
                     if mask_dir is not None:
                         cv2.imwrite(str(mask_dir / f"{frames[k].index:06d}_{tag}.png"), store[k].astype(np.uint8) * 255)
     return Supervision(graph.poses, fdepth, refined, use, prev, nxt)

@@ -30,6 +30,7 @@ from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
 from leovr.data.io import write_text
 from leovr.depth.inference import forward_padded
+from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator
 from leovr.depth.train import generator_config, init_from, load_resume, save_checkpoint
 from leovr.errors import DataError
@@ -45,7 +46,7 @@ from selfsup.losses import (
 from selfsup.supervision import build_supervision, graph_pass, train_frames
 from selfsup.warp import warp_image
 
-TERMS = ("loss", "photometric", "feature", "refined", "smooth", "mask_kept", "refined_used")
+TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "mask_kept", "refined_used")
 
 
 def init_epochs(cfg: SelfSupConfig) -> int:
@@ -73,23 +74,41 @@ def _barrier(world: int) -> None:
         dist.barrier()
 
 
-def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: bool
-                ) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor]]:
-    """Eq. 22 on one batch: (total loss, detached terms, images for inspection)."""
-    img = b["image"]
-    warped, masks = [], []
+def photometric_term(img: torch.Tensor, depth: torch.Tensor, b: dict, cfg: SelfSupConfig
+                     ) -> tuple[torch.Tensor, list[torch.Tensor], list[torch.Tensor]]:
+    """L_p (eq. 16) with the masks of the batch: (loss, warped neighbours, kept pixels per neighbour).
+    With `auto_mask` (monodepth2), a pixel also drops out against a neighbour it matches better
+    unwarped (a mover at the ego's speed, a standing camera), and the loss takes the per-pixel
+    minimum over the neighbours that keep it."""
+    warped, masks, errors = [], [], []
     for side in ("prev", "next"):
         w, inside = warp_image(b[side], depth, b[f"T_{side}"], b["K"])
+        keep = inside & (b[f"mask_{side}"] > 0.5)
+        err = photometric_error(img, w, cfg.alpha)
+        if cfg.auto_mask:
+            keep = keep & (err.detach() < photometric_error(img, b[side], cfg.alpha))
         warped.append(w)
-        masks.append(inside & (b[f"mask_{side}"] > 0.5))
-    lp = photometric_loss(img, warped, masks, cfg.alpha)
+        masks.append(keep)
+        errors.append(err)
+    return photometric_loss(errors, masks, per_pixel_min=cfg.auto_mask), warped, masks
+
+
+def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: bool, log_sigma: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor]]:
+    """Eq. 22 on one batch, plus the uncertainty head's Gaussian NLL at the LiDAR-backed landmarks
+    (on detached depth: it trains the head, not the depth): (total loss, detached terms, images)."""
+    img = b["image"]
+    lp, warped, masks = photometric_term(img, depth, b, cfg)
     lf = feature_point_loss(depth, b["feature_depth"], cfg.target_loss) if cfg.weight_feature > 0 else depth.new_zeros(())
     use_r = refine_stage and cfg.weight_refined > 0 and bool(b["use_refined"].any())
     lr = refined_depth_loss(depth, b["refined"], b["use_refined"], cfg.target_loss) if use_r else depth.new_zeros(())
     ls = second_order_smoothness(depth, img) if cfg.weight_smooth > 0 else depth.new_zeros(())
-    loss = lp + cfg.weight_feature * lf + cfg.weight_refined * lr + cfg.weight_smooth * ls
+    nll = depth.new_zeros(())
+    if cfg.weight_nll > 0 and log_sigma is not None:
+        nll = gaussian_nll(depth.detach(), log_sigma, b["feature_depth"], (b["feature_depth"] > 0).to(depth.dtype))
+    loss = lp + cfg.weight_feature * lf + cfg.weight_refined * lr + cfg.weight_smooth * ls + cfg.weight_nll * nll
     terms = {"loss": loss.item(), "photometric": lp.item(), "feature": lf.item(), "refined": lr.item(),
-             "smooth": ls.item(), "mask_kept": float(torch.cat(masks).float().mean()),
+             "smooth": ls.item(), "nll": nll.item(), "mask_kept": float(torch.cat(masks).float().mean()),
              "refined_used": float(b["use_refined"].float().mean()) if refine_stage else 0.0}
     return loss, terms, {"warped_prev": warped[0], "mask_prev": masks[0]}
 
@@ -122,7 +141,7 @@ class _Rerun:
             to_u8 = lambda t: (t.clamp(0, 1) * 255).byte().permute(1, 2, 0).numpy()  # noqa: E731
             self.rec.log(f"{base}/image", rr.Image(to_u8(b["image"][0])))
             self.rec.log(f"{base}/warped_prev", rr.Image(to_u8(extra["warped_prev"][0])))
-            self.rec.log(f"{base}/flow_mask_prev", rr.Image((b["mask_prev"][0, 0] > 0.5).byte().numpy() * 255))
+            self.rec.log(f"{base}/flow_mask_prev", rr.Image(extra["mask_prev"][0, 0].byte().numpy() * 255))
             self.rec.log(f"{base}/photometric_error", rr.Image((pe.clamp(0, 0.5) * 510).byte().numpy()))
             self.rec.log(f"{base}/depth", rr.DepthImage(depth[0, 0].float().numpy(), meter=1.0, colormap="turbo"))
         model.train()
@@ -160,7 +179,8 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
     model = DepthGenerator(generator_config(cfg))
     if cfg.init_checkpoint and not resume:
         init_from(model, Path(cfg.init_checkpoint))
-    opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
+    params = model.parameters() if cfg.weight_nll > 0 else model.depth_parameters()  # the head learns only from its NLL
+    opt = torch.optim.Adam(params, lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
     start = 0
     last = out / "checkpoint_last.pt"
@@ -217,8 +237,8 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
         bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})",
                    unit="batch", disable=not progress or rank != 0)
         for b in bar:
-            depth, _ = forward_padded(net, b["image"], b["sparse"])
-            loss, terms, _ = batch_terms(depth, b, cfg, refine)
+            depth, log_sigma = forward_padded(net, b["image"], b["sparse"])
+            loss, terms, _ = batch_terms(depth, b, cfg, refine, log_sigma)
             opt.zero_grad()
             loss.backward()
             opt.step()

@@ -28,6 +28,7 @@ class Recipe:
     lidars: tuple[str, ...] = ("mid40", "vlp16")
     lights: tuple[str, ...] = ("day", "night")
     frames: int = 40
+    scenarios: tuple[str, ...] = SCENARIO_CYCLE  # sequence i of a split takes scenarios[i % len]
 
     def items(self) -> list[tuple[str, SimulateConfig]]:
         out = []
@@ -35,7 +36,7 @@ class Recipe:
             for i in range(n):
                 for lidar in self.lidars:
                     for light in self.lights:
-                        cfg = SimulateConfig(scenario=SCENARIO_CYCLE[i % 3], lidar=lidar, light=light,
+                        cfg = SimulateConfig(scenario=self.scenarios[i % len(self.scenarios)], lidar=lidar, light=light,
                                              seed=SEED_BASE[split] + i, frames=self.frames)
                         out.append((split, cfg))
         return out
@@ -44,6 +45,8 @@ class Recipe:
 RECIPES = {
     "default": Recipe(),
     "tiny": Recipe("tiny", {"train": 3, "val": 1, "test": 1}, ("mid40", "vlp16"), ("day",), 8),
+    # movers that break photometric self-supervision, with their moving masks (`leovr bench selfsup`)
+    "traffic": Recipe("traffic", {"train": 3, "val": 1, "test": 2}, ("mid40",), ("day",), 40, ("traffic",)),
 }
 
 

@@ -4,6 +4,10 @@ Roads (10 m wide, lane markings) lie on grid lines; each block is a raised sidew
 textured buildings, trees, poles and signs along its edges; parked cars line the kerbs; moving cars
 drive in lanes (never in the ego's lane against it) and pedestrians walk the sidewalks. The city
 extends at least 150 m beyond the ego path so long-range bins are populated.
+
+The `traffic` scenario adds the movers that break photometric self-supervision (`_hard_traffic`):
+cars ahead in the ego's lane at the ego's speed (near-zero flow), oncoming cars, crossing traffic at
+the intersections ahead and pedestrians crossing the road, all within the first seconds of the drive.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ LANE = 2.0
 SIDEWALK = 3.0
 KERB = 0.15
 PARK_OFFSET = 4.1
-SCENARIOS = ("city_loop", "straight", "dynamic")
+SCENARIOS = ("city_loop", "straight", "dynamic", "traffic")  # append only: the index seeds each world
 
 
 @dataclass
@@ -230,8 +234,53 @@ def build_world(scenario: str, seed: int, ego_speed: float) -> World:
     ego = centre.offset(-LANE)
     static = _build_city(rng, extent, xs, ys).build()
     near = 0.8 if scenario == "dynamic" else 0.5
+    if scenario == "traffic":
+        n_cars, n_people = 20, 16
     movers = _traffic(rng, extent, xs, ys, ego_roads, centre, n_cars, n_people, near)
     # traffic ahead in the ego's own lane, at the ego's speed so the gap stays constant
-    for k in range(1 if scenario == "city_loop" else (1 if scenario == "straight" else 4)):
+    for k in range({"city_loop": 1, "straight": 1, "dynamic": 4}.get(scenario, 0)):
         movers.append(Mover(car_template(_car_color(rng)), ego, 18.0 + 25.0 * k + rng.uniform(0, 8), ego_speed, 0.02, "car"))
+    if scenario == "traffic":
+        movers += _hard_traffic(rng, xs, centre, ego, ego_speed)
     return World(scenario, seed, static, movers, ego, extent, ego_roads)
+
+
+def _hard_traffic(rng: np.random.Generator, xs: list[float], centre: Path2D, ego: Path2D, ego_speed: float,
+                  horizon_s: float = 4.0) -> list[Mover]:
+    """Movers timed to be in view during the first `horizon_s` seconds (a 40-frame sequence), on the
+    straight drive along y = 0 that starts at x = -20: a car close ahead in the ego lane at exactly
+    the ego speed and one further ahead at about it; oncoming cars passing the ego; cars crossing
+    the ego road at the intersections ahead (only while the ego is at least 12 m away from them);
+    pedestrians crossing the oncoming half of the road (the ego lane stays clear). Movers do not
+    avoid each other (the renderer has no physics)."""
+    movers: list[Mover] = []
+    x_start = float(centre.pose(np.array([0.0]))[0][0, 0])
+    car = lambda: car_template(_car_color(rng))  # noqa: E731
+    movers.append(Mover(car(), ego, rng.uniform(9.0, 14.0), ego_speed, 0.02, "car"))
+    movers.append(Mover(car(), ego, rng.uniform(35.0, 50.0), ego_speed * rng.uniform(0.9, 1.1), 0.02, "car"))
+    oncoming = centre.offset(LANE).reversed()
+    for _ in range(4):  # meets the ego at t_meet: starts speed * t_meet beyond where the ego will be then
+        speed, t_meet = rng.uniform(7.0, 12.0), rng.uniform(0.5, horizon_s)
+        x_meet = x_start + ego_speed * t_meet
+        s_meet = oncoming.length - (x_meet - x_start)
+        movers.append(Mover(car(), oncoming, s_meet - speed * t_meet, speed, 0.02, "car"))
+    ahead = [x for x in xs if x_start < x < x_start + ego_speed * horizon_s + 120.0]
+    for x in ahead:
+        for _ in range(2):
+            speed = rng.uniform(6.0, 11.0)
+            for _try in range(20):  # a crossing time when the ego is clear of the intersection
+                t_c = rng.uniform(0.0, horizon_s)
+                t = np.linspace(t_c - 14.0 / speed, t_c + 14.0 / speed, 9)
+                if np.all(np.abs(x_start + ego_speed * np.clip(t, 0, None) - x) > 12.0):
+                    break
+            else:
+                continue
+            direction = 1 if rng.random() < 0.5 else -1
+            lane = Path2D(np.array([[x + LANE * direction, -140.0 * direction], [x + LANE * direction, 140.0 * direction]]))
+            movers.append(Mover(car(), lane, 140.0 - speed * t_c, speed, 0.02, "car"))
+    for _ in range(5):  # from the kerb of the oncoming half across it, then along the far sidewalk
+        x = x_start + rng.uniform(10.0, 45.0) + ego_speed * rng.uniform(0.0, horizon_s)
+        y0, speed = rng.uniform(-0.5, 4.0), rng.uniform(1.1, 1.7)
+        walk = Path2D(np.array([[x, y0], [x, ROAD_HALF + 1.8], [x + 300.0, ROAD_HALF + 1.8]]), smooth=0.2)
+        movers.append(Mover(person_template(tuple(rng.uniform(0.1, 0.9, 3))), walk, 0.0, speed, 0.0, "person"))
+    return movers

@@ -1,0 +1,87 @@
+"""How well the photometric masks find movers: each test the trainer can switch on, scored against the
+simulator's moving mask as "dropped" vs "moving" (precision and recall).
+
+The masks are built as the trainer builds them (`selfsup.supervision.pair_tests`): frames resampled to
+the training focal length, poses and depth from the initialisation-stage graph pass on the blind
+sequence (IP-Basic depth, point factors), both neighbours of every frame. The auto-mask compares the
+photometric error of the neighbour warped with a network's depth against the unwarped neighbour; it
+is scored with the network given (the trained one in `leovr bench selfsup`), else with the graph's
+depth. Scored pixels: those with ground-truth depth (not sky) whose flow stays inside the neighbour;
+the ground truth is read here only, never by the trainer.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from leovr.config import SelfSupConfig
+from leovr.data.sequence import Sequence
+from leovr.depth.inference import forward_padded
+from leovr.geometry import invert_T
+from selfsup.blind import BlindSequence
+from selfsup.losses import photometric_error
+from selfsup.supervision import TrainFrame, graph_depth_at, graph_pass, pair_tests, rigid_support, train_frames
+from selfsup.warp import warp_image
+
+VARIANTS = ("eq19", "rigid", "auto", "eq19_rigid", "full")
+
+
+def _tensor(x: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(x)).permute(2, 0, 1)[None].float() / 255.0
+
+
+@torch.no_grad()
+def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth: np.ndarray, alpha: float) -> np.ndarray:
+    """monodepth2's auto-mask of one pair: True where the neighbour warped with `depth` matches the
+    frame better than the unwarped neighbour."""
+    img, nb = _tensor(frame.image), _tensor(neighbour.image)
+    d = torch.from_numpy(depth.astype(np.float32))[None, None]
+    warped, _ = warp_image(nb, d, torch.from_numpy(T_j_i).float()[None], torch.from_numpy(frame.K).float()[None])
+    return (photometric_error(img, warped, alpha) < photometric_error(img, nb, alpha))[0, 0].numpy()
+
+
+def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.Module | None = None,
+                progress: bool = False) -> dict:
+    """{"variants": {variant: precision, recall, dropped_share}, "moving_share", "pixels"} over the
+    sequence ("dropped" vs "moving" on the scored pixels); `work` holds the graph pass (reused when done)."""
+    blind = BlindSequence(seq)
+    frames = train_frames(blind, cfg)
+    graph = graph_pass(blind, cfg, Path(work), None, len(frames), progress)
+    filled = [graph_depth_at(graph, f) for f in frames]
+    depth = [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(filled, frames)]  # as the trainer's first stage
+    rigid_cfg = cfg.model_copy(update={"rigid_mask": True})
+    eq19_cfg = cfg.model_copy(update={"rigid_mask": False})
+    counts = {v: np.zeros(3) for v in VARIANTS}  # true positives, dropped, moving
+    scored = moving_total = 0
+    for k, f in enumerate(frames):
+        gt = seq[f.index]
+        size = (f.sparse.shape[1], f.sparse.shape[0])
+        moving = cv2.resize(gt.moving_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        has_depth = cv2.resize(gt.depth, size, interpolation=cv2.INTER_NEAREST) > 0
+        net_depth = filled[k]
+        if model is not None:
+            model.eval()
+            with torch.no_grad():
+                net_depth = forward_padded(model, _tensor(f.image), torch.from_numpy(f.sparse)[None, None])[0][0, 0].numpy()
+        for j in (k - 1, k + 1):
+            if not 0 <= j < len(frames):
+                continue
+            plain = pair_tests(frames, graph.poses, depth, eq19_cfg, k, j)  # eq. 19 alone: the plain flow
+            t = pair_tests(frames, graph.poses, depth, rigid_cfg, k, j)  # with the rigid test: its initialised flow
+            auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth, cfg.alpha)
+            region = t.inside & has_depth
+            dropped = {"eq19": ~plain.epipolar, "rigid": ~t.rigid, "auto": ~auto, "eq19_rigid": ~(t.epipolar & t.rigid),
+                       "full": ~(t.epipolar & t.rigid & auto)}
+            mv = moving & region
+            for v, d in dropped.items():
+                d = d & region
+                counts[v] += (np.sum(d & mv), np.sum(d), np.sum(mv))
+            scored += int(region.sum())
+            moving_total += int(mv.sum())
+    variants = {v: {"precision": float(tp / max(dr, 1)), "recall": float(tp / max(mv, 1)),
+                    "dropped_share": float(dr / max(scored, 1))} for v, (tp, dr, mv) in counts.items()}
+    return {"variants": variants, "moving_share": moving_total / max(scored, 1), "pixels": scored}

@@ -1,0 +1,103 @@
+"""Movers that eq. 19 cannot see: the rigid-flow test.
+
+A car ahead at the ego's speed, or oncoming traffic, moves along the epipolar lines, so its flow
+passes the epipolar test of eq. 19 (`selfsup.flow_mask`). The rigid flow, the flow that the graph's
+pose and the current depth predict for a static scene, tells them apart: a pixel is dropped when its
+measured flow differs from the rigid flow, in magnitude or direction, by more than the depth's
+uncertainty allows. Only the translation part of the rigid flow depends on depth (the rotation part
+does not), so the tolerance is `abs_px` plus `rel` times that part: `rel` is how far off the depth
+may be, relatively.
+
+The dense flow is started from the rigid flow (`rigid_tests`), which eq. 19 then uses too. `pair_keep`
+returns each test apart, so that the trainer can switch them independently and the benchmark can
+score each one against the simulator's moving masks (`selfsup.mask_quality`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from leovr.geometry import fundamental, invert_T
+from selfsup.flow_mask import dense_flow, epipolar_distance, flow_inside, gray
+
+
+@dataclass
+class PairKeep:
+    """Per test, H x W bools: True = the pixel of frame i may enter the photometric loss against j."""
+
+    inside: np.ndarray  # the flow end point lies inside frame j
+    epipolar: np.ndarray  # eq. 19: within lambda px of its epipolar line (True without translation)
+    rigid: np.ndarray  # the measured flow agrees with the rigid flow (True where depth is unknown)
+
+
+def rigid_flow(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flow of a static scene with depth `depth` (H x W metres, 0 = unknown) under the motion T_j_i
+    (frame i to frame j): (H x W x 2 rigid flow, H x W x 2 flow of the rotation alone, H x W valid)."""
+    h, w = depth.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T  # z = 1
+    R, t = T_j_i[:3, :3], T_j_i[:3, 3]
+    rot = rays @ R.T  # a point at infinity: the rotation alone
+    X = depth[..., None] * rot + t
+    valid = (depth > 0) & (X[..., 2] > 1e-3) & (rot[..., 2] > 1e-6)
+    p = X @ K.T
+    q = rot @ K.T
+    uv = np.stack([u, v], -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        full = p[..., :2] / np.where(valid, p[..., 2], 1.0)[..., None] - uv
+        rot_only = q[..., :2] / np.where(valid, q[..., 2], 1.0)[..., None] - uv
+    return np.where(valid[..., None], full, 0.0), np.where(valid[..., None], rot_only, 0.0), valid
+
+
+def _dis(a: np.ndarray, b: np.ndarray, init: np.ndarray | None) -> np.ndarray:
+    """DIS flow (medium preset, down to full resolution) from a to b, started from `init` if given."""
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    dis.setFinestScale(0)
+    return dis.calc(gray(a), gray(b), None if init is None else np.ascontiguousarray(init, np.float32))
+
+
+def _rigid_init(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    full, rot_only, valid = rigid_flow(depth, T_j_i, K)
+    return np.where(valid[..., None], full, rot_only), full - rot_only, valid
+
+
+def rigid_tests(image_i: np.ndarray, image_j: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, T_j_i: np.ndarray,
+                K: np.ndarray, abs_px: float, rel: float, fb_px: float = 2.0, open_px: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """(dense flow i -> j, H x W rigid agreement). The flow starts from the rigid flow (DIS then only
+    has to find what departs from it: a far better flow on the large, weakly textured motion of
+    the near road, where an uninitialised flow fails). A pixel disagrees when its flow departs from
+    the rigid flow by more than abs_px + rel |translation part| and the flow is trustworthy there
+    (forward-backward consistent within `fb_px`: an occlusion is not a mover); specks thinner than
+    `open_px` are removed (a mover is a blob). A pixel without depth cannot be tested and agrees."""
+    init, trans, valid = _rigid_init(depth_i, T_j_i, K)
+    flow = _dis(image_i, image_j, init)
+    back = _dis(image_j, image_i, _rigid_init(depth_j, invert_T(T_j_i), K)[0])
+    h, w = flow.shape[:2]
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    back_at = cv2.remap(back, u + flow[..., 0], v + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    consistent = np.linalg.norm(flow + back_at, axis=-1) < fb_px
+    gap = np.linalg.norm(flow - init, axis=-1)
+    moving = valid & consistent & (gap > abs_px + rel * np.linalg.norm(trans, axis=-1))
+    if open_px > 1:
+        moving = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_OPEN, np.ones((open_px, open_px), np.uint8)) > 0
+    return flow, ~moving
+
+
+def pair_keep(image_i: np.ndarray, image_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray,
+              depth: tuple[np.ndarray, np.ndarray] | None = None, lam_px: float = 1.0, abs_px: float = 0.5,
+              rel: float = 0.3, method: str = "dis", min_baseline_m: float = 1e-3) -> PairKeep:
+    """Every flow-based test of the pair (i, j). `depth`: (depth_i, depth_j) for the rigid test, whose
+    rigid-initialised flow then serves eq. 19 too; None: the rigid test keeps everything and eq. 19
+    runs on the plain flow (`method`), as without it."""
+    if depth is not None:
+        flow, rig = rigid_tests(image_i, image_j, depth[0], depth[1], T_j_i, K, abs_px, rel)
+    else:
+        flow = dense_flow(image_i, image_j, method)
+        rig = np.ones(flow.shape[:2], bool)
+    inside = flow_inside(flow)
+    moved = np.linalg.norm(T_j_i[:3, 3]) >= min_baseline_m
+    epi = epipolar_distance(flow, fundamental(T_j_i, K)) < lam_px if moved else np.ones(flow.shape[:2], bool)
+    return PairKeep(inside, epi, rig)

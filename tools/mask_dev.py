@@ -1,0 +1,34 @@
+"""Development check of the photometric masks on traffic validation sequences (never the test split):
+precision / recall of each test against the simulator's moving masks, for rigid-test settings.
+
+    .venv/bin/python tools/mask_dev.py SEQ [SEQ ...] [--set rigid_abs_px=0.5 rigid_rel=0.3 ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from leovr.config import SelfSupConfig
+from leovr.data import open_sequence
+from selfsup.mask_quality import score_masks
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("sequences", nargs="+")
+    ap.add_argument("--set", nargs="*", default=[], help="SelfSupConfig field=value")
+    ap.add_argument("--work", default="runs/mask_dev")
+    ap.add_argument("--focal", type=float, default=130.0)
+    a = ap.parse_args()
+    kw = {k: float(v) for k, v in (s.split("=") for s in a.set)}
+    cfg = SelfSupConfig(train_focal_px=a.focal, **kw)
+    for path in a.sequences:
+        r = score_masks(open_sequence(path), cfg, Path(a.work) / Path(path).name)
+        print(json.dumps({"sequence": Path(path).name, "set": kw, "moving_share": round(r["moving_share"], 4),
+                          **{v: {k: round(x, 3) for k, x in m.items()} for v, m in r["variants"].items()}}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
