@@ -417,15 +417,26 @@ def bench_real(
 def bench_selfsup(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
     quick: bool = typer.Option(False, help="One short sequence per scenario, two epochs."),
+    parts: Optional[str] = typer.Option(None, help="Comma-separated parts to run: synthetic,traffic,kitti (default: all)."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Cold-start self-supervised training vs untrained, no-mask, no-L_f/L_r and supervised models."""
     from leovr.bench.selfsup import run_selfsup_bench
 
-    doc = run_selfsup_bench(out, load_config(config).bench_selfsup, quick)
+    cfg = load_config(config).bench_selfsup
+    if parts:
+        cfg = cfg.model_copy(update={"parts": [p.strip() for p in parts.split(",")]})
+        cfg = type(cfg).model_validate(cfg.model_dump())
+    doc = run_selfsup_bench(out, cfg, quick)
     r = doc["results"]
     for k in ("untrained", "selfsup", "selfsup_nomask", "selfsup_no_lf_lr", "supervised"):
-        typer.echo(f"{k:18s} MAE {r[f'{k}_mae_m']:.3f} m")
+        if f"{k}_mae_m" in r:
+            typer.echo(f"{k:18s} MAE {r[f'{k}_mae_m']:.3f} m")
+    for k, v in r.get("traffic_only", {}).items():
+        typer.echo(f"traffic {k:18s} {'MAE' if k.startswith('selfsup') else '   '} {v:.3f}")
+    for k, v in r.get("mask_quality", {}).items():
+        if isinstance(v, dict):
+            typer.echo(f"mask {k:10s} precision {v['precision']:.3f} recall {v['recall']:.3f}")
     if "kitti_raw" in r:
         for k, v in r["kitti_raw"]["held_out"].items():
             typer.echo(f"KITTI {k:30s} held-out MAE {v['mae_m']:.3f} m")

@@ -337,6 +337,7 @@ class BenchSelfSupConfig(_Model):
     dataset: str | None = None  # simulator dataset (tools/make_dataset.py); None = the cached default recipe
     scenarios: list[Scenario] = ["dynamic", "city_loop"]
     traffic_sequences: int = Field(3, ge=1)  # traffic scenario (its own dataset recipe): training sequences; 2 test sequences
+    parts: list[Literal["synthetic", "traffic", "kitti"]] = ["synthetic", "traffic", "kitti"]  # which parts of the bench run
     lidar: Literal["mid40", "vlp16"] = "mid40"  # LeoVR's self-supervised experiments use the Mid-40
     train_sequences: int = Field(3, ge=1)  # per scenario (day sequences first)
     test_sequences: int = Field(2, ge=1)  # per scenario, from the test split

@@ -165,13 +165,35 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     train = pick_sequences(root, "train", cfg, n_train)
     test_paths = pick_sequences(root, "test", cfg, 1 if quick else cfg.test_sequences)
     shorten = (lambda s: SequenceView(s, list(range(min(len(s), cfg.quick_frames))))) if quick else (lambda s: s)
-    tests = [shorten(open_sequence(p)) for p in test_paths]
     epochs = cfg.quick_epochs if quick else cfg.epochs
     base = base_config(cfg, epochs, cfg.quick_frames if quick else None)
+    bins = list(CompleteConfig().bins)
+    results: dict = {"train_minutes": {}}
+    traffic_body: dict = {}
+    if "synthetic" in cfg.parts:
+        results.update(synthetic_runs(cfg, base, train, [shorten(open_sequence(p)) for p in test_paths], test_paths, work,
+                                      progress, bins))
+    if "traffic" in cfg.parts:
+        results["traffic_only"], traffic_body = traffic_runs(cfg, base, traffic_root, work, quick, shorten, progress, bins)
+        results["mask_quality"] = traffic_body.pop("mask_quality")
+        results["train_minutes"].update(traffic_body.pop("train_minutes"))
+    raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
+    if "kitti" in cfg.parts and raw.exists():
+        synthetic_ck = work / "selfsup" / "generator.pt" if "synthetic" in cfg.parts else None
+        results["kitti_raw"] = kitti_cold_start(raw, cfg, base, work, synthetic_ck, quick, progress, bins)
+    body = {"quick": quick, "parts": cfg.parts, "train_sequences": [str(p.relative_to(root)) for p in train],
+            "test_sequences": [str(p.relative_to(root)) for p in test_paths], **traffic_body, "epochs": epochs,
+            "train_focal_px": cfg.train_focal_px, "lr": cfg.lr, "batch_size": cfg.batch_size,
+            "loop_closure_note": LOOP_NOTE, "results": results}
+    return write_bench(out, "selfsup", body, started)
+
+
+def synthetic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, train: list[Path], tests: list[Sequence],
+                   test_paths: list[Path], work: Path, progress: bool, bins: list[float]) -> dict:
+    """dynamic + city_loop: self-supervised (full masks), no masks, no L_f / L_r, supervised reference."""
     nomask = {"flow_mask": False, "rigid_mask": False, "auto_mask": False}
     variants = {"selfsup": base, "selfsup_nomask": base.model_copy(update=nomask),
                 "selfsup_no_lf_lr": base.model_copy(update={"weight_feature": 0.0, "weight_refined": 0.0})}
-    bins = list(CompleteConfig().bins)
     minutes, checkpoints = {}, {}
     for name, vcfg in variants.items():
         share = None if name == "selfsup" else work / "selfsup" / "graph" / "init"
@@ -190,17 +212,7 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     dyn = [t for t, p in zip(tests, test_paths) if "dynamic" in p.name]
     if dyn:
         results["dynamic_only"] = {k: score_paths(checkpoints[k], dyn, cfg, bins)["mae_m"] for k in ("selfsup", "selfsup_nomask")}
-    results["traffic_only"], traffic_body = traffic_runs(cfg, base, traffic_root, work, quick, shorten, progress, bins)
-    results["mask_quality"] = traffic_body.pop("mask_quality")
-    results["train_minutes"].update(traffic_body.pop("train_minutes"))
-    raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
-    if raw.exists():
-        results["kitti_raw"] = kitti_cold_start(raw, cfg, base, work, checkpoints["selfsup"], quick, progress, bins)
-    body = {"quick": quick, "train_sequences": [str(p.relative_to(root)) for p in train],
-            "test_sequences": [str(p.relative_to(root)) for p in test_paths], **traffic_body, "epochs": epochs,
-            "train_focal_px": cfg.train_focal_px, "lr": cfg.lr, "batch_size": cfg.batch_size,
-            "loop_closure_note": LOOP_NOTE, "results": results}
-    return write_bench(out, "selfsup", body, started)
+    return results
 
 
 LOOP_NOTE = ("The pose-quality loop closure (Sec. IV-B) runs in every graph pass but cannot act here: each simulator "
@@ -236,7 +248,7 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
     return maes, body
 
 
-def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, work: Path, synthetic_ck: Path,
+def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, work: Path, synthetic_ck: Path | None,
                      quick: bool, progress: bool, bins: list[float]) -> dict:
     """Cold start on the clip's first frames; every model scored on held-out beams of the last frames."""
     seq = open_sequence(raw)
@@ -248,7 +260,7 @@ def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, wo
     test = [SequenceView(seq, list(range(len(seq) - cfg.kitti_test_frames, len(seq))))]
     ck, minutes = train_run(kcfg, [raw], work / "kitti_cold_start", progress)
     models = {"untrained": (DepthGenerator(generator_config(kcfg)), cfg.train_focal_px),
-              "synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px),
+              **({"synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px)} if synthetic_ck else {}),
               "shipped_supervised_synthetic": (load_generator(shipped_checkpoint()), 260.0),
               "kitti_cold_start": (load_generator(ck), cfg.train_focal_px)}
     out = {name: score(m, test, cfg.kitti_input, focal, bins) for name, (m, focal) in models.items()}

@@ -29,6 +29,7 @@ class Recipe:
     lights: tuple[str, ...] = ("day", "night")
     frames: int = 40
     scenarios: tuple[str, ...] = SCENARIO_CYCLE  # sequence i of a split takes scenarios[i % len]
+    camera: tuple[int, int, float] = (448, 256, 260.0)  # width, height, focal length (px)
 
     def items(self) -> list[tuple[str, SimulateConfig]]:
         out = []
@@ -36,8 +37,10 @@ class Recipe:
             for i in range(n):
                 for lidar in self.lidars:
                     for light in self.lights:
+                        width, height, focal = self.camera
                         cfg = SimulateConfig(scenario=self.scenarios[i % len(self.scenarios)], lidar=lidar, light=light,
-                                             seed=SEED_BASE[split] + i, frames=self.frames)
+                                             seed=SEED_BASE[split] + i, frames=self.frames, width=width, height=height,
+                                             focal=focal)
                         out.append((split, cfg))
         return out
 
