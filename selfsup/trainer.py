@@ -96,7 +96,8 @@ def photometric_term(img: torch.Tensor, depth: torch.Tensor, b: dict, cfg: SelfS
 def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: bool, log_sigma: torch.Tensor | None = None
                 ) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor]]:
     """Eq. 22 on one batch, plus the uncertainty head's Gaussian NLL at the LiDAR-backed landmarks
-    (on detached depth: it trains the head, not the depth): (total loss, detached terms, images)."""
+    (on detached depth, and the head sees detached features: it trains the head only): (total loss,
+    detached terms, images)."""
     img = b["image"]
     lp, warped, masks = photometric_term(img, depth, b, cfg)
     lf = feature_point_loss(depth, b["feature_depth"], cfg.target_loss) if cfg.weight_feature > 0 else depth.new_zeros(())
@@ -179,7 +180,9 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
     model = DepthGenerator(generator_config(cfg))
     if cfg.init_checkpoint and not resume:
         init_from(model, Path(cfg.init_checkpoint))
-    params = model.parameters() if cfg.weight_nll > 0 else model.depth_parameters()  # the head learns only from its NLL
+    # the head learns from its NLL only, and the NLL (metres: hundreds at a cold start) never reaches the depth path
+    model.sigma_on_detached = True
+    params = model.parameters() if cfg.weight_nll > 0 else model.depth_parameters()
     opt = torch.optim.Adam(params, lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
     start = 0

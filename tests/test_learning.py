@@ -5,6 +5,8 @@ training sequences, one held-out sequence of another seed."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -59,8 +61,14 @@ def test_selfsup_training_learns(rendered, tmp_path):
     cfg = SelfSupConfig(epochs=20, init_fraction=1.0, batch_size=2, lr=3e-3, weight_feature=1.0, train_focal_px=None,
                         loop_closure=False, **SMALL)
     torch.manual_seed(0)
-    untrained = mae(DepthGenerator(generator_config(cfg)), tests)
+    start = DepthGenerator(generator_config(cfg))  # the trainer's initial weights (same seed)
+    untrained = mae(start, tests)
     train_selfsup(cfg, split_sequences(root, "train"), tmp_path / "run", progress=False)
+    # the uncertainty head is trained too (Gaussian NLL at the LiDAR-backed landmarks), and its loss falls
+    nll = [json.loads(x)["nll"] for x in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert nll[-1] < 0.5 * nll[0], nll
+    head = torch.load(tmp_path / "run" / "generator.pt", weights_only=False)["model"]
+    assert any(not torch.equal(head[k], v) for k, v in start.state_dict().items() if k.startswith("sigma_head"))
     trained = mae(load_generator(tmp_path / "run" / "generator.pt"), tests)
     # photometric learning is slower than supervised: 10.1 m against 14.0 m untrained and 11.1 m for the
     # median guess when this test was written (the supervised run reaches under half the untrained MAE)

@@ -122,6 +122,7 @@ class DepthGenerator(nn.Module):
         self.depth_head = nn.Conv2d(ch[0], 1, 3, 1, 1)  # last layer: no BN / ReLU
         self.sigma_head = nn.Sequential(conv_bn_relu(ch[0], ch[0]), nn.Conv2d(ch[0], 1, 3, 1, 1))
         self.fusion_head = nn.Conv2d(ch[0], 1, 3, 1, 1) if cfg.output == "fusion" else None
+        self.sigma_on_detached = False  # a training switch (not saved): see forward
         if cfg.output != "absolute":  # start as the prior itself: zero residual, lambda = 1/2
             for head in (self.depth_head, self.fusion_head):
                 if head is not None:
@@ -163,7 +164,8 @@ class DepthGenerator(nn.Module):
             x = dec(torch.cat([x, f_rgb[i], f_lidar[i]], 1))
         x = F.interpolate(x, size=(h, w), mode="bilinear", align_corners=False)
         x = self.full(torch.cat([x, image, filled, (s > 0).to(s.dtype)], 1))
-        out = {"log_sigma": self.sigma_head(x)}
+        # with `sigma_on_detached`, the uncertainty head's loss reaches the head only, never the depth path
+        out = {"log_sigma": self.sigma_head(x.detach() if self.sigma_on_detached else x)}
         if not self.uses_prior:
             out["log_depth"] = self.depth_head(x) + math.log(DEPTH_NORM_M)
         else:
