@@ -145,12 +145,11 @@ def datasets(cfg: BenchSelfSupConfig, quick: bool, progress: bool) -> tuple[Path
     """(root of the dynamic / city_loop sequences, root of the traffic sequences). --quick renders its
     own small set (one short sequence per scenario and split), so it runs on a fresh clone; the full
     run reads the default recipe (tools/make_dataset.py) and renders the traffic recipe when missing."""
-    base = Path(cfg.dataset) if cfg.dataset else None
     if quick:
-        root = make_dataset(QUICK_RECIPE, base, progress=progress)
+        root = make_dataset(QUICK_RECIPE, Path(cfg.dataset) if cfg.dataset else None, progress=progress)
         return root, root
-    root = base / "default" if base else default_root() / "default"
-    return root, make_dataset(RECIPES["traffic"], base, progress=progress)
+    root = Path(cfg.dataset) if cfg.dataset else default_root() / "default"
+    return root, make_dataset(RECIPES["traffic"], progress=progress)
 
 
 def score_paths(checkpoint: Path, tests: list[Sequence], cfg: BenchSelfSupConfig, bins: list[float]) -> dict:

@@ -1,0 +1,28 @@
+"""`leovr bench selfsup --quick` on an empty cache (as on a fresh clone): it renders its own small dataset
+and writes the contract's keys, including the traffic runs and the mask scores."""
+
+from __future__ import annotations
+
+import json
+
+from leovr.bench.selfsup import run_selfsup_bench
+from leovr.config import BenchSelfSupConfig
+
+
+def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
+    monkeypatch.setenv("LEOVR_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "selfsup.json"
+    run_selfsup_bench(out, BenchSelfSupConfig(parts=["synthetic", "traffic"]), quick=True, progress=False)
+    doc = json.loads(out.read_text())
+    r = doc["results"]
+    assert doc["quick"] and doc["parts"] == ["synthetic", "traffic"] and "kitti_raw" not in r
+    assert all(r[f"{k}_mae_m"] > 0 for k in ("untrained", "selfsup", "selfsup_nomask", "supervised"))
+    assert {"selfsup", "selfsup_nomask", "selfsup_eq19_only", "mask_gain"} <= set(r["traffic_only"])
+    assert doc["traffic_test_sequences"] and all("traffic" in p for p in doc["traffic_test_sequences"])
+    for v in ("eq19", "rigid", "auto", "eq19_rigid", "full"):
+        q = r["mask_quality"][v]
+        assert 0.0 <= q["precision"] <= 1.0 and 0.0 <= q["recall"] <= 1.0
+    # the full mask drops at least what the rigid test and the auto-mask drop (eq. 19 alone runs on the plain flow)
+    assert r["mask_quality"]["full"]["dropped_share"] >= max(r["mask_quality"][v]["dropped_share"] for v in ("rigid", "auto"))
+    assert 0.0 < r["mask_quality"]["moving_share"] < 1.0
+    assert "revisit" in doc["loop_closure_note"]
