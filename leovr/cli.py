@@ -423,10 +423,7 @@ def bench_selfsup(
     """Cold-start self-supervised training vs untrained, no-mask, no-L_f/L_r and supervised models."""
     from leovr.bench.selfsup import run_selfsup_bench
 
-    cfg = load_config(config).bench_selfsup
-    if parts:
-        cfg = cfg.model_copy(update={"parts": [p.strip() for p in parts.split(",")]})
-        cfg = type(cfg).model_validate(cfg.model_dump())
+    cfg = override(load_config(config).bench_selfsup, parts=[p.strip() for p in parts.split(",")] if parts else None)
     doc = run_selfsup_bench(out, cfg, quick)
     r = doc["results"]
     for k in ("untrained", "selfsup", "selfsup_nomask", "selfsup_no_lf_lr", "supervised"):

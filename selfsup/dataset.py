@@ -12,7 +12,8 @@ from leovr.geometry import invert_T
 from selfsup.supervision import Supervision, TrainFrame
 
 
-def _image(x: np.ndarray) -> torch.Tensor:
+def image_tensor(x: np.ndarray) -> torch.Tensor:
+    """H x W x 3 uint8 -> 3 x H x W float in [0, 1]."""
     return torch.from_numpy(np.ascontiguousarray(x)).permute(2, 0, 1).float() / 255.0
 
 
@@ -44,9 +45,9 @@ class SelfSupSamples(Dataset):
         fr, sup = self.frames[k], self.sup[k]
         f = fr[i]
         return {
-            "image": _image(f.image),
-            "prev": _image(fr[i - 1].image),
-            "next": _image(fr[i + 1].image),
+            "image": image_tensor(f.image),
+            "prev": image_tensor(fr[i - 1].image),
+            "next": image_tensor(fr[i + 1].image),
             "sparse": _plane(f.sparse, f.sparse),
             "K": torch.from_numpy(f.K).float(),
             "T_prev": torch.from_numpy(invert_T(sup.poses[i - 1]) @ sup.poses[i]).float(),

@@ -23,6 +23,7 @@ from leovr.data.sequence import Sequence
 from leovr.depth.inference import forward_padded
 from leovr.geometry import invert_T
 from selfsup.blind import BlindSequence
+from selfsup.dataset import image_tensor
 from selfsup.losses import photometric_error
 from selfsup.supervision import TrainFrame, graph_depth_at, graph_pass, pair_tests, rigid_support, train_frames
 from selfsup.warp import warp_image
@@ -30,15 +31,11 @@ from selfsup.warp import warp_image
 VARIANTS = ("eq19", "rigid", "auto", "eq19_rigid", "full")
 
 
-def _tensor(x: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(x)).permute(2, 0, 1)[None].float() / 255.0
-
-
 @torch.no_grad()
 def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth: np.ndarray, alpha: float) -> np.ndarray:
     """monodepth2's auto-mask of one pair: True where the neighbour warped with `depth` matches the
     frame better than the unwarped neighbour."""
-    img, nb = _tensor(frame.image), _tensor(neighbour.image)
+    img, nb = image_tensor(frame.image)[None], image_tensor(neighbour.image)[None]
     d = torch.from_numpy(depth.astype(np.float32))[None, None]
     warped, _ = warp_image(nb, d, torch.from_numpy(T_j_i).float()[None], torch.from_numpy(frame.K).float()[None])
     return (photometric_error(img, warped, alpha) < photometric_error(img, nb, alpha))[0, 0].numpy()
@@ -66,7 +63,7 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
         if model is not None:
             model.eval()
             with torch.no_grad():
-                net_depth = forward_padded(model, _tensor(f.image), torch.from_numpy(f.sparse)[None, None])[0][0, 0].numpy()
+                net_depth = forward_padded(model, image_tensor(f.image)[None], torch.from_numpy(f.sparse)[None, None])[0][0, 0].numpy()
         for j in (k - 1, k + 1):
             if not 0 <= j < len(frames):
                 continue

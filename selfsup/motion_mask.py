@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from leovr.geometry import fundamental, invert_T
-from selfsup.flow_mask import dense_flow, epipolar_distance, flow_inside, gray
+from leovr.geometry import invert_T
+from selfsup.flow_mask import dense_flow, epipolar_keep, flow_inside, gray
 
 
 @dataclass
@@ -52,7 +52,7 @@ def rigid_flow(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.
     return np.where(valid[..., None], full, 0.0), np.where(valid[..., None], rot_only, 0.0), valid
 
 
-def _dis(a: np.ndarray, b: np.ndarray, init: np.ndarray | None) -> np.ndarray:
+def dis_flow(a: np.ndarray, b: np.ndarray, init: np.ndarray | None) -> np.ndarray:
     """DIS flow (medium preset, down to full resolution) from a to b, started from `init` if given."""
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     dis.setFinestScale(0)
@@ -73,8 +73,8 @@ def rigid_tests(image_i: np.ndarray, image_j: np.ndarray, depth_i: np.ndarray, d
     (forward-backward consistent within `fb_px`: an occlusion is not a mover); specks thinner than
     `open_px` are removed (a mover is a blob). A pixel without depth cannot be tested and agrees."""
     init, trans, valid = _rigid_init(depth_i, T_j_i, K)
-    flow = _dis(image_i, image_j, init)
-    back = _dis(image_j, image_i, _rigid_init(depth_j, invert_T(T_j_i), K)[0])
+    flow = dis_flow(image_i, image_j, init)
+    back = dis_flow(image_j, image_i, _rigid_init(depth_j, invert_T(T_j_i), K)[0])
     h, w = flow.shape[:2]
     v, u = np.mgrid[0:h, 0:w].astype(np.float32)
     back_at = cv2.remap(back, u + flow[..., 0], v + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -97,7 +97,4 @@ def pair_keep(image_i: np.ndarray, image_j: np.ndarray, T_j_i: np.ndarray, K: np
     else:
         flow = dense_flow(image_i, image_j, method)
         rig = np.ones(flow.shape[:2], bool)
-    inside = flow_inside(flow)
-    moved = np.linalg.norm(T_j_i[:3, 3]) >= min_baseline_m
-    epi = epipolar_distance(flow, fundamental(T_j_i, K)) < lam_px if moved else np.ones(flow.shape[:2], bool)
-    return PairKeep(inside, epi, rig)
+    return PairKeep(flow_inside(flow), epipolar_keep(flow, T_j_i, K, lam_px, min_baseline_m), rig)

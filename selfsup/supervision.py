@@ -177,7 +177,8 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
               for k, f in enumerate(frames)]
     graph_depth = [graph_depth_at(graph, f) for f in frames] if with_refined or cfg.rigid_mask else [None] * n
     # initialisation stage: the graph's depth is a classical fill, trusted by the rigid test only near returns
-    rigid_depth = graph_depth if with_refined else [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(graph_depth, frames)]
+    rigid_depth = graph_depth if with_refined else [rigid_support(d, f.sparse, cfg.rigid_support_px)
+                                                    for d, f in zip(graph_depth, frames)]
     refined: list[np.ndarray | None] = [None] * n
     use = np.zeros(n, bool)
     if with_refined:

@@ -16,15 +16,9 @@ import numpy as np
 from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
 from leovr.geometry import invert_T
-from selfsup.flow_mask import flow_inside, gray
-from selfsup.motion_mask import rigid_flow
+from selfsup.flow_mask import flow_inside
+from selfsup.motion_mask import dis_flow, rigid_flow
 from selfsup.supervision import train_frames
-
-
-def dis(a: np.ndarray, b: np.ndarray, init: np.ndarray | None) -> np.ndarray:
-    d = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    d.setFinestScale(0)
-    return d.calc(gray(a), gray(b), None if init is None else np.ascontiguousarray(init, np.float32))
 
 
 def main() -> None:
@@ -44,8 +38,8 @@ def main() -> None:
             T = invert_T(seq[k + 1].T_world_cam) @ seq[k].T_world_cam
             full, rot, valid = rigid_flow(depth[0], T, f.K)
             fb_full, fb_rot, fb_valid = rigid_flow(depth[1], invert_T(T), f.K)
-            flow = dis(f.image, g.image, np.where(valid[..., None], full, rot) if initialised else None)
-            back = dis(g.image, f.image, np.where(fb_valid[..., None], fb_full, fb_rot) if initialised else None)
+            flow = dis_flow(f.image, g.image, np.where(valid[..., None], full, rot) if initialised else None)
+            back = dis_flow(g.image, f.image, np.where(fb_valid[..., None], fb_full, fb_rot) if initialised else None)
             h, w = flow.shape[:2]
             v, u = np.mgrid[0:h, 0:w].astype(np.float32)
             back_at = cv2.remap(back, u + flow[..., 0], v + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

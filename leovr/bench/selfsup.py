@@ -38,6 +38,7 @@ from selfsup.mask_quality import VARIANTS, score_masks
 from selfsup.supervision import train_frames
 from selfsup.trainer import train_selfsup
 
+NO_MASKS = {"flow_mask": False, "rigid_mask": False, "auto_mask": False}  # the "no mask" variants
 # --quick: one short sequence per scenario in each split, rendered on demand (a fresh clone has no dataset)
 QUICK_RECIPE = Recipe("selfsup_quick", {"train": 3, "test": 3}, ("mid40",), ("day",), 12, ("dynamic", "city_loop", "traffic"))
 
@@ -190,8 +191,7 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
 def synthetic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, train: list[Path], tests: list[Sequence],
                    test_paths: list[Path], work: Path, progress: bool, bins: list[float]) -> dict:
     """dynamic + city_loop: self-supervised (full masks), no masks, no L_f / L_r, supervised reference."""
-    nomask = {"flow_mask": False, "rigid_mask": False, "auto_mask": False}
-    variants = {"selfsup": base, "selfsup_nomask": base.model_copy(update=nomask),
+    variants = {"selfsup": base, "selfsup_nomask": base.model_copy(update=NO_MASKS),
                 "selfsup_no_lf_lr": base.model_copy(update={"weight_feature": 0.0, "weight_refined": 0.0})}
     minutes, checkpoints = {}, {}
     for name, vcfg in variants.items():
@@ -227,7 +227,7 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
     train = pick_sequences(root, "train", cfg, 1 if quick else cfg.traffic_sequences, ["traffic"])
     test_paths = pick_sequences(root, "test", cfg, 1 if quick else 2, ["traffic"])
     tests = [shorten(open_sequence(p)) for p in test_paths]
-    runs = {"selfsup": base, "selfsup_nomask": base.model_copy(update={"flow_mask": False, "rigid_mask": False, "auto_mask": False}),
+    runs = {"selfsup": base, "selfsup_nomask": base.model_copy(update=NO_MASKS),
             "selfsup_eq19_only": base.model_copy(update={"rigid_mask": False, "auto_mask": False})}
     maes, minutes, checkpoints = {}, {}, {}
     for name, vcfg in runs.items():

@@ -230,12 +230,10 @@ def build_world(scenario: str, seed: int, ego_speed: float) -> World:
         extent = (-160.0, 1560.0, -140.0, 140.0)
         centre = Path2D(np.array([[-20.0, 0.0], [1500.0, 0.0]]))
         ego_roads = [(0, 0.0, 1)]
-        n_cars, n_people = (12, 10) if scenario == "straight" else (45, 40)
+        n_cars, n_people = {"straight": (12, 10), "dynamic": (45, 40), "traffic": (20, 16)}[scenario]
     ego = centre.offset(-LANE)
     static = _build_city(rng, extent, xs, ys).build()
     near = 0.8 if scenario == "dynamic" else 0.5
-    if scenario == "traffic":
-        n_cars, n_people = 20, 16
     movers = _traffic(rng, extent, xs, ys, ego_roads, centre, n_cars, n_people, near)
     # traffic ahead in the ego's own lane, at the ego's speed so the gap stays constant
     for k in range({"city_loop": 1, "straight": 1, "dynamic": 4}.get(scenario, 0)):
