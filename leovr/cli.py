@@ -316,7 +316,7 @@ def train(
         r = train_selfsup(cfg, list(sequences), out, resume=resume, rerun=rerun)
         if r:
             typer.echo(f"epoch {r['epoch']} ({r['stage']}): loss {r['loss']:.4f}, photometric {r['photometric']:.4f}, "
-                       f"flow mask keeps {100 * r['mask_kept']:.0f}% -> {out}/generator.pt")
+                       f"masks keep {100 * r['mask_kept']:.0f}% -> {out}/generator.pt")
         return
     if mode != "supervised":
         raise typer.BadParameter("--mode is supervised or selfsup", param_hint="--mode")
