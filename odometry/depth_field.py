@@ -44,6 +44,18 @@ class CorrectionGrid:
         idx, w = self.weights(u, v)
         return (np.asarray(c)[idx] * w).sum(1)
 
+    def offset_gradient(self, c: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d offsets / d u and d offsets / d v at pixels (u, v): the slopes of the bilinear patch."""
+        idx, w = self.weights(u, v)
+        cn = np.asarray(c)[idx]  # N x 4: (x0, y0), (x1, y0), (x0, y1), (x1, y1)
+        fy = w[:, 2] + w[:, 3]
+        fx = w[:, 1] + w[:, 3]
+        sx = (self.cols - 1) / max(self.width - 1, 1)
+        sy = (self.rows - 1) / max(self.height - 1, 1)
+        du = ((cn[:, 1] - cn[:, 0]) * (1 - fy) + (cn[:, 3] - cn[:, 2]) * fy) * sx
+        dv = ((cn[:, 2] - cn[:, 0]) * (1 - fx) + (cn[:, 3] - cn[:, 1]) * fx) * sy
+        return du, dv
+
     def upsample(self, c: np.ndarray) -> np.ndarray:
         """H x W map of log-depth offsets."""
         v, u = np.mgrid[0 : self.height, 0 : self.width]

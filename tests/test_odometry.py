@@ -83,6 +83,39 @@ def test_depth_consistency_vanishes_for_true_geometry_and_jacobians_match_numeri
         assert np.allclose(Jj[:, k], num_j, atol=1e-4)
 
 
+def test_depth_consistency_pose_jacobians_match_gtsam_retract():
+    """The analytic pose blocks against central differences through gtsam's own Pose3.retract."""
+    import gtsam
+
+    Ti = make_T(Rotation.from_rotvec([0.01, -0.03, 0.02]).as_matrix(), [0.2, -0.1, 1.0])
+    Tj = make_T(Rotation.from_rotvec([-0.02, 0.01, 0.0]).as_matrix(), [0.0, 0.05, 0.0])
+    g = CorrectionGrid(4, 5, *SHAPE)
+    di, dj = FrameDepth(np.log(_plane_depth(Ti)), g), FrameDepth(np.log(_plane_depth(Tj)), g)
+    dc = DepthConsistency(di, dj, K, 0.05)
+    rng = np.random.default_rng(2)
+    dc.set_samples(rng.uniform(20, 140, 300), rng.uniform(20, 100, 300))
+    ci, cj = rng.normal(0, 0.05, g.size), rng.normal(0, 0.05, g.size)
+    r0, (J_Ti, J_Tj, J_ci, J_cj), s = dc.evaluate(Ti, Tj, ci, cj, True, poses=True)
+    _, (Ji, Jj), _ = dc.evaluate(Ti, Tj, ci, cj, True)
+    assert np.array_equal(Ji, J_ci) and np.array_equal(Jj, J_cj)
+    assert J_Ti.shape == J_Tj.shape == (300, 6) and np.abs(J_Ti).max() > 0.1
+    eps = 1e-6
+    for slot, T in ((0, Ti), (1, Tj)):
+        pose = gtsam.Pose3(T)
+        for k in range(6):
+            d = np.zeros(6)
+            d[k] = eps
+            Tp, Tm = pose.retract(d).matrix(), pose.retract(-d).matrix()
+            if slot == 0:
+                num = s * (dc._residual(Tp, Tj, ci, cj) - dc._residual(Tm, Tj, ci, cj)) / (2 * eps)
+            else:
+                num = s * (dc._residual(Ti, Tp, ci, cj) - dc._residual(Ti, Tm, ci, cj)) / (2 * eps)
+            J = (J_Ti, J_Tj)[slot][:, k]
+            # the analytic blocks use the smoothed image gradient, the numeric ones the bilinear patch
+            assert np.abs(J - num).mean() < 0.05 * np.abs(num).mean() + 1e-6, (slot, k)
+            assert np.corrcoef(J, num)[0, 1] > 0.99, (slot, k)
+
+
 def test_bilinear_matches_linear_ramp():
     img = np.add.outer(np.arange(5.0), 10 * np.arange(6.0))  # v + 10 u
     assert np.allclose(bilinear(img, np.array([2.5, 0.0]), np.array([1.25, 3.0])), [1.25 + 25, 3.0])
