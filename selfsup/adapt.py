@@ -39,6 +39,7 @@ from leovr.depth.train import edge_aware_smoothness, save_checkpoint
 from leovr.errors import DataError
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
+from leovr.threads import single_threaded_blas
 from selfsup.masked_lidar import masked_split
 
 
@@ -193,6 +194,7 @@ def validate(model: DepthGenerator, frames: list[AdaptFrame]) -> float:
     return total / max(n, 1)
 
 
+@single_threaded_blas
 def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
     """Adapt the generator to `seqs`; returns the last log record (with the best validation MAE)."""
     from leovr.paths import shipped_checkpoint

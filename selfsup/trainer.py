@@ -34,6 +34,7 @@ from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator
 from leovr.depth.train import generator_config, init_from, load_resume, save_checkpoint
 from leovr.errors import DataError
+from leovr.threads import single_threaded_blas
 from selfsup.blind import BlindSequence
 from selfsup.dataset import SelfSupSamples
 from selfsup.losses import (
@@ -159,6 +160,7 @@ def _append_logs(out: Path, record: dict) -> None:
     write_text(out / "log.csv", buf.getvalue())
 
 
+@single_threaded_blas
 def train_selfsup(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
                   rerun: Path | None = None) -> dict:
     """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0)."""

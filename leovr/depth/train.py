@@ -24,6 +24,7 @@ from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator, GeneratorConfig
 from leovr.errors import DataError
 from leovr.sim.dataset import default_root
+from leovr.threads import single_threaded_blas
 
 
 def generator_config(cfg: TrainConfig | SelfSupConfig) -> GeneratorConfig:
@@ -104,6 +105,7 @@ def load_resume(path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer,
     return state
 
 
+@single_threaded_blas
 def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
     """Train; returns the last log record."""
     torch.manual_seed(cfg.seed)

@@ -25,6 +25,7 @@ from leovr.eval.heldout import parallax_filter
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from leovr.paths import shipped_checkpoint
+from leovr.threads import single_threaded_blas
 
 
 @dataclass
@@ -107,6 +108,7 @@ def ground_truth_note(kind: str, cfg: CompleteConfig) -> str:
     )
 
 
+@single_threaded_blas
 def run_completion(
     seq: Sequence,
     cfg: CompleteConfig,

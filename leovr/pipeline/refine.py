@@ -45,6 +45,7 @@ from leovr.pipeline.completion import (
     prepare_sample,
     warn_empty_input,
 )
+from leovr.threads import single_threaded_blas
 
 
 def completion_config(cfg: RefineConfig) -> CompleteConfig:
@@ -155,6 +156,7 @@ class Progress:
         write_text(path, json.dumps(self.__dict__) + "\n")
 
 
+@single_threaded_blas
 def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True,
                pool: dict[str, DepthMetricAccumulator] | None = None, score: bool = True,
                collect: dict[int, FrameScore] | None = None) -> dict:
