@@ -72,8 +72,9 @@ def generator_checkpoint(cfg: CompleteConfig) -> Path:
 def generator_method(cfg: CompleteConfig):
     """A function EvalSample -> (depth, log-sigma) running the configured generator (loaded once)."""
     from leovr.depth.inference import load_generator, predict_at_focal
+    from leovr.depth.runtime import for_inference
 
-    model = load_generator(generator_checkpoint(cfg))
+    model = for_inference(load_generator(generator_checkpoint(cfg)), cfg.generator_runtime)
 
     def run(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
         f = sample.frame
