@@ -35,18 +35,21 @@ class CorrectionGrid:
 
     def dense_weights(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """N x size matrix B with B @ c the interpolated offset at each pixel."""
-        idx, w = self.weights(u, v)
+        return self.dense(*self.weights(u, v))
+
+    def dense(self, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """`dense_weights` from precomputed `weights`."""
         B = np.zeros((len(idx), self.size))
-        np.add.at(B, (np.repeat(np.arange(len(idx)), 4), idx.ravel()), w.ravel())
+        B[np.arange(len(idx))[:, None], idx] = w  # the 4 nodes of a pixel are always distinct
         return B
 
     def offsets(self, c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         idx, w = self.weights(u, v)
         return (np.asarray(c)[idx] * w).sum(1)
 
-    def offset_gradient(self, c: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """d offsets / d u and d offsets / d v at pixels (u, v): the slopes of the bilinear patch."""
-        idx, w = self.weights(u, v)
+    def offset_gradient(self, c: np.ndarray, idx: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d offsets / d u and d offsets / d v at pixels with precomputed `weights`: the slopes of the
+        bilinear patch."""
         cn = np.asarray(c)[idx]  # N x 4: (x0, y0), (x1, y0), (x0, y1), (x1, y1)
         fy = w[:, 2] + w[:, 3]
         fx = w[:, 1] + w[:, 3]
@@ -72,6 +75,20 @@ class CorrectionGrid:
         s = np.bincount(node[ok], vals[ok], self.size)
         n = np.bincount(node[ok], minlength=self.size)
         return np.where(n > 0, s / np.maximum(n, 1), np.nan)
+
+
+def bilinear_taps(shape: tuple[int, int], u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices (N x 4) and weights (N x 4) of bilinear sampling at real pixel positions (clamped
+    at the border), to sample several maps of one shape at the same pixels: (img.ravel()[idx] * w).sum(1)."""
+    h, w = shape
+    u = np.clip(u, 0, w - 1.000001)
+    v = np.clip(v, 0, h - 1.000001)
+    x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    fx, fy = u - x0, v - y0
+    i00 = y0 * w + x0
+    idx = np.stack([i00, i00 + 1, i00 + w, i00 + w + 1], 1)
+    wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
+    return idx, wts
 
 
 def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

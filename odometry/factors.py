@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from odometry.depth_field import CorrectionGrid, bilinear
+from odometry.depth_field import CorrectionGrid, bilinear, bilinear_taps
 
 HUBER_K = 1.345
 
@@ -49,58 +49,56 @@ class FrameDepth:
 
     log_depth: np.ndarray  # H x W, log metres
     grid: CorrectionGrid
-    grad_u: np.ndarray = field(init=False)
-    grad_v: np.ndarray = field(init=False)
+    maps: np.ndarray = field(init=False)  # 3 x (H * W): log depth, its u and v gradients, flat for sampling
 
     def __post_init__(self) -> None:
-        self.grad_v, self.grad_u = np.gradient(self.log_depth)
-
-    def log_at(self, c: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return bilinear(self.log_depth, u, v) + self.grid.offsets(c, u, v)
+        grad_v, grad_u = np.gradient(self.log_depth)
+        self.maps = np.stack([self.log_depth, grad_u, grad_v]).reshape(3, -1).astype(np.float64)
 
 
 class DepthConsistency:
     """E_depth(D_i, D_j) over sampled pixels p of frame i (eqs. 11-13), in log depth:
     r = log z_j(P) - log D_j(pi(T_ji P)),  P = D_i(p) K^-1 p,
-    i.e. the depth frame j should see at the reprojected pixel. Pixels leaving image j contribute 0."""
+    i.e. the depth frame j should see at the reprojected pixel. Pixels leaving image j contribute 0.
+    What depends only on the sample (rays, frame i's map and grid weights there) is computed once per
+    sample, not at every evaluation: gtsam evaluates the factor many times per update."""
 
     def __init__(self, di: FrameDepth, dj: FrameDepth, K: np.ndarray, sigma_log: float) -> None:
         self.di, self.dj, self.K, self.sigma = di, dj, K, sigma_log
         self.Kinv = np.linalg.inv(K)
-        self.u = np.zeros(0)
-        self.v = np.zeros(0)
+        self.set_samples(np.zeros(0), np.zeros(0))
         self.dim = 0
 
     def set_samples(self, u: np.ndarray, v: np.ndarray) -> None:
         """Pixels of frame i to evaluate (a fresh sample each smoother update); the count stays fixed."""
-        if self.dim and len(u) != self.dim:
+        if getattr(self, "dim", 0) and len(u) != self.dim:
             raise ValueError("sample count must stay the same once the factor exists")
         self.u, self.v, self.dim = np.asarray(u, float), np.asarray(v, float), len(u)
+        self.ray = self.Kinv @ np.stack([self.u, self.v, np.ones_like(self.u)])  # 3 x M
+        taps, wts = bilinear_taps(self.di.log_depth.shape, self.u, self.v)
+        self.base_i = (self.di.maps[0][taps] * wts).sum(1)
+        self.idx_i, self.w_i = self.di.grid.weights(self.u, self.v)
+        self.B_i = None  # frame i's dense grid weights, built at the first Jacobian
 
     def _residual(self, Ti: np.ndarray, Tj: np.ndarray, ci: np.ndarray, cj: np.ndarray, parts: bool = False):
         h, w = self.dj.log_depth.shape
-        log_di = self.di.log_at(ci, self.u, self.v)
-        ray = (self.Kinv @ np.stack([self.u, self.v, np.ones_like(self.u)]))  # 3 x M
+        D = np.exp(self.base_i + (np.asarray(ci)[self.idx_i] * self.w_i).sum(1))
         T_ji = np.linalg.inv(Tj) @ Ti
-        R, t = T_ji[:3, :3], T_ji[:3, 3]
-        Rray = R @ ray
-        D = np.exp(log_di)
-        Pj = Rray * D + t[:, None]
+        Rray = T_ji[:3, :3] @ self.ray
+        Pj = Rray * D + T_ji[:3, 3][:, None]
         z = Pj[2]
         ok = z > 0.1
         zs = np.where(ok, z, 1.0)
         qu = self.K[0, 0] * Pj[0] / zs + self.K[0, 2]
         qv = self.K[1, 1] * Pj[1] / zs + self.K[1, 2]
         ok &= (qu >= 0) & (qu <= w - 1) & (qv >= 0) & (qv <= h - 1)
-        r = np.where(ok, (np.log(zs) - self.dj.log_at(cj, qu, qv)) / self.sigma, 0.0)
+        taps, wts = bilinear_taps((h, w), qu, qv)
+        idx_j, w_j = self.dj.grid.weights(qu, qv)
+        log_dj = (self.dj.maps[0][taps] * wts).sum(1) + (np.asarray(cj)[idx_j] * w_j).sum(1)
+        r = np.where(ok, (np.log(zs) - log_dj) / self.sigma, 0.0)
         if not parts:
             return r
-        return r, dict(ok=ok, D=D, Rray=Rray, zs=zs, Pj=Pj, qu=qu, qv=qv)
-
-    def grad_at(self, cj: np.ndarray, qu: np.ndarray, qv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Image gradient of log D_j (generator map plus correction field) at pixels (qu, qv)."""
-        fu, fv = self.dj.grid.offset_gradient(cj, qu, qv)
-        return bilinear(self.dj.grad_u, qu, qv) + fu, bilinear(self.dj.grad_v, qu, qv) + fv
+        return r, dict(ok=ok, D=D, Rray=Rray, zs=zs, Pj=Pj, T_ji=T_ji, taps=taps, wts=wts, idx_j=idx_j, w_j=w_j)
 
     def evaluate(self, Ti, Tj, ci, cj, jacobians: bool, poses: bool = False):
         """Robustly weighted residuals, the Jacobians (or None) and the per-pixel weights.
@@ -110,24 +108,27 @@ class DepthConsistency:
         s = _robust_scale(r)
         if not jacobians:
             return s * r, None, s
-        ok, D, Rray, zs, Pj, qu, qv = (p[k] for k in ("ok", "D", "Rray", "zs", "Pj", "qu", "qv"))
-        gu, gv = self.grad_at(cj, qu, qv)
+        ok, D, Rray, zs, Pj = (p[k] for k in ("ok", "D", "Rray", "zs", "Pj"))
+        # image gradient of log D_j (generator map plus correction field) where Pj projects
+        gu, gv = (self.dj.maps[1:][:, p["taps"]] * p["wts"]).sum(2)
+        fu, fv = self.dj.grid.offset_gradient(cj, p["idx_j"], p["w_j"])
+        gu, gv = gu + fu, gv + fv
         # d r / d Pj: log z_j minus log D_j at the pixel Pj projects to (pinhole Jacobian times gradient)
         fx, fy = self.K[0, 0], self.K[1, 1]
         w = np.where(ok, s / self.sigma, 0.0)
         dr_dP = np.stack([-gu * fx / zs, -gv * fy / zs,
                           1.0 / zs + (gu * fx * Pj[0] + gv * fy * Pj[1]) / zs**2]) * w  # 3 x M
+        if self.B_i is None:
+            self.B_i = self.di.grid.dense(self.idx_i, self.w_i)
         # d r / d log D_i: Pj moves along R ray * D
-        J_ci = (dr_dP * (Rray * D)).sum(0)[:, None] * self.di.grid.dense_weights(self.u, self.v)
-        J_cj = -w[:, None] * self.dj.grid.dense_weights(qu, qv)
+        J_ci = (dr_dP * (Rray * D)).sum(0)[:, None] * self.B_i
+        J_cj = -w[:, None] * self.dj.grid.dense(p["idx_j"], p["w_j"])
         if not poses:
             return s * r, (J_ci, J_cj), s
-        # pose i: Pj = R_ji (P + omega x P + v) + t_ji, P = R_ji^T (Pj - t_ji) the point in frame i
-        T_ji = np.linalg.inv(Tj) @ Ti
-        R = T_ji[:3, :3]
-        P = R.T @ (Pj - T_ji[:3, 3][:, None])
+        # pose i: Pj = R_ji (P + omega x P + v) + t_ji, with P = D ray the point in frame i
+        R = p["T_ji"][:3, :3]
         b = R.T @ dr_dP
-        J_Ti = np.c_[np.cross(P.T, b.T), b.T]
+        J_Ti = np.c_[np.cross((self.ray * D).T, b.T), b.T]
         # pose j: Pj -> Pj - omega x Pj - v
         J_Tj = np.c_[np.cross(dr_dP.T, Pj.T), -dr_dP.T]
         return s * r, (J_Ti, J_Tj, J_ci, J_cj), s
