@@ -23,10 +23,10 @@ from leovr.config import BenchSpeedConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.depth.classical import complete_depth
 from leovr.paths import kitti_raw_dir
-from leovr.pipeline.refine import TIMED, completion_config, frame_sample, run_refine
+from leovr.pipeline.refine import TIMED, WALL, completion_config, frame_sample, run_refine
 from leovr.sim.simulate import simulate
 
-STAGES = (*TIMED, "total_ms")
+STAGES = (*TIMED, "total_ms", WALL)
 
 
 def ipbasic_ms(seq, rcfg: RefineConfig, frames: list[int]) -> float:
@@ -63,7 +63,8 @@ def speed_record(seq, rcfg: RefineConfig, run: Path, progress: bool) -> dict:
     rec = {
         "frames": len(frames), "width": int(seq[0].shape[1]), "height": int(seq[0].shape[0]), "input": rcfg.input,
         "ms_per_frame": stats,
-        "fps_stages": round(1000.0 / median_total, 3),  # from the median of the stage sum
+        "fps_stages": round(1000.0 / median_total, 3),  # from the median of the stage sum (a sequential run)
+        "fps_frame_wall": round(1000.0 / stats[WALL]["median"], 3),  # the generator overlapping the graph
         "fps_wall": round(metrics["frames"] / wall, 3),  # reading, scoring and writing included
         "wall_s": round(wall, 2),
         "graph_p95_over_median": round(stats["graph_ms"]["p95"] / max(stats["graph_ms"]["median"], 1e-9), 3),
@@ -71,6 +72,7 @@ def speed_record(seq, rcfg: RefineConfig, run: Path, progress: bool) -> dict:
         "ipbasic_ms_per_frame": round(ipbasic_ms(seq, rcfg, frames), 2),
     }
     rec["total_over_ipbasic"] = round(median_total / max(rec["ipbasic_ms_per_frame"], 1e-9), 1)
+    rec["wall_over_ipbasic"] = round(stats[WALL]["median"] / max(rec["ipbasic_ms_per_frame"], 1e-9), 1)
     depth = metrics.get("depth", {})
     rec["mae_m"] = {m: round(depth[m]["mae_m"], 4) for m in ("nearest", "generator", "refined") if m in depth}
     traj = metrics.get("trajectory", {})
@@ -92,13 +94,14 @@ def run_speed_bench(out: Path, cfg: BenchSpeedConfig, quick: bool = False, progr
         if raw.exists():
             rcfg = RefineConfig(input=cfg.kitti_input, end=cfg.quick_frames if quick else None)
             results[f"kitti_raw_{cfg.kitti_input}"] = speed_record(open_sequence(raw), rcfg, work / "run_kitti", progress)
-    targets = {f"{key}_total_median_ms<={cfg.target_ms_448:g}":
-               results[key]["ms_per_frame"]["total_ms"]["median"] <= cfg.target_ms_448,
+    # end to end: a frame's time on the run's clock (wall_ms), the generator overlapping the graph
+    targets = {f"{key}_wall_median_ms<={cfg.target_ms_448:g}":
+               results[key]["ms_per_frame"][WALL]["median"] <= cfg.target_ms_448,
                f"{key}_graph_p95/median<={cfg.target_graph_p95_over_median:g}":
                results[key]["graph_p95_over_median"] <= cfg.target_graph_p95_over_median}
     kitti = f"kitti_raw_{cfg.kitti_input}"
     if kitti in results:
-        targets[f"{kitti}_total_median_ms<={cfg.target_ms_kitti:g}"] = (
-            results[kitti]["ms_per_frame"]["total_ms"]["median"] <= cfg.target_ms_kitti)
+        targets[f"{kitti}_wall_median_ms<={cfg.target_ms_kitti:g}"] = (
+            results[kitti]["ms_per_frame"][WALL]["median"] <= cfg.target_ms_kitti)
     body = {"quick": quick, "scenario": cfg.scenario, "seed": cfg.seed, "results": results, "targets_met": targets}
     return write_bench(out, "speed", body, started)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -104,8 +105,11 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
 
 
 # per frame, in timing.json as means: the generator (prior included), the front end, the graph update, and the
-# writing of the frames that left the window (depth PNGs, progress.json); the baselines beside them are not timed
+# writing of the frames that left the window (depth PNGs, progress.json); the baselines beside them are not timed.
+# `total_ms` is their sum (the cost of a sequential run); `wall_ms` the frame's time on the run's clock, shorter
+# because the generator of the next frame runs while the graph updates
 TIMED = ("generator_ms", "frontend_ms", "graph_ms", "output_ms")
+WALL = "wall_ms"
 SCORED = ("nearest", "ipbasic", "generator", "refined")  # depth methods in metrics.json, same pixels
 PNG_FOLDER = {"ipbasic": "depth_ipbasic", "generator": "depth_generator", "refined": "depth"}
 
@@ -214,40 +218,64 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     desc = f"refine {input_label(cfg.input, has_lidar)} (window {cfg.window})"
     if done:
         desc += f", replaying {len(done)} finished"
-    for i in tqdm(indices, desc=desc, unit="frame", disable=not progress):
-        sample = frame_sample(seq, i, ccfg, front.velocity if cfg.deskew and front.prev is not None else None, frame_dt,
-                              camera_only)
-        if has_lidar and i not in done and not (sample.sparse > 0).any():
-            empty.append(i)
+
+    def prepare(i: int, motion: np.ndarray | None) -> tuple[EvalSample, np.ndarray, np.ndarray, float]:
+        """Frame i's input and generator depth; runs beside the graph update of the previous frame."""
+        sample = frame_sample(seq, i, ccfg, motion, frame_dt, camera_only)
         t0 = time.perf_counter()
         depth, log_sigma = generator(sample)
-        t1 = time.perf_counter()
-        fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
-                           sample.kept_points, graph)
-        t2 = time.perf_counter()
-        pending[i] = depth
-        fs = FrameScore.of(sample) if score and i not in done else None
-        if fs is not None:
-            scored[i] = fs
-        if has_lidar and i not in done:  # the classical baselines on the very same input, for the metrics (not timed)
-            ipb = complete_depth(sample.sparse, "ipbasic")
-            write_depth_png(out / "depth_ipbasic" / png_name(names, i), ipb)
+        return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0)
+
+    # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
+    # (ONNX Runtime, Qhull and gtsam's solver leave the interpreter lock); its inputs are known once the front
+    # end has processed frame k (the deskew motion), so the results are those of a sequential run
+    ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-generator")
+    nxt = None
+    t_end = time.perf_counter()
+    try:
+        for n, i in enumerate(tqdm(indices, desc=desc, unit="frame", disable=not progress)):
+            if nxt is None:
+                nxt = ahead.submit(prepare, i, front.velocity if cfg.deskew and front.prev is not None else None)
+            sample, depth, log_sigma, gen_ms = nxt.result()
+            nxt = None
+            if has_lidar and i not in done and not (sample.sparse > 0).any():
+                empty.append(i)
+            t1 = time.perf_counter()
+            fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
+                               sample.kept_points, graph)
+            t2 = time.perf_counter()
+            if n + 1 < len(indices):
+                nxt = ahead.submit(prepare, indices[n + 1], front.velocity if cfg.deskew else None)
+            pending[i] = depth
+            fs = FrameScore.of(sample) if score and i not in done else None
             if fs is not None:
-                fs.add("ipbasic", ipb)
-                fs.add("nearest", complete_depth(sample.sparse, "nearest"))
-        t2b = time.perf_counter()
-        left = graph.add_frame(fi)
-        t3 = time.perf_counter()
-        finish(left)
-        t4 = time.perf_counter()
-        if textbook is not None:
-            textbook.add(sample.frame.image)
-        if i in done:
-            continue
-        state.sources[i] = front.sources[-1]
-        if front.prev is not None and front.prev.T_icp is not None:
-            state.icp_poses[i] = front.prev.T_icp.ravel().tolist()
-        state.times[i] = [1000.0 * (t1 - t0), 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3)]
+                scored[i] = fs
+            if has_lidar and i not in done:  # the classical baselines on the very same input, for the metrics (not timed)
+                ipb = complete_depth(sample.sparse, "ipbasic")
+                write_depth_png(out / "depth_ipbasic" / png_name(names, i), ipb)
+                if fs is not None:
+                    fs.add("ipbasic", ipb)
+                    fs.add("nearest", complete_depth(sample.sparse, "nearest"))
+            t2b = time.perf_counter()
+            left = graph.add_frame(fi)
+            t3 = time.perf_counter()
+            finish(left)
+            t4 = time.perf_counter()
+            if textbook is not None:
+                textbook.add(sample.frame.image)
+            # wall: this frame's share of the run's clock (baselines excluded), the generator overlapping the graph
+            wall = 1000.0 * ((t4 - t_end) - (t2b - t2))
+            t_end = time.perf_counter()
+            if i in done:
+                continue
+            state.sources[i] = front.sources[-1]
+            if front.prev is not None and front.prev.T_icp is not None:
+                state.icp_poses[i] = front.prev.T_icp.ravel().tolist()
+            state.times[i] = [gen_ms, 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3), wall]
+    finally:
+        if nxt is not None:
+            nxt.cancel()
+        ahead.shutdown(wait=True)
     finish(graph.flush())
     if empty:
         warn_empty_input(seq, empty)
@@ -315,16 +343,20 @@ def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lida
 
 def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
     """timing.json: per stage the mean (`generator_ms`, ...), median, p95 and max over the frames, and
-    the per-frame series (to see whether a stage grows along the sequence)."""
+    the per-frame series (to see whether a stage grows along the sequence). Runs from before a stage was
+    recorded (the output stage, the wall time) have none for it: NaN in the series, left out of the stats."""
     timed = [i for i in indices if i in times]
-    # runs from before the output stage was timed apart recorded three stages: their output time is unknown (0)
-    ms = np.array([list(times[i]) + [0.0] * (len(TIMED) - len(times[i])) for i in timed], float).reshape(-1, len(TIMED))
-    stages = {k: ms[:, n] for n, k in enumerate(TIMED)} | {"total_ms": ms.sum(axis=1)}
-    record: dict = {k: float(np.mean(v)) if len(v) else None for k, v in stages.items()}
+    width = len(TIMED) + 1
+    ms = np.array([list(times[i])[:width] + [np.nan] * (width - len(times[i])) for i in timed], float).reshape(-1, width)
+    stages = {k: ms[:, n] for n, k in enumerate(TIMED)}
+    stages = {k: np.nan_to_num(v) for k, v in stages.items()} | {"total_ms": np.nansum(ms[:, :len(TIMED)], axis=1),
+                                                                    WALL: ms[:, len(TIMED)]}
+    record: dict = {k: float(np.mean(v)) if len(v) and np.isfinite(v).all() else None for k, v in stages.items()}
     record["frames_timed"] = len(timed)
     record["stats"] = {k: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
-                       for k, v in stages.items() if len(v)}
-    record["series"] = {"frame": timed} | {k: np.round(v, 2).tolist() for k, v in stages.items()}
+                       for k, v in stages.items() if len(v) and np.isfinite(v).all()}
+    record["series"] = {"frame": timed} | {k: [None if not np.isfinite(x) else round(float(x), 2) for x in v]
+                                           for k, v in stages.items()}
     return record
 
 
