@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -85,6 +85,12 @@ def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Fr
     sweep = max(float(np.max(f.point_times)), 1e-3)
     T_end = interpolate_poses(np.eye(4), motion_lidar, np.array(sweep / frame_dt))
     return replace(f, points=deskew(f.points, f.point_times, np.eye(4), T_end, sweep, t_ref=0.0))
+
+
+def torch_threads() -> int:
+    import torch
+
+    return torch.get_num_threads()
 
 
 def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.ndarray | None = None,
@@ -229,13 +235,25 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
     # (ONNX Runtime, Qhull and gtsam's solver leave the interpreter lock); its inputs are known once the front
     # end has processed frame k (the deskew motion), so the results are those of a sequential run
-    ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-generator")
+    # (one core's worth of threads, as in a batch task with one CPU: sequential, in this thread)
+    ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-generator") if torch_threads() > 1 else None
+
+    def submit(i: int, motion: np.ndarray | None) -> Future:
+        if ahead is not None:
+            return ahead.submit(prepare, i, motion)
+        fut: Future = Future()
+        try:
+            fut.set_result(prepare(i, motion))
+        except Exception as exc:  # raised where the frame is used, as from the thread
+            fut.set_exception(exc)
+        return fut
+
     nxt = None
     t_end = time.perf_counter()
     try:
         for n, i in enumerate(tqdm(indices, desc=desc, unit="frame", disable=not progress)):
             if nxt is None:
-                nxt = ahead.submit(prepare, i, front.velocity if cfg.deskew and front.prev is not None else None)
+                nxt = submit(i, front.velocity if cfg.deskew and front.prev is not None else None)
             sample, depth, log_sigma, gen_ms = nxt.result()
             nxt = None
             if has_lidar and i not in done and not (sample.sparse > 0).any():
@@ -245,7 +263,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                                sample.kept_points, graph)
             t2 = time.perf_counter()
             if n + 1 < len(indices):
-                nxt = ahead.submit(prepare, indices[n + 1], front.velocity if cfg.deskew else None)
+                nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None)
             pending[i] = depth
             fs = FrameScore.of(sample) if score and i not in done else None
             if fs is not None:
@@ -275,7 +293,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     finally:
         if nxt is not None:
             nxt.cancel()
-        ahead.shutdown(wait=True)
+        if ahead is not None:
+            ahead.shutdown(wait=True)
     finish(graph.flush())
     if empty:
         warn_empty_input(seq, empty)
