@@ -40,16 +40,22 @@ def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
         except QhullError:  # all returns on one line: nothing to interpolate across
             tri = None
         if tri is not None:
+            # per triangle, inverse depth as an affine function of the pixel, g . p + c (exact for a plane),
+            # and whether the triangle spans a depth edge; then one lookup per pixel
+            z = sparse[v, u][tri.simplices].astype(np.float64)  # T x 3 corner depths
+            inv = 1.0 / z
+            tf = tri.transform  # barycentric (b0, b1) = tf[:, :2] @ (p - tf[:, 2]); b2 = 1 - b0 - b1
+            g = np.einsum("tk,tkj->tj", inv[:, :2] - inv[:, 2:], tf[:, :2])
+            c = inv[:, 2] - (g * tf[:, 2]).sum(1)
+            smooth = (z.max(1) < edge_ratio * z.min(1)) & np.isfinite(g).all(1) & np.isfinite(c)
             pix = np.stack([cols, rows], 1).astype(np.float64)
             simplex = tri.find_simplex(pix)
-            inside = np.nonzero(simplex >= 0)[0]
-            T = tri.transform[simplex[inside]]
-            b = np.einsum("nij,nj->ni", T[:, :2], pix[inside] - T[:, 2])
-            bary = np.concatenate([b, 1.0 - b.sum(1, keepdims=True)], 1)
-            corners = sparse[v, u][tri.simplices[simplex[inside]]]
-            inv = (np.clip(bary, 0.0, 1.0) / corners).sum(1)
-            smooth = corners.max(1) < edge_ratio * corners.min(1)
-            out[inside[smooth]] = 1.0 / np.maximum(inv[smooth], 1e-6)
+            hit = simplex >= 0
+            hit[hit] = smooth[simplex[hit]]
+            idx = np.nonzero(hit)[0]
+            s = simplex[idx]
+            val = g[s, 0] * pix[idx, 0] + g[s, 1] * pix[idx, 1] + c[s]
+            out[idx] = 1.0 / np.maximum(val, 1e-6)
     measured = valid[rows, cols]
     out[measured] = sparse[rows[measured], cols[measured]]
     return out
