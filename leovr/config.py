@@ -130,6 +130,9 @@ class RefineConfig(FrameSelection):
     # LM stops raising its damping at this lambda: a step that does not lower the error is retried at most
     # 4 times (from 1e-5), not 11; on validation drives graph p95 610 -> 410 ms, same MAE and ATE (issue 17)
     lm_lambda_upper_bound: float = Field(0.01, gt=0)
+    # a frame leaving the window: its observations of landmarks that stay become factors on those landmarks alone
+    # (conditioned on its pose); marginalised, they tied all those landmarks in one dense factor (issue 17)
+    condition_leaving_observations: bool = True
     n_features: int = Field(1000, ge=50)  # ORB features per frame
     assoc_radius_px: float = 5.0  # feature <-> projected LiDAR point (eq. 10)
     assoc_max_rel_spread: float = 0.1  # reject when depths within the radius spread more than this

@@ -103,6 +103,7 @@ class WindowGraph:
         self.retired_landmarks: dict[int, np.ndarray] = {}  # last estimate of landmarks marginalised out
         self.landmark_frame: dict[int, int] = {}  # the latest frame that observed each landmark
         self.landmark_lidar: set[int] = set()  # landmarks with at least one LiDAR point factor
+        self.frame_landmarks: dict[int, set[int]] = {}  # frame -> landmarks it observed
         self.pairs: list[_Pair] = []
         self.icp_poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.last: int | None = None
@@ -185,9 +186,49 @@ class WindowGraph:
             stamps.insert((L(k), float(f.index)))
             self.landmark_frame[k] = f.index
         self.landmark_lidar.update(o.landmark for o in f.observations if o.lidar_cam is not None)
-        self.smoother.update(graph, values, stamps)
+        for o in f.observations:
+            self.frame_landmarks.setdefault(o.frame, set()).add(o.landmark)
+        drop = self._condition_leaving(f.index, graph)
+        self.smoother.update(graph, values, stamps, drop)
         self.last = f.index
         return self._collect()
+
+    def _condition_leaving(self, newest: int, graph: gtsam.NonlinearFactorGraph) -> list[int]:
+        """Observations, by the frames about to leave the window, of landmarks that stay in it: returns their
+        indices in the smoother's graph (to remove) and adds to `graph` each one conditioned on the leaving
+        pose (a linear factor on the landmark alone, taken at the current estimate). Marginalised as they
+        were, they tied every such landmark to every other in one dense factor (about 300 keys, 1000
+        dimensions on a KITTI frame) that each later update linearised and eliminated again; conditioned,
+        each landmark keeps the anchor the old frame gave it and the graph stays sparse. The leaving pose's
+        own uncertainty is what this leaves out. `condition_leaving_observations: false` marginalises."""
+        if not self.cfg.condition_leaving_observations:
+            return []
+        cutoff = newest - (self.cfg.window - 0.5)  # the smoother marginalises keys stamped before this
+        leaving = [i for i in self.poses if i < cutoff]
+        staying = {L(k) for i in leaving for k in self.frame_landmarks.get(i, ())
+                   if self.landmark_frame.get(k, -1) >= cutoff and k in self.landmarks}
+        if not staying:
+            return []
+        poses = {X(i): i for i in leaving}
+        factors = self.smoother.getFactors()
+        drop = []
+        for n in range(factors.size()):
+            fac = factors.at(n)
+            if fac is None:
+                continue
+            keys = fac.keys()
+            if len(keys) != 2 or keys[0] not in poses or keys[1] not in staying:
+                continue  # projection and LiDAR point factors are keyed (pose, landmark)
+            values = gtsam.Values()
+            values.insert(keys[0], gtsam.Pose3(self.poses[poses[keys[0]]]))
+            values.insert(keys[1], self.landmarks[gtsam.Symbol(keys[1]).index()])
+            A, b = fac.linearize(values).jacobian()  # whitened, columns [pose 6 | landmark 3]
+            point = gtsam.Values()
+            point.insert(keys[1], values.atPoint3(keys[1]))
+            graph.add(gtsam.LinearContainerFactor(gtsam.JacobianFactor(keys[1], A[:, 6:], b, gtsam.noiseModel.Unit.Create(len(b))),
+                                                  point))
+            drop.append(n)
+        return drop
 
     def _collect(self) -> list[FrameResult]:
         est = self.smoother.calculateEstimate()
@@ -210,6 +251,7 @@ class WindowGraph:
     def _finish(self, i: int) -> FrameResult:
         T, c = self.poses.pop(i), self.fields.pop(i)
         self.depths.pop(i, None)
+        self.frame_landmarks.pop(i, None)
         return FrameResult(i, T, self.grid.upsample(c))
 
     def flush(self) -> list[FrameResult]:

@@ -168,3 +168,41 @@ def test_spinning_lidar_told_from_a_narrow_cone():
     x = rng.uniform(5, 60, 5000)  # a 38-degree cone ahead
     cone = np.c_[x, x * rng.uniform(-0.35, 0.35, 5000), x * rng.uniform(-0.35, 0.35, 5000)]
     assert is_spinning(sweep) and not is_spinning(cone)
+
+
+def _window_run(condition: bool, frames: int = 7) -> tuple[list[np.ndarray], int, list[np.ndarray]]:
+    """A camera moving 0.5 m per frame along z past 60 landmarks that every frame sees, exact pixels and a
+    noisy initial pose; returns the final poses, the largest factor (keys) the smoother held, the truth."""
+    from leovr.config import RefineConfig
+    from odometry.window_graph import FrameInput, Observation, WindowGraph
+
+    rng = np.random.default_rng(3)
+    pts = np.c_[rng.uniform(-6, 6, 60), rng.uniform(-3, 3, 60), rng.uniform(15, 40, 60)]
+    cfg = RefineConfig(window=3, depth_factors=False, icp_prior="off", condition_leaving_observations=condition)
+    g = WindowGraph(cfg, K, SHAPE, rng=np.random.default_rng(0))
+    truth, done, largest = [], [], 0
+    for i in range(frames):
+        T = make_T(t=[0.0, 0.0, 0.5 * i])
+        truth.append(T)
+        cam = (pts - T[:3, 3]) @ T[:3, :3]
+        uv = (cam @ K.T)[:, :2] / cam[:, 2:]
+        obs = [Observation(k, i, uv[k]) for k in range(len(pts))]
+        noisy = T @ make_T(Rotation.from_rotvec(rng.normal(0, 0.003, 3)).as_matrix(), rng.normal(0, 0.05, 3))
+        fi = FrameInput(i, noisy if i else T, np.full(SHAPE, np.log(20.0)), np.full(SHAPE, 0.2), obs,
+                        {k: pts[k] + rng.normal(0, 0.2, 3) for k in range(len(pts))} if i == 0 else {}, None, None,
+                        None if i == 0 else make_T(t=[0.0, 0.0, 0.5]))
+        done += g.add_frame(fi)
+        factors = g.smoother.getFactors()
+        largest = max([largest] + [len(factors.at(n).keys()) for n in range(factors.size()) if factors.at(n) is not None])
+    done += g.flush()
+    return [r.T_world_cam for r in sorted(done, key=lambda r: r.index)], largest, truth
+
+
+def test_leaving_frames_condition_their_observations_instead_of_a_dense_marginal():
+    poses, largest, truth = _window_run(condition=True)
+    dense_poses, dense_largest, _ = _window_run(condition=False)
+    assert dense_largest > 60  # marginalising the observations ties every landmark into one factor
+    assert largest <= 6  # conditioned: the marginal factor holds frames only
+    for est in (poses, dense_poses):
+        err = [np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, truth)]
+        assert max(err) < 0.02, err
