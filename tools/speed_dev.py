@@ -13,6 +13,8 @@ import json
 import tempfile
 from pathlib import Path
 
+from pose_dev import _value  # field=value parsing, shared with the pose development tool (tools/ is on sys.path)
+
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.pipeline.refine import run_refine
@@ -20,15 +22,6 @@ from leovr.sim.dataset import default_root
 
 DRIVES = [f"{s}_{lidar}_day_{seed}" for s, seed in (("city_loop", "s2000"), ("straight", "s2001"), ("dynamic", "s2002"))
           for lidar in ("mid40", "vlp16")]
-
-
-def _value(v: str):
-    for cast in (int, float):
-        try:
-            return cast(v)
-        except ValueError:
-            pass
-    return {"true": True, "false": False}.get(v.lower(), v)
 
 
 def main() -> None:
