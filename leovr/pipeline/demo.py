@@ -144,7 +144,9 @@ def report(m: dict, source: str, inp: str) -> str:
     t = m["timing"]
     lines += [
         "",
-        f"Time per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, graph {t['graph_ms']:.0f} ms; "
+        f"Time per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, graph {t['graph_ms']:.0f} ms"
+        + (f", {t['stats']['wall_ms']['median']:.0f} ms end to end (median; the generator runs beside the graph)"
+           if "wall_ms" in t.get("stats", {}) else "") + "; "
         f"initial poses: {t['initial_pose_sources']}.",
         "",
         "Files: `refine/depth/` (refined, uint16 metres x 256), `refine/depth_generator/`, `refine/poses_kitti.txt`, "
