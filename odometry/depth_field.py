@@ -93,10 +93,5 @@ def bilinear_taps(shape: tuple[int, int], u: np.ndarray, v: np.ndarray) -> tuple
 
 def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Sample an H x W map at real pixel positions (clamped at the border)."""
-    h, w = img.shape
-    u = np.clip(u, 0, w - 1.000001)
-    v = np.clip(v, 0, h - 1.000001)
-    x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-    fx, fy = u - x0, v - y0
-    return ((img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx) * (1 - fy)
-            + (img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx) * fy)
+    idx, wts = bilinear_taps(img.shape, u, v)
+    return (img.ravel()[idx] * wts).sum(1)

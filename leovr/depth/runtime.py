@@ -94,11 +94,9 @@ class OnnxGenerator:
 
 
 def for_inference(model: DepthGenerator, runtime: Runtime = "onnxruntime") -> DepthGenerator | OnnxGenerator:
-    """The model to run frames through: ONNX Runtime when asked and possible, else the torch model
-    (with a warning when ONNX Runtime was asked for but is missing or the network cannot be exported)."""
-    if runtime == "torch":
-        return model.eval()
-    if not model.uses_prior:
+    """The model to run frames through: ONNX Runtime when asked and possible (a residual-mode network),
+    else the torch model (with a warning when ONNX Runtime was asked for but is not installed)."""
+    if runtime == "torch" or not model.uses_prior:
         return model.eval()
     try:
         return OnnxGenerator(model)

@@ -367,9 +367,8 @@ def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
     timed = [i for i in indices if i in times]
     width = len(TIMED) + 1
     ms = np.array([list(times[i])[:width] + [np.nan] * (width - len(times[i])) for i in timed], float).reshape(-1, width)
-    stages = {k: ms[:, n] for n, k in enumerate(TIMED)}
-    stages = {k: np.nan_to_num(v) for k, v in stages.items()} | {"total_ms": np.nansum(ms[:, :len(TIMED)], axis=1),
-                                                                    WALL: ms[:, len(TIMED)]}
+    stages = ({k: np.nan_to_num(ms[:, n]) for n, k in enumerate(TIMED)}
+              | {"total_ms": np.nansum(ms[:, :len(TIMED)], axis=1), WALL: ms[:, len(TIMED)]})
     record: dict = {k: float(np.mean(v)) if len(v) and np.isfinite(v).all() else None for k, v in stages.items()}
     record["frames_timed"] = len(timed)
     record["stats"] = {k: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
