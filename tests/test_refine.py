@@ -141,3 +141,25 @@ def test_refine_resume_from_a_corrupt_progress_file_names_it(refined, tmp_path):
     (tmp_path / "progress.json").write_text("{not json")
     with pytest.raises(DataError, match="progress.json"):
         run_refine(open_sequence(seq_dir), RefineConfig(input="full"), tmp_path, resume=True, progress=False)
+
+
+def test_a_corrupt_frame_met_by_the_generator_thread_names_the_file_and_keeps_finished_frames(refined, tmp_path):
+    """The next frame is read in a second thread while the graph works: a corrupt image there must surface
+    as the reader's one-line error naming the file, with the frames that already left the window kept."""
+    import shutil
+
+    from leovr.errors import LeovrError
+    from leovr.pipeline.refine import torch_threads
+
+    seq_dir, _, _ = refined
+    assert torch_threads() > 1  # the threaded path (a one-thread process reads in line)
+    bad = tmp_path / "seq"
+    shutil.copytree(seq_dir, bad)
+    png = sorted((bad / "images").glob("*.png"))[6]
+    png.write_bytes(png.read_bytes()[:200])
+    out = tmp_path / "out"
+    with pytest.raises(LeovrError, match=png.name):
+        run_refine(open_sequence(bad), RefineConfig(input="full"), out, progress=False)
+    state = json.loads((out / "progress.json").read_text())
+    assert sorted(int(k) for k in state["poses"]) == [0, 1]  # frames 0 and 1 left the 4-frame window before frame 6
+    assert sorted(p.name for p in (out / "depth").glob("*.png")) == ["000000.png", "000001.png"]
