@@ -44,7 +44,7 @@ def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
     for e in ("/world/trajectory/ground_truth", "/world/trajectory/leovr", "/world/trajectory/kiss_icp", "/world/landmarks",
               "/world/camera", "/world/camera/image", "/world/camera/image/rgb", "/world/camera/image/depth_generator",
               "/world/camera/image/depth_refined", "/world/camera/image/error", "/world/depth_cloud", "/world/lidar",
-              "/world/loops", "/metrics/mae_m/refined", "/metrics/mae_m/generator", "/metrics/time_ms/graph_ms",
+              "/world/loops", "/metrics/mae_m/refined", "/metrics/mae_m/generator", "/metrics/time_ms/graph_ms", "/metrics/time_ms/wall_ms",
               "/metrics/landmarks_last_seen", "/metrics/loop_closed"):
         assert e in entities, e
     assert frames == {0, 1, 2, 3}
