@@ -4,6 +4,7 @@ printed as one line naming the file and the problem, never as a traceback."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Optional
@@ -357,8 +358,9 @@ def adapt(
     cfg = override(load_config(config).adapt, input=input, epochs=epochs, start=start, end=end,
                    init_checkpoint=None if init is None else str(init))
     r = run_adapt([open_sequence(s) for s in sequences], cfg, out, resume=resume)
-    typer.echo(f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
-               f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns -> {out / 'generator.pt'}")
+    if os.environ.get("RANK", "0") == "0":  # one line from `torchrun --nproc-per-node N leovr adapt ...`
+        typer.echo(f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
+                   f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns -> {out / 'generator.pt'}")
 
 
 @app.command()

@@ -9,6 +9,12 @@ depth, so the graph's prior is trained on the user's data too), and a small edge
 Frames held out of training (every `val_every`-th) validate on the same task with fixed splits of
 their input; training stops when that stops improving and the best epoch is kept.
 
+Data-parallel: started by `torchrun --nproc-per-node N` or Ray Train's `TorchTrainer` (`leovr batch
+--job adapt+refine`), every process prepares the same frames, trains on its share of each epoch's
+shuffled splits (DistributedDataParallel, gloo; the global batch stays `batch_size`) and validates on
+its share of the validation frames; the sums are added over processes so that every process takes the
+same early-stopping decision. Process 0 writes the files.
+
 Outputs in OUT: `generator.pt` (best validation; `leovr refine/complete --checkpoint` take it),
 `checkpoint_last.pt` (resume), `log.jsonl`, `run.json`. Only the cheap input is read: never held-out
 evaluation points, ground-truth depth or poses.
@@ -17,7 +23,9 @@ evaluation points, ground-truth depth or poses.
 from __future__ import annotations
 
 import json
+import math
 import time
+from contextlib import nullcontext as _nothing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +48,7 @@ from leovr.errors import DataError
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from leovr.threads import single_threaded_blas
+from selfsup.distributed import all_max, all_sum, barrier, distributed
 from selfsup.masked_lidar import masked_split
 
 
@@ -184,14 +193,29 @@ def batches(items: list[tuple[AdaptFrame, SplitSample]], size: int) -> list[list
 
 
 @torch.no_grad()
-def validate(model: DepthGenerator, frames: list[AdaptFrame]) -> float:
-    """MAE (metres) at the hidden returns of every split of the validation frames (fixed splits)."""
+def validate(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0, world: int = 1) -> float:
+    """MAE (metres) at the hidden returns of every split of the validation frames (fixed splits); with
+    several processes each takes every `world`-th frame and the sums are added over all of them."""
     model.eval()
     total, n = 0.0, 0
-    for b in batches([(fr, s) for fr in frames for s in fr.splits], 4):
+    for b in batches([(fr, s) for fr in frames[rank::world] for s in fr.splits], 4):
         _, e, c = batch_loss(model, b, 0.0, 0.0)
         total, n = total + e, n + c
+    total, n = all_sum([total, n], world)
     return total / max(n, 1)
+
+
+class StepLoss(torch.nn.Module):
+    """`batch_loss` as a module, so that DistributedDataParallel wraps the whole forward of a step
+    (the masked task and, with the anchor, a second pass on the whole input)."""
+
+    def __init__(self, model: DepthGenerator, cfg: AdaptConfig) -> None:
+        super().__init__()
+        self.model, self.cfg = model, cfg
+
+    def forward(self, batch: list[tuple[AdaptFrame, SplitSample]]) -> tuple[torch.Tensor, float, int]:
+        c = self.cfg
+        return batch_loss(self.model, batch, c.weight_smooth, c.weight_nll, c.weight_anchor, c.depth_loss == "log_l1")
 
 
 @single_threaded_blas
@@ -200,17 +224,21 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     from leovr.paths import shipped_checkpoint
 
     out = Path(out)
+    rank, world = distributed()
     init = Path(cfg.init_checkpoint) if cfg.init_checkpoint else shipped_checkpoint()
     model = load_generator(init)
     if not model.uses_prior:
         raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
-    identity = run_identity("adapt", settings, [s.path for s in seqs], init)
-    start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
+    if rank == 0:
+        identity = run_identity("adapt", settings, [s.path for s in seqs], init)
+        start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
+    barrier(world)
     state = torch.load(last, map_location="cpu", weights_only=False) if resume and last.is_file() else None
     torch.manual_seed(cfg.seed)
-    frames = input_frames(seqs, cfg, progress)
+    lead = rank == 0
+    frames = input_frames(seqs, cfg, progress and lead)
     is_val = [bool(cfg.val_every) and j % cfg.val_every == cfg.val_every // 2 for j in range(len(frames))]
     val = [fr for fr, v in zip(frames, is_val) if v]
     train = [fr for fr, v in zip(frames, is_val) if not v] or frames
@@ -224,11 +252,17 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         opt.load_state_dict(state["optimizer"])
         start, best, since_best, minutes = state["epoch"] + 1, state["best_val_mae_m"], state["since_best"], state["minutes"]
     else:
-        log_path.unlink(missing_ok=True)
-        best = validate(model, val) if val else float("inf")
-        save_best(model, out, cfg, init, seqs, 0, best)
-        with open(log_path, "a") as fh:
-            fh.write(json.dumps({"epoch": 0, "val_mae_m": best, "note": "before adaptation"}) + "\n")
+        best = validate(model, val, rank, world) if val else float("inf")
+        if lead:
+            log_path.unlink(missing_ok=True)
+            save_best(model, out, cfg, init, seqs, 0, best)
+            with open(log_path, "a") as fh:
+                fh.write(json.dumps({"epoch": 0, "val_mae_m": best, "note": "before adaptation", "processes": world}) + "\n")
+    step = StepLoss(model, cfg)
+    if world > 1:  # BatchNorm is frozen (below): no buffers to sync per step; without the NLL the sigma head is unused
+        step = torch.nn.parallel.DistributedDataParallel(step, forward_sync_buffers=False,
+                                                         find_unused_parameters=cfg.weight_nll == 0)
+    per_process = math.ceil(cfg.batch_size / world)
     gen = torch.Generator().manual_seed(cfg.seed)
     record: dict = {"epoch": start, "best_val_mae_m": best}
     for epoch in range(start, cfg.epochs):
@@ -240,36 +274,41 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         model.eval()
         order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
         items = [(train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
-                 for j in order]
+                 for j in order]  # the same on every process; each trains on its share
         losses, err, cnt = [], 0.0, 0
-        bar = tqdm(batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
-                   disable=not progress)
-        for b in bar:
-            opt.zero_grad()
-            loss, e, c = batch_loss(model, b, cfg.weight_smooth, cfg.weight_nll, cfg.weight_anchor,
-                                   cfg.depth_loss == "log_l1")
-            loss.backward()
-            opt.step()
-            losses.append(float(loss.detach()))
-            err, cnt = err + e, cnt + c
-            bar.set_postfix(loss=f"{losses[-1]:.3f}")
-        val_mae = validate(model, val) if val else float("nan")
-        minutes += (time.time() - t0) / 60.0
+        bar = tqdm(batches(items[rank::world], per_process), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}",
+                   unit="batch", disable=not (progress and lead))
+        with step.join() if world > 1 else _nothing():  # shares may differ by a batch
+            for b in bar:
+                opt.zero_grad()
+                loss, e, c = step(b)
+                loss.backward()
+                opt.step()
+                losses.append(float(loss.detach()))
+                err, cnt = err + e, cnt + c
+                bar.set_postfix(loss=f"{losses[-1]:.3f}")
+        loss_sum, n_loss, err, cnt = all_sum([sum(losses), len(losses), err, cnt], world)
+        val_mae = validate(model, val, rank, world) if val else float("nan")
+        minutes = all_max(minutes + (time.time() - t0) / 60.0, world)
         improved = not val or val_mae < best
         since_best = 0 if improved else since_best + 1
         if improved:
             best = val_mae if val else best
-            save_best(model, out, cfg, init, seqs, epoch + 1, val_mae)
-        record = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)), "train_mae_m": err / max(cnt, 1),
-                  "val_mae_m": val_mae, "best_val_mae_m": best, "minutes": round(minutes, 2)}
-        with open(log_path, "a") as fh:
-            fh.write(json.dumps(record) + "\n")
-        save_checkpoint(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
-                               "best_val_mae_m": best, "since_best": since_best, "minutes": minutes,
-                               "settings": settings, "sequences": [str(s.path) for s in seqs],
-                               "network": model.cfg.__dict__})
+            if lead:
+                save_best(model, out, cfg, init, seqs, epoch + 1, val_mae)
+        record = {"epoch": epoch + 1, "train_loss": loss_sum / max(n_loss, 1), "train_mae_m": err / max(cnt, 1),
+                  "val_mae_m": val_mae, "best_val_mae_m": best, "minutes": round(minutes, 2), "processes": world}
+        if lead:
+            with open(log_path, "a") as fh:
+                fh.write(json.dumps(record) + "\n")
+            save_checkpoint(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
+                                   "best_val_mae_m": best, "since_best": since_best, "minutes": minutes,
+                                   "settings": settings, "sequences": [str(s.path) for s in seqs],
+                                   "network": model.cfg.__dict__})
     record.update({"frames_train": len(train), "frames_val": len(val), "minutes": round(minutes, 2)})
-    write_text(out / "summary.json", json.dumps(record, indent=2) + "\n")
+    if lead:
+        write_text(out / "summary.json", json.dumps(record, indent=2) + "\n")
+    barrier(world)
     return record
 
 

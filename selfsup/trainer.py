@@ -16,7 +16,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 import time
 from pathlib import Path
 
@@ -37,6 +36,7 @@ from leovr.errors import DataError
 from leovr.threads import single_threaded_blas
 from selfsup.blind import BlindSequence
 from selfsup.dataset import SelfSupSamples
+from selfsup.distributed import barrier, distributed
 from selfsup.losses import (
     feature_point_loss,
     photometric_error,
@@ -60,19 +60,6 @@ def pass_tag(epoch: int, cfg: SelfSupConfig) -> str:
     if epoch < n:
         return "init"
     return f"refine_e{n + cfg.refresh_every * ((epoch - n) // cfg.refresh_every) + 1}"
-
-
-def distributed() -> tuple[int, int]:
-    """(rank, world size); joins the torchrun process group (gloo) when there is more than one process."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("gloo")
-    return (dist.get_rank(), world) if world > 1 else (0, 1)
-
-
-def _barrier(world: int) -> None:
-    if world > 1:
-        dist.barrier()
 
 
 def photometric_term(img: torch.Tensor, depth: torch.Tensor, b: dict, cfg: SelfSupConfig
@@ -208,11 +195,11 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
             if rank == 0 and not checkpoint.is_file():
                 save_checkpoint(checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()})
         if rank != 0:
-            _barrier(world)
+            barrier(world)
         graphs = [graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), progress and rank == 0)
                   for k, s in enumerate(seqs)]
         if rank == 0:
-            _barrier(world)
+            barrier(world)
         sup = [build_supervision(frames[k], g, cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None)
                for k, g in enumerate(graphs)]
         if dataset is None:
@@ -266,5 +253,5 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
                                          "epoch": epoch + 1, "mode": "selfsup"})
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)
-        _barrier(world)
+        barrier(world)
     return record, model

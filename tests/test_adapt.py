@@ -96,3 +96,40 @@ def test_adapt_reads_only_the_cheap_input(tmp_path):
     r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "mid40", "--init", str(init),
                             "--epochs", "4", "-c", str(cfg), "--resume"])
     assert isinstance(r.exception, DataError) and "settings.input (folder: \"vlp16\", now: \"mid40\")" in str(r.exception)
+
+
+def test_adapt_on_two_processes_matches_one(tmp_path):
+    """`torchrun --nproc-per-node 2 leovr adapt ...` (DistributedDataParallel over gloo, each process a
+    share of the batch and of the validation frames) takes the same steps as one process: same
+    weights after two epochs, same validation MAE, and only process 0 writes."""
+    import os
+    import subprocess
+    import sys
+
+    drive = write_kitti_raw(tmp_path / "raw", frames=5)
+    init = small_generator(tmp_path / "init.pt")
+    cfg = tmp_path / "c.yaml"
+    # frame 2 validates; the other four form one batch of 4 (2 per process), two epochs = two steps
+    cfg.write_text("adapt:\n  generator_focal_px: null\n  val_every: 5\n  batch_size: 4\n  splits_per_frame: 2\n")
+    args = ["adapt", str(drive), "--input", "vlp16", "--init", str(init), "--epochs", "2", "-c", str(cfg)]
+    one = tmp_path / "one"
+    r = runner.invoke(app, [*args, "--out", str(one)])
+    assert r.exit_code == 0, r.output
+    two = tmp_path / "two"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    p = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+                        "-m", "leovr.cli", *args, "--out", str(two)], capture_output=True, text=True, env=env, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    log1 = [json.loads(line) for line in (one / "log.jsonl").read_text().splitlines()]
+    log2 = [json.loads(line) for line in (two / "log.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in log2] == [0, 1, 2]  # one writer: no line twice
+    assert [r.get("processes") for r in log2] == [2, 2, 2] and log1[-1]["processes"] == 1
+    for a, b in zip(log1, log2):
+        assert abs(a["val_mae_m"] - b["val_mae_m"]) <= 1e-4 * a["val_mae_m"]
+    start = torch.load(init, weights_only=False)["model"]
+    a = torch.load(one / "checkpoint_last.pt", weights_only=False)["model"]
+    b = torch.load(two / "checkpoint_last.pt", weights_only=False)["model"]
+    moved = max(float((a[k].float() - start[k].float()).abs().max()) for k in a)
+    assert moved > 1e-4  # it trained
+    for k in a:
+        assert torch.allclose(a[k].float(), b[k].float(), rtol=1e-3, atol=1e-5 * max(moved, 1.0)), k

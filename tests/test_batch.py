@@ -167,6 +167,7 @@ def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
         assert run["identity"]["settings"]["checkpoint"] == str(out / "_adapt" / "generator.pt")
     log = [json.loads(line) for line in (out / "_adapt" / "log.jsonl").read_text().splitlines()]
     assert log[-1]["epoch"] == 1
+    assert log[-1]["processes"] == 2  # Ray Train: one DistributedDataParallel process per free CPU
     rows = run_batch(read_batch(y), cfg, out, progress=False)
     assert [r["status"] for r in rows] == ["skipped", "skipped"]
     assert len((out / "_adapt" / "log.jsonl").read_text().splitlines()) == len(log)

@@ -143,7 +143,7 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
             checkpoint = adapt_done(live, cfg, out / ADAPT_DIR)
             if checkpoint is None:
                 started = _init_ray(bcfg)
-                checkpoint = adapt_batch(live, cfg, out / ADAPT_DIR)
+                checkpoint = adapt_batch(live, cfg, out / ADAPT_DIR, progress)
             sections |= {it.name: job_section(cfg, job, it, checkpoint) for it in live}
         settings = {it.name: task_settings(job, sections[it.name], it.path) for it in live}
         todo = []
@@ -202,36 +202,69 @@ def _adapt_settings(items: list[BatchItem], cfg: LeovrConfig) -> dict:
 
 def adapt_done(items: list[BatchItem], cfg: LeovrConfig, out: Path) -> str | None:
     """The adapted checkpoint of an earlier run of the same batch and settings, if it finished."""
+    out = Path(out).resolve()
     st = _read_state(out)
     if (out / "generator.pt").is_file() and st.get("status") == "done" and st.get("settings") == _adapt_settings(items, cfg):
         return str(out / "generator.pt")
     return None
 
 
-def _adapt_work(paths: list[str], acfg: dict, folder: str, threads: int) -> str:
+def _adapt_loop(config: dict) -> None:
+    """One process of the adaptation under Ray Train (its process group is Ray's): resumes from the
+    last epoch after a worker died. A data error is written to ERROR_FILE by process 0, not raised, so
+    that Ray Train does not retry what cannot succeed (every process reads the same frames and meets it)."""
     from leovr.config import AdaptConfig
     from leovr.data import open_sequence
     from selfsup.adapt import adapt
+    from selfsup.distributed import distributed
 
-    _set_threads(threads)
-    resume = (Path(folder) / "checkpoint_last.pt").is_file()
-    adapt([open_sequence(p) for p in paths], AdaptConfig.model_validate(acfg), Path(folder), resume=resume, progress=False)
-    return str(Path(folder) / "generator.pt")
-
-
-def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path) -> str:
-    """Adapt the generator on every sequence of the batch in one Ray task that holds all the CPUs Ray
-    has free (the trainer's torch threads use them); resumes from its last epoch after a worker died.
-    Returns the adapted checkpoint's path."""
-    import ray
-
-    cpus = max(1, int(ray.available_resources().get("CPU", 1)))
-    ref = ray.remote(_adapt_work).options(num_cpus=cpus, max_retries=cfg.batch.max_retries, retry_exceptions=False)
+    _set_threads(config["threads"])
+    folder = Path(config["folder"])
+    resume = (folder / "checkpoint_last.pt").is_file()
     try:
-        path = ray.get(ref.remote([str(it.path) for it in items], cfg.adapt.model_dump(), str(out), cpus))
-    except ray.exceptions.RayError as exc:
-        cause = getattr(exc, "cause", None) or exc
-        raise DataError(out, f"adaptation on the batch's sequences failed, nothing refined: {cause}") from exc
+        adapt([open_sequence(p) for p in config["paths"]], AdaptConfig.model_validate(config["adapt"]), folder,
+              resume=resume, progress=False)
+    except LeovrError as exc:
+        if distributed()[0] == 0:
+            write_text(folder / ERROR_FILE, json.dumps({"error": str(exc)}) + "\n")
+
+
+ERROR_FILE = "error.json"
+
+
+def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: bool = True) -> str:
+    """Adapt the generator on every sequence of the batch, data-parallel with Ray Train's TorchTrainer
+    (DistributedDataParallel over gloo): `batch.adapt_processes` processes (default: as many as Ray has
+    free CPUs for, `cpus_per_task` each), restarted from the last epoch up to `max_retries` times when
+    a worker dies. Returns the adapted checkpoint's path."""
+    import ray
+    from ray.train import FailureConfig, RunConfig, ScalingConfig
+    from ray.train.torch import TorchTrainer
+
+    bcfg = cfg.batch
+    per = bcfg.cpus_per_task
+    n = bcfg.adapt_processes or max(1, int(ray.available_resources().get("CPU", per)) // per)
+    out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / ERROR_FILE).unlink(missing_ok=True)
+    if progress:
+        tqdm.write(f"adapting the generator on {len(items)} sequence(s): {n} data-parallel process(es) on Ray Train "
+                   f"-> {out}")
+    trainer = TorchTrainer(
+        _adapt_loop,
+        train_loop_config={"paths": [str(it.path) for it in items], "adapt": cfg.adapt.model_dump(),
+                           "folder": str(out), "threads": per},
+        scaling_config=ScalingConfig(num_workers=n, use_gpu=False, resources_per_worker={"CPU": per}),
+        run_config=RunConfig(name="ray_train", storage_path=str(out),
+                             failure_config=FailureConfig(max_failures=bcfg.max_retries)))
+    try:
+        trainer.fit()
+    except Exception as exc:  # Ray Train's failure after its retries (a worker died too often)
+        raise DataError(out, f"adaptation on the batch's sequences failed, nothing refined: {exc}") from exc
+    err = read_json_or_empty(out / ERROR_FILE).get("error")
+    if err:
+        raise DataError(out, f"adaptation on the batch's sequences failed, nothing refined: {err}")
+    path = str(out / "generator.pt")
     write_text(out / STATE_FILE, json.dumps({"status": "done", "settings": _adapt_settings(items, cfg),
-                                             "checkpoint": path}) + "\n")
+                                             "checkpoint": path, "processes": n}) + "\n")
     return path

@@ -1,0 +1,45 @@
+"""Data-parallel helpers shared by the trainers: the process group that torchrun or Ray Train set up.
+
+With `torchrun --nproc-per-node N` (env WORLD_SIZE > 1) the group is joined here (gloo, CPU); under
+Ray Train's `TorchTrainer` it already exists. A single process gets rank 0 of 1 and no collectives.
+"""
+
+from __future__ import annotations
+
+import os
+
+import torch
+import torch.distributed as dist
+
+
+def distributed() -> tuple[int, int]:
+    """(rank, world size); joins torchrun's process group (gloo) when there is more than one process."""
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        dist.init_process_group("gloo")
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def barrier(world: int) -> None:
+    if world > 1:
+        dist.barrier()
+
+
+def all_sum(values: list[float], world: int) -> list[float]:
+    """Element-wise sum over the processes (float64), for example error sums and counts."""
+    if world == 1:
+        return [float(v) for v in values]
+    t = torch.tensor(values, dtype=torch.float64)
+    dist.all_reduce(t)
+    return t.tolist()
+
+
+def all_max(value: float, world: int) -> float:
+    """The largest value over the processes (for example elapsed minutes, so that all stop together)."""
+    if world == 1:
+        return float(value)
+    t = torch.tensor([value], dtype=torch.float64)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return float(t.item())
