@@ -153,7 +153,7 @@ class RefineConfig(FrameSelection):
     prior_sigma_max: float = 0.5
     mono_depth_sigma_log: float = 0.2  # no LiDAR: how far one frame's depth-based step length may be off
     mono_track_sigma_log: float = 0.05  # no LiDAR: how far the tracks' relative scale may be off
-    mono_speed_sigma_log: float = 0.02  # no LiDAR: step-length change per frame (inertia; chosen on development clips)
+    mono_speed_sigma_log: float = 0.005  # no LiDAR: step-length change per frame (inertia; chosen on development clips, tools/mono_dev.py)
     mono_odometry_sigma_rad: float = 0.005  # no LiDAR: the epipolar motion's weight in the graph
     mono_odometry_sigma_rel: float = 0.05  # no LiDAR: its translation sigma per metre of step
 
