@@ -44,11 +44,11 @@ from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator, prior_for
 from leovr.depth.prior import interpolated_at
 from leovr.depth.train import edge_aware_smoothness, save_checkpoint
-from leovr.errors import DataError
+from leovr.errors import DataError, LeovrError
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from leovr.threads import single_threaded_blas
-from selfsup.distributed import all_max, all_sum, barrier, distributed
+from selfsup.distributed import all_max, all_sum, barrier, distributed, raise_shared
 from selfsup.masked_lidar import masked_split
 
 
@@ -231,10 +231,14 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
-    if rank == 0:
-        identity = run_identity("adapt", settings, [s.path for s in seqs], init)
-        start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
-    barrier(world)
+    error = None
+    if rank == 0:  # a folder that cannot be written or resumed stops every process, not only this one
+        try:
+            identity = run_identity("adapt", settings, [s.path for s in seqs], init)
+            start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
+        except LeovrError as exc:
+            error = exc
+    raise_shared(error, world)
     state = torch.load(last, map_location="cpu", weights_only=False) if resume and last.is_file() else None
     torch.manual_seed(cfg.seed)
     lead = rank == 0

@@ -43,3 +43,18 @@ def all_max(value: float, world: int) -> float:
     t = torch.tensor([value], dtype=torch.float64)
     dist.all_reduce(t, op=dist.ReduceOp.MAX)
     return float(t.item())
+
+
+def raise_shared(error: Exception | None, world: int) -> None:
+    """Raise on every process the error that process 0 met (None: none), so that the others do not
+    wait for it in the next collective; they raise a LeovrError with its message. Call it on every
+    process at the same point."""
+    if world > 1:
+        box = [None if error is None else str(error)]
+        dist.broadcast_object_list(box, 0)
+        if box[0] is not None and error is None:
+            from leovr.errors import LeovrError
+
+            error = LeovrError(box[0])
+    if error is not None:
+        raise error

@@ -133,3 +133,23 @@ def test_adapt_on_two_processes_matches_one(tmp_path):
     assert moved > 1e-4  # it trained
     for k in a:
         assert torch.allclose(a[k].float(), b[k].float(), rtol=1e-3, atol=1e-5 * max(moved, 1.0)), k
+
+
+def test_adapt_on_two_processes_stops_together_on_a_bad_output_folder(tmp_path):
+    """Process 0 alone checks and records the output folder; when it cannot be written, every process
+    stops with the error instead of waiting for process 0 in the next collective."""
+    import os
+    import subprocess
+    import sys
+
+    drive = write_kitti_raw(tmp_path / "raw", frames=3)
+    init = small_generator(tmp_path / "init.pt")
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("a file where the output folder should be\n")
+    p = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+                        "-m", "leovr.cli", "adapt", str(drive), "--input", "vlp16", "--init", str(init),
+                        "--epochs", "1", "--out", str(blocker)],
+                       capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=120)
+    assert p.returncode != 0
+    # each process prints the one-line error (torchrun then adds its own launcher report)
+    assert (p.stdout + p.stderr).count(f"error: {blocker}: output path is a file") == 2

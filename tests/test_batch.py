@@ -171,6 +171,11 @@ def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
     rows = run_batch(read_batch(y), cfg, out, progress=False)
     assert [r["status"] for r in rows] == ["skipped", "skipped"]
     assert len((out / "_adapt" / "log.jsonl").read_text().splitlines()) == len(log)
+    # other adaptation settings into the same folder: process 0 refuses the resume and every process
+    # stops (none waits for it), the batch reports why and refines nothing
+    cfg.adapt.lr = 3e-4
+    with pytest.raises(DataError, match="adaptation on the batch's sequences failed.*lr"):
+        run_batch(read_batch(y), cfg, out, progress=False)
 
 
 def test_bench_batch_contract(tmp_path):
