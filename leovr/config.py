@@ -368,7 +368,7 @@ class BatchConfig(_Model):
     workers: int | None = Field(None, ge=1)  # tasks in flight; None = the cluster's CPUs / cpus_per_task
     cpus_per_task: int = Field(1, ge=1)  # Ray's num_cpus per task; also the task's torch / OpenCV threads
     max_retries: int = Field(3, ge=0)  # a task whose worker dies is re-run (resuming) up to this often
-    adapt_processes: int | None = Field(None, ge=1)  # adapt+refine: data-parallel processes (None = free CPUs / cpus_per_task)
+    adapt_processes: int | None = Field(None, ge=1)  # adapt+refine: data-parallel processes of cpus_per_task CPUs (None = one per node, all its CPUs)
     dashboard: bool = False  # start Ray's dashboard with a local instance (needs `pip install "ray[default]"`)
 
 

@@ -11,7 +11,8 @@ their input; training stops when that stops improving and the best epoch is kept
 
 Data-parallel: started by `torchrun --nproc-per-node N` or Ray Train's `TorchTrainer` (`leovr batch
 --job adapt+refine`), every process prepares the same frames, trains on its share of each epoch's
-shuffled splits (DistributedDataParallel, gloo; the global batch stays `batch_size`) and validates on
+shuffled splits (DistributedDataParallel, gloo: its share of every batch of `batch_size`, so that the
+steps are those of one process) and validates on
 its share of the validation frames; the sums are added over processes so that every process takes the
 same early-stopping decision. Process 0 writes the files.
 
@@ -23,9 +24,7 @@ evaluation points, ground-truth depth or poses.
 from __future__ import annotations
 
 import json
-import math
 import time
-from contextlib import nullcontext as _nothing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,7 +43,7 @@ from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator, prior_for
 from leovr.depth.prior import interpolated_at
 from leovr.depth.train import edge_aware_smoothness, save_checkpoint
-from leovr.errors import DataError, LeovrError
+from leovr.errors import DataError
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from leovr.threads import single_threaded_blas
@@ -172,7 +171,7 @@ def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]
             loss = loss + weight_nll * gaussian_nll(depth.detach(), sigma, s.target, torch.ones_like(sigma))
         losses.append(loss)
         err_sum, count = err_sum + float(err.detach().sum()), count + len(err)
-    total = torch.stack(losses).mean() if losses else parts["log_sigma"].sum() * 0.0
+    total = torch.stack(losses).mean() if losses else sum(v.sum() for v in parts.values()) * 0.0
     if weight_smooth > 0:
         small = model.combine(parts, prior, sparse)
         total = total + weight_smooth * edge_aware_smoothness(small, image)
@@ -203,6 +202,18 @@ def validate(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0, wor
         total, n = total + e, n + c
     total, n = all_sum([total, n], world)
     return total / max(n, 1)
+
+
+def share(batch: list, rank: int, world: int) -> tuple[list, float]:
+    """This process's part of a batch and its loss weight. DistributedDataParallel averages the
+    gradients over the processes, so weighting each part's mean loss by its share of the batch times
+    the number of processes gives the gradient of the whole batch's mean: every process takes the same
+    steps as one process would. A process left without an item runs the first one at weight 0 (it
+    must still join each step's gradient exchange)."""
+    part = batch[rank::world]
+    if not part:
+        return batch[:1], 0.0
+    return part, len(part) / len(batch) * world
 
 
 class StepLoss(torch.nn.Module):
@@ -236,7 +247,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         try:
             identity = run_identity("adapt", settings, [s.path for s in seqs], init)
             start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
-        except LeovrError as exc:
+        except Exception as exc:  # noqa: BLE001 (re-raised on every process just below)
             error = exc
     raise_shared(error, world)
     state = torch.load(last, map_location="cpu", weights_only=False) if resume and last.is_file() else None
@@ -266,7 +277,6 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     if world > 1:  # BatchNorm is frozen (below): no buffers to sync per step; without the NLL the sigma head is unused
         step = torch.nn.parallel.DistributedDataParallel(step, forward_sync_buffers=False,
                                                          find_unused_parameters=cfg.weight_nll == 0)
-    per_process = math.ceil(cfg.batch_size / world)
     gen = torch.Generator().manual_seed(cfg.seed)
     record: dict = {"epoch": start, "best_val_mae_m": best}
     for epoch in range(start, cfg.epochs):
@@ -278,16 +288,17 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         model.eval()
         order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
         items = [(train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
-                 for j in order]  # the same on every process; each trains on its share
+                 for j in order]  # the same on every process
         losses, err, cnt = [], 0.0, 0
-        bar = tqdm(batches(items[rank::world], per_process), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}",
-                   unit="batch", disable=not (progress and lead))
-        with step.join() if world > 1 else _nothing():  # shares may differ by a batch
-            for b in bar:
-                opt.zero_grad()
-                loss, e, c = step(b)
-                loss.backward()
-                opt.step()
+        bar = tqdm(batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
+                   disable=not (progress and lead))
+        for b in bar:  # the batches of one process; with several, each takes its share of every batch
+            part, weight = share(b, rank, world)
+            opt.zero_grad()
+            loss, e, c = step(part)
+            (loss * weight if world > 1 else loss).backward()
+            opt.step()
+            if weight > 0:
                 losses.append(float(loss.detach()))
                 err, cnt = err + e, cnt + c
                 bar.set_postfix(loss=f"{losses[-1]:.3f}")

@@ -106,11 +106,12 @@ def test_adapt_on_two_processes_matches_one(tmp_path):
     import subprocess
     import sys
 
-    drive = write_kitti_raw(tmp_path / "raw", frames=5)
+    drive = write_kitti_raw(tmp_path / "raw", frames=6)
     init = small_generator(tmp_path / "init.pt")
     cfg = tmp_path / "c.yaml"
-    # frame 2 validates; the other four form one batch of 4 (2 per process), two epochs = two steps
-    cfg.write_text("adapt:\n  generator_focal_px: null\n  val_every: 5\n  batch_size: 4\n  splits_per_frame: 2\n")
+    # frame 3 validates; the other five form a batch of 4 (2 per process) and a batch of 1 (one process
+    # takes it, the other joins the step at weight 0): two epochs, four steps
+    cfg.write_text("adapt:\n  generator_focal_px: null\n  val_every: 6\n  batch_size: 4\n  splits_per_frame: 2\n")
     args = ["adapt", str(drive), "--input", "vlp16", "--init", str(init), "--epochs", "2", "-c", str(cfg)]
     one = tmp_path / "one"
     r = runner.invoke(app, [*args, "--out", str(one)])

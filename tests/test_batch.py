@@ -156,7 +156,7 @@ def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
     y = tmp_path / "m.yaml"
     y.write_text("".join(f"- {drives / f'drive{n}'}\n" for n in range(2)))
     cfg = LeovrConfig.model_validate({"adapt": {"epochs": 1, "batch_size": 3, "splits_per_frame": 1, "val_every": 3},
-                                      "batch": {"job": "adapt+refine", "workers": 2}})
+                                      "batch": {"job": "adapt+refine", "workers": 2, "adapt_processes": 2}})
     out = tmp_path / "out"
     rows = run_batch(read_batch(y), cfg, out, progress=False)
     assert [r["status"] for r in rows] == ["done", "done"]
@@ -167,7 +167,7 @@ def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
         assert run["identity"]["settings"]["checkpoint"] == str(out / "_adapt" / "generator.pt")
     log = [json.loads(line) for line in (out / "_adapt" / "log.jsonl").read_text().splitlines()]
     assert log[-1]["epoch"] == 1
-    assert log[-1]["processes"] == 2  # Ray Train: one DistributedDataParallel process per free CPU
+    assert log[-1]["processes"] == 2  # Ray Train: two DistributedDataParallel processes
     rows = run_batch(read_batch(y), cfg, out, progress=False)
     assert [r["status"] for r in rows] == ["skipped", "skipped"]
     assert len((out / "_adapt" / "log.jsonl").read_text().splitlines()) == len(log)

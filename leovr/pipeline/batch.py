@@ -232,18 +232,31 @@ def _adapt_loop(config: dict) -> None:
 ERROR_FILE = "error.json"
 
 
+def _resolved(acfg: Any) -> dict:
+    """The adapt section with its starting checkpoint as an absolute path."""
+    d = acfg.model_dump()
+    if d.get("init_checkpoint"):
+        d["init_checkpoint"] = str(Path(d["init_checkpoint"]).resolve())
+    return d
+
+
 def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: bool = True) -> str:
     """Adapt the generator on every sequence of the batch, data-parallel with Ray Train's TorchTrainer
-    (DistributedDataParallel over gloo): `batch.adapt_processes` processes (default: as many as Ray has
-    free CPUs for, `cpus_per_task` each), restarted from the last epoch up to `max_retries` times when
-    a worker dies. Returns the adapted checkpoint's path."""
+    (DistributedDataParallel over gloo): by default one process per node, holding that node's CPUs
+    (on one machine, two processes with a thread each were no faster than one with two threads, and
+    each process holds all the frames); `batch.adapt_processes` processes of `cpus_per_task` CPUs
+    instead. Restarted from the last epoch up to `max_retries` times when a worker dies. Returns the
+    adapted checkpoint's path."""
     import ray
     from ray.train import FailureConfig, RunConfig, ScalingConfig
     from ray.train.torch import TorchTrainer
 
     bcfg = cfg.batch
-    per = bcfg.cpus_per_task
-    n = bcfg.adapt_processes or max(1, int(ray.available_resources().get("CPU", per)) // per)
+    if bcfg.adapt_processes:
+        n, per = bcfg.adapt_processes, bcfg.cpus_per_task
+    else:  # one process per node with that node's CPUs: threads within a node, data-parallel across nodes
+        cpus = [int(nd["Resources"]["CPU"]) for nd in ray.nodes() if nd.get("Alive") and nd["Resources"].get("CPU", 0) >= 1]
+        n, per = max(1, len(cpus)), max(1, min(cpus, default=1))
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     (out / ERROR_FILE).unlink(missing_ok=True)
@@ -252,7 +265,8 @@ def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: b
                    f"-> {out}")
     trainer = TorchTrainer(
         _adapt_loop,
-        train_loop_config={"paths": [str(it.path) for it in items], "adapt": cfg.adapt.model_dump(),
+        # absolute paths: Ray Train runs each process in a folder of its own
+        train_loop_config={"paths": [str(Path(it.path).resolve()) for it in items], "adapt": _resolved(cfg.adapt),
                            "folder": str(out), "threads": per},
         scaling_config=ScalingConfig(num_workers=n, use_gpu=False, resources_per_worker={"CPU": per}),
         run_config=RunConfig(name="ray_train", storage_path=str(out),
