@@ -4,7 +4,6 @@ printed as one line naming the file and the problem, never as a traceback."""
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Optional
@@ -354,11 +353,12 @@ def adapt(
     docs/benchmarks.md, `leovr bench real`); compare before relying on it."""
     from leovr.data import open_sequence
     from selfsup.adapt import adapt as run_adapt
+    from selfsup.distributed import distributed
 
     cfg = override(load_config(config).adapt, input=input, epochs=epochs, start=start, end=end,
                    init_checkpoint=None if init is None else str(init))
     r = run_adapt([open_sequence(s) for s in sequences], cfg, out, resume=resume)
-    if os.environ.get("RANK", "0") == "0":  # one line from `torchrun --nproc-per-node N leovr adapt ...`
+    if distributed()[0] == 0:  # one line from `torchrun --nproc-per-node N leovr adapt ...`
         typer.echo(f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
                    f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns -> {out / 'generator.pt'}")
 

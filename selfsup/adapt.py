@@ -296,7 +296,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
             part, weight = share(b, rank, world)
             opt.zero_grad()
             loss, e, c = step(part)
-            (loss * weight if world > 1 else loss).backward()
+            (loss * weight).backward()  # weight 1.0 for a single process
             opt.step()
             if weight > 0:
                 losses.append(float(loss.detach()))

@@ -27,22 +27,22 @@ def barrier(world: int) -> None:
         dist.barrier()
 
 
-def all_sum(values: list[float], world: int) -> list[float]:
-    """Element-wise sum over the processes (float64), for example error sums and counts."""
+def _all_reduce(values: list[float], world: int, op: str) -> list[float]:
     if world == 1:
         return [float(v) for v in values]
     t = torch.tensor(values, dtype=torch.float64)
-    dist.all_reduce(t)
+    dist.all_reduce(t, op=getattr(dist.ReduceOp, op))
     return t.tolist()
+
+
+def all_sum(values: list[float], world: int) -> list[float]:
+    """Element-wise sum over the processes (float64), for example error sums and counts."""
+    return _all_reduce(values, world, "SUM")
 
 
 def all_max(value: float, world: int) -> float:
     """The largest value over the processes (for example elapsed minutes, so that all stop together)."""
-    if world == 1:
-        return float(value)
-    t = torch.tensor([value], dtype=torch.float64)
-    dist.all_reduce(t, op=dist.ReduceOp.MAX)
-    return float(t.item())
+    return _all_reduce([value], world, "MAX")[0]
 
 
 def raise_shared(error: Exception | None, world: int) -> None:

@@ -27,6 +27,7 @@ from leovr.pipeline.batch_summary import read_json_or_empty, write_summary
 
 STATE_FILE = "batch.json"
 ADAPT_DIR = "_adapt"  # the adapted generator of an adapt+refine batch
+ERROR_FILE = "error.json"  # a data error the adaptation met (written by its process 0)
 
 
 def task_settings(job: str, section: dict[str, Any], path: Path | None = None) -> dict[str, Any]:
@@ -227,9 +228,6 @@ def _adapt_loop(config: dict) -> None:
     except LeovrError as exc:
         if distributed()[0] == 0:
             write_text(folder / ERROR_FILE, json.dumps({"error": str(exc)}) + "\n")
-
-
-ERROR_FILE = "error.json"
 
 
 def _resolved(acfg: Any) -> dict:
