@@ -25,10 +25,10 @@ from leovr.geometry import invert_T
 from selfsup.blind import BlindSequence
 from selfsup.dataset import image_tensor
 from selfsup.losses import photometric_error
-from selfsup.supervision import TrainFrame, graph_depth_at, graph_pass, pair_tests, rigid_support, train_frames
+from selfsup.supervision import TrainFrame, graph_depth_at, graph_pass, mover_keep, pair_tests, rigid_support, train_frames
 from selfsup.warp import warp_image
 
-VARIANTS = ("eq19", "rigid", "auto", "eq19_rigid", "full")
+VARIANTS = ("eq19", "rigid", "depth", "movers", "auto", "eq19_movers", "full")
 
 
 @torch.no_grad()
@@ -50,8 +50,8 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
     graph = graph_pass(blind, cfg, Path(work), None, len(frames), progress)
     filled = [graph_depth_at(graph, f) for f in frames]
     depth = [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(filled, frames)]  # as the trainer's first stage
-    rigid_cfg = cfg.model_copy(update={"rigid_mask": True})
-    eq19_cfg = cfg.model_copy(update={"rigid_mask": False})
+    rigid_cfg = cfg.model_copy(update={"rigid_mask": True, "depth_mask": True})
+    eq19_cfg = cfg.model_copy(update={"rigid_mask": False, "depth_mask": False})
     counts = {v: np.zeros(3) for v in VARIANTS}  # true positives, dropped, moving
     scored = moving_total = 0
     for k, f in enumerate(frames):
@@ -68,11 +68,12 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
             if not 0 <= j < len(frames):
                 continue
             plain = pair_tests(frames, graph.poses, depth, eq19_cfg, k, j)  # eq. 19 alone: the plain flow
-            t = pair_tests(frames, graph.poses, depth, rigid_cfg, k, j)  # with the rigid test: its initialised flow
+            t = pair_tests(frames, graph.poses, depth, rigid_cfg, k, j)  # with the depth-based tests: the initialised flow
             auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth, cfg.alpha)
             region = t.inside & has_depth
-            dropped = {"eq19": ~plain.epipolar, "rigid": ~t.rigid, "auto": ~auto, "eq19_rigid": ~(t.epipolar & t.rigid),
-                       "full": ~(t.epipolar & t.rigid & auto)}
+            both = mover_keep(t, True, True)
+            dropped = {"eq19": ~plain.epipolar, "rigid": ~t.rigid, "depth": ~t.depth, "movers": ~both, "auto": ~auto,
+                       "eq19_movers": ~(t.epipolar & both), "full": ~(t.epipolar & both & auto)}
             mv = moving & region
             for v, d in dropped.items():
                 d = d & region

@@ -8,9 +8,18 @@ uncertainty allows. Only the translation part of the rigid flow depends on depth
 does not), so the tolerance is `abs_px` plus `rel` times that part: `rel` is how far off the depth
 may be, relatively.
 
-The dense flow is started from the rigid flow (`rigid_tests`), which eq. 19 then uses too. `pair_keep`
-returns each test apart, so that the trainer can switch them independently and the benchmark can
-score each one against the simulator's moving masks (`selfsup.mask_quality`).
+The dense flow is started from the rigid flow (`rigid_tests`), which eq. 19 then uses too.
+
+The depth test (`depth_disagreement`) needs no flow: frame i's depth, moved by the camera motion into
+frame j, must meet frame j's own depth there. A car ahead at the ego's speed stays as far away as
+before, so frame j sees it further than a static point would be: the static scene would have to be
+seen through. An oncoming car comes nearer than a static point would. Both tests see movers where
+the depth is known; a pixel dropped by one of them is dropped when its connected region of dropped
+pixels holds a pixel that both drop (`movers`: hysteresis, as in Canny's edges): either test alone
+fires on static pixels too (weak texture, occlusions), both together rarely do.
+
+`pair_keep` returns each test apart, so that the trainer can switch them independently and the
+benchmark can score each one against the simulator's moving masks (`selfsup.mask_quality`).
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ class PairKeep:
     inside: np.ndarray  # the flow end point lies inside frame j
     epipolar: np.ndarray  # eq. 19: within lambda px of its epipolar line (True without translation)
     rigid: np.ndarray  # the measured flow agrees with the rigid flow (True where depth is unknown)
+    depth: np.ndarray  # frame i's depth moved into frame j meets frame j's depth (True where either is unknown)
 
 
 def rigid_flow(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -81,20 +91,66 @@ def rigid_tests(image_i: np.ndarray, image_j: np.ndarray, depth_i: np.ndarray, d
     consistent = np.linalg.norm(flow + back_at, axis=-1) < fb_px
     gap = np.linalg.norm(flow - init, axis=-1)
     moving = valid & consistent & (gap > abs_px + rel * np.linalg.norm(trans, axis=-1))
-    if open_px > 1:
-        moving = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_OPEN, np.ones((open_px, open_px), np.uint8)) > 0
-    return flow, ~moving
+    return flow, ~_open(moving, open_px)
+
+
+def _open(mask: np.ndarray, open_px: int) -> np.ndarray:
+    """Specks thinner than `open_px` removed (a mover is a blob)."""
+    if open_px <= 1:
+        return mask
+    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((open_px, open_px), np.uint8)) > 0
+
+
+def depth_disagreement(depth_i: np.ndarray, depth_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray, rel: float,
+                       open_px: int = 3) -> np.ndarray:
+    """H x W bools of frame i: a static point at frame i's depth, moved by T_j_i, lands in frame j at
+    depth z, and frame j's depth there (within its 3 x 3 neighbourhood, so that a depth edge is no
+    evidence) is nearer than z / (1 + rel) or further than z / (1 - rel). Further: the static scene
+    would be seen through (a mover keeping its distance); nearer: an oncoming mover or an occluder.
+    Unknown depth (0) in either frame: no disagreement."""
+    h, w = depth_i.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    X = (np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T) * depth_i[..., None]
+    Y = X @ T_j_i[:3, :3].T + T_j_i[:3, 3]
+    z = Y[..., 2]
+    ok = (depth_i > 0) & (z > 1e-3)
+    p = Y @ K.T
+    zs = np.where(ok, z, 1.0)
+    uj = np.where(ok, p[..., 0] / zs, -1.0).astype(np.float32)
+    vj = np.where(ok, p[..., 1] / zs, -1.0).astype(np.float32)
+    known = depth_j > 0
+    box = np.ones((3, 3), np.uint8)
+    near = cv2.erode(np.where(known, depth_j, np.inf).astype(np.float32), box)  # nearest known depth around
+    far = cv2.dilate(np.where(known, depth_j, 0.0).astype(np.float32), box)  # furthest known depth around
+    near_at = cv2.remap(near, uj, vj, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
+    far_at = cv2.remap(far, uj, vj, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    tested = ok & np.isfinite(near_at) & (far_at > 0)
+    with np.errstate(invalid="ignore"):
+        moving = tested & ((z < near_at * (1.0 - rel)) | (z > far_at * (1.0 + rel)))
+    return _open(moving, open_px)
+
+
+def movers(drop_a: np.ndarray, drop_b: np.ndarray) -> np.ndarray:
+    """Hysteresis of two mover tests: the connected regions (8-neighbours) of pixels that either test
+    drops, kept where they hold a pixel that both drop."""
+    weak = (drop_a | drop_b).astype(np.uint8)
+    n, labels = cv2.connectedComponents(weak, connectivity=8)
+    hit = np.zeros(n, bool)
+    hit[np.unique(labels[drop_a & drop_b])] = True
+    hit[0] = False  # background
+    return hit[labels]
 
 
 def pair_keep(image_i: np.ndarray, image_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray,
               depth: tuple[np.ndarray, np.ndarray] | None = None, lam_px: float = 1.0, abs_px: float = 0.5,
-              rel: float = 0.3, method: str = "dis", min_baseline_m: float = 1e-3) -> PairKeep:
-    """Every flow-based test of the pair (i, j). `depth`: (depth_i, depth_j) for the rigid test, whose
-    rigid-initialised flow then serves eq. 19 too; None: the rigid test keeps everything and eq. 19
-    runs on the plain flow (`method`), as without it."""
+              rel: float = 0.3, method: str = "dis", min_baseline_m: float = 1e-3, depth_rel: float = 0.05) -> PairKeep:
+    """Every test of the pair (i, j). `depth`: (depth_i, depth_j) for the rigid and depth tests; the
+    rigid-initialised flow then serves eq. 19 too; None: those two keep everything and eq. 19 runs on
+    the plain flow (`method`), as without them."""
     if depth is not None:
         flow, rig = rigid_tests(image_i, image_j, depth[0], depth[1], T_j_i, K, abs_px, rel)
+        dep = ~depth_disagreement(depth[0], depth[1], T_j_i, K, depth_rel)
     else:
         flow = dense_flow(image_i, image_j, method)
-        rig = np.ones(flow.shape[:2], bool)
-    return PairKeep(flow_inside(flow), epipolar_keep(flow, T_j_i, K, lam_px, min_baseline_m), rig)
+        rig = dep = np.ones(flow.shape[:2], bool)
+    return PairKeep(flow_inside(flow), epipolar_keep(flow, T_j_i, K, lam_px, min_baseline_m), rig, dep)

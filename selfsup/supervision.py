@@ -24,7 +24,7 @@ from leovr.errors import DataError
 from leovr.geometry import invert_T
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
-from selfsup.motion_mask import PairKeep, pair_keep
+from selfsup.motion_mask import PairKeep, movers, pair_keep
 
 
 @dataclass
@@ -154,17 +154,27 @@ def pair_tests(frames: list[TrainFrame], poses: np.ndarray, depth: list[np.ndarr
                k: int, j: int) -> PairKeep:
     """The flow tests of frame k against its neighbour j, with the graph's poses and depth."""
     T_j_i = invert_T(poses[j]) @ poses[k]
-    return pair_keep(frames[k].image, frames[j].image, T_j_i, frames[k].K, (depth[k], depth[j]) if cfg.rigid_mask else None,
-                     cfg.flow_lambda_px, cfg.rigid_abs_px, cfg.rigid_rel, cfg.flow_method)
+    with_depth = cfg.rigid_mask or cfg.depth_mask
+    return pair_keep(frames[k].image, frames[j].image, T_j_i, frames[k].K, (depth[k], depth[j]) if with_depth else None,
+                     cfg.flow_lambda_px, cfg.rigid_abs_px, cfg.rigid_rel, cfg.flow_method, depth_rel=cfg.depth_mask_rel)
+
+
+def mover_keep(t: PairKeep, rigid: bool, depth: bool) -> np.ndarray:
+    """The mover tests the config switches on: both = their hysteresis (`movers`), one = that one."""
+    if rigid and depth:
+        return ~movers(~t.rigid, ~t.depth)
+    if rigid:
+        return t.rigid
+    if depth:
+        return t.depth
+    return np.ones_like(t.inside)
 
 
 def keep_mask(t: PairKeep, cfg: SelfSupConfig) -> np.ndarray:
     """The mask the trainer uses: inside the neighbour, and every test the config switches on."""
-    keep = t.inside.copy()
+    keep = t.inside & mover_keep(t, cfg.rigid_mask, cfg.depth_mask)
     if cfg.flow_mask:
         keep &= t.epipolar
-    if cfg.rigid_mask:
-        keep &= t.rigid
     return keep
 
 
@@ -175,7 +185,7 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
     keep = graph.landmark_lidar if cfg.landmarks_lidar_only else np.ones(len(graph.landmarks), bool)
     fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
               for k, f in enumerate(frames)]
-    graph_depth = [graph_depth_at(graph, f) for f in frames] if with_refined or cfg.rigid_mask else [None] * n
+    graph_depth = [graph_depth_at(graph, f) for f in frames] if with_refined or cfg.rigid_mask or cfg.depth_mask else [None] * n
     # initialisation stage: the graph's depth is a classical fill, trusted by the rigid test only near returns
     rigid_depth = graph_depth if with_refined else [rigid_support(d, f.sparse, cfg.rigid_support_px)
                                                     for d, f in zip(graph_depth, frames)]
@@ -187,7 +197,7 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
             use[k] = refined_agrees(refined[k], fdepth[k], cfg.refined_agree_rel)
     prev: list[np.ndarray | None] = [None] * n
     nxt: list[np.ndarray | None] = [None] * n
-    if cfg.flow_mask or cfg.rigid_mask:
+    if cfg.flow_mask or cfg.rigid_mask or cfg.depth_mask:
         if mask_dir is not None:
             mask_dir.mkdir(parents=True, exist_ok=True)
         for k in range(n):

@@ -38,7 +38,7 @@ from selfsup.mask_quality import VARIANTS, score_masks
 from selfsup.supervision import train_frames
 from selfsup.trainer import train_selfsup
 
-NO_MASKS = {"flow_mask": False, "rigid_mask": False, "auto_mask": False}  # the "no mask" variants
+NO_MASKS = {"flow_mask": False, "rigid_mask": False, "depth_mask": False, "auto_mask": False}  # the "no mask" variants
 # --quick: one short sequence per scenario in each split, rendered on demand (a fresh clone has no dataset)
 QUICK_RECIPE = Recipe("selfsup_quick", {"train": 3, "test": 3}, ("mid40",), ("day",), 12, ("dynamic", "city_loop", "traffic"))
 
@@ -228,7 +228,7 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
     test_paths = pick_sequences(root, "test", cfg, 1 if quick else 2, ["traffic"])
     tests = [shorten(open_sequence(p)) for p in test_paths]
     runs = {"selfsup": base, "selfsup_nomask": base.model_copy(update=NO_MASKS),
-            "selfsup_eq19_only": base.model_copy(update={"rigid_mask": False, "auto_mask": False})}
+            "selfsup_eq19_only": base.model_copy(update={"rigid_mask": False, "depth_mask": False, "auto_mask": False})}
     maes, minutes, checkpoints = {}, {}, {}
     for name, vcfg in runs.items():
         share = None if name == "selfsup" else work / "traffic_selfsup" / "graph" / "init"
