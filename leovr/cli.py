@@ -436,9 +436,11 @@ def bench_selfsup(
             typer.echo(f"{k:18s} MAE {r[f'{k}_mae_m']:.3f} m")
     for k, v in r.get("traffic_only", {}).items():
         typer.echo(f"traffic {k:18s} {'MAE' if k.startswith('selfsup') else '   '} {v:.3f}")
-    for k, v in r.get("mask_quality", {}).items():
-        if isinstance(v, dict):
-            typer.echo(f"mask {k:10s} precision {v['precision']:.3f} recall {v['recall']:.3f}")
+    for stage in ("mask_quality", "mask_quality_refine"):
+        for k, v in r.get(stage, {}).items():
+            if isinstance(v, dict):
+                typer.echo(f"mask {k:12s} {'refinement stage' if stage.endswith('refine') else 'first stage     '} "
+                           f"precision {v['precision']:.3f} recall {v['recall']:.3f}")
     if "kitti_raw" in r:
         for k, v in r["kitti_raw"]["held_out"].items():
             typer.echo(f"KITTI {k:30s} held-out MAE {v['mae_m']:.3f} m")

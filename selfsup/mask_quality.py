@@ -2,8 +2,10 @@
 simulator's moving mask as "dropped" vs "moving" (precision and recall).
 
 The masks are built as the trainer builds them (`selfsup.supervision.pair_tests`): frames resampled to
-the training focal length, poses and depth from the initialisation-stage graph pass on the blind
-sequence (IP-Basic depth, point factors), both neighbours of every frame. The auto-mask compares the
+the training focal length, both neighbours of every frame, poses and depth from a graph pass on the
+blind sequence. Initialisation stage (no checkpoint): IP-Basic depth and point factors, the depth tests
+only near LiDAR returns. Refinement stage (a checkpoint): the generator's depth in the full graph,
+trusted everywhere. The auto-mask compares the
 photometric error of the neighbour warped with a network's depth against the unwarped neighbour; it
 is scored with the network given (the trained one in `leovr bench selfsup`), else with the graph's
 depth. Scored pixels: those with ground-truth depth (not sky) whose flow stays inside the neighbour;
@@ -42,14 +44,18 @@ def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth
 
 
 def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.Module | None = None,
-                progress: bool = False) -> dict:
+                progress: bool = False, checkpoint: Path | None = None) -> dict:
     """{"variants": {variant: precision, recall, dropped_share}, "moving_share", "pixels"} over the
-    sequence ("dropped" vs "moving" on the scored pixels); `work` holds the graph pass (reused when done)."""
+    sequence ("dropped" vs "moving" on the scored pixels); `work` holds the graph pass (reused when done).
+    `checkpoint`: the refinement stage's masks, with the graph over this generator."""
     blind = BlindSequence(seq)
     frames = train_frames(blind, cfg)
-    graph = graph_pass(blind, cfg, Path(work), None, len(frames), progress)
+    graph = graph_pass(blind, cfg, Path(work), checkpoint, len(frames), progress)
     filled = [graph_depth_at(graph, f) for f in frames]
-    depth = [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(filled, frames)]  # as the trainer's first stage
+    if checkpoint is None:  # as the trainer's first stage: the classical fill only near returns
+        depth = [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(filled, frames)]
+    else:
+        depth = filled
     rigid_cfg = cfg.model_copy(update={"rigid_mask": True, "depth_mask": True})
     eq19_cfg = cfg.model_copy(update={"rigid_mask": False, "depth_mask": False})
     counts = {v: np.zeros(3) for v in VARIANTS}  # true positives, dropped, moving

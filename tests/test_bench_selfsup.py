@@ -19,10 +19,13 @@ def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
     assert all(r[f"{k}_mae_m"] > 0 for k in ("untrained", "selfsup", "selfsup_nomask", "supervised"))
     assert {"selfsup", "selfsup_nomask", "selfsup_eq19_only", "mask_gain"} <= set(r["traffic_only"])
     assert doc["traffic_test_sequences"] and all("traffic" in p for p in doc["traffic_test_sequences"])
-    for v in ("eq19", "rigid", "auto", "eq19_rigid", "full"):
-        q = r["mask_quality"][v]
-        assert 0.0 <= q["precision"] <= 1.0 and 0.0 <= q["recall"] <= 1.0
-    # the full mask drops at least what the rigid test and the auto-mask drop (eq. 19 alone runs on the plain flow)
-    assert r["mask_quality"]["full"]["dropped_share"] >= max(r["mask_quality"][v]["dropped_share"] for v in ("rigid", "auto"))
-    assert 0.0 < r["mask_quality"]["moving_share"] < 1.0
+    for stage in ("mask_quality", "mask_quality_refine"):
+        q = r[stage]
+        for v in ("eq19", "rigid", "depth", "movers", "auto", "eq19_movers", "full"):
+            assert 0.0 <= q[v]["precision"] <= 1.0 and 0.0 <= q[v]["recall"] <= 1.0
+        # the full mask drops at least what the mover tests and the auto-mask drop (eq. 19 alone runs on the plain flow)
+        assert q["full"]["dropped_share"] >= max(q[v]["dropped_share"] for v in ("movers", "auto"))
+        # the hysteresis keeps only regions that one of the two tests drops
+        assert q["movers"]["dropped_share"] <= q["rigid"]["dropped_share"] + q["depth"]["dropped_share"] + 1e-9
+        assert 0.0 < q["moving_share"] < 1.0
     assert "revisit" in doc["loop_closure_note"]

@@ -176,6 +176,7 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     if "traffic" in cfg.parts:
         results["traffic_only"], traffic_body = traffic_runs(cfg, base, traffic_root, work, quick, shorten, progress, bins)
         results["mask_quality"] = traffic_body.pop("mask_quality")
+        results["mask_quality_refine"] = traffic_body.pop("mask_quality_refine")
         results["train_minutes"].update(traffic_body.pop("train_minutes"))
     raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
     if "kitti" in cfg.parts and raw.exists():
@@ -237,13 +238,15 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
     maes["mask_gain"] = 1.0 - maes["selfsup"] / maes["selfsup_nomask"]
     maes["eq19_gain"] = 1.0 - maes["selfsup_eq19_only"] / maes["selfsup_nomask"]
     model = load_generator(checkpoints["selfsup"])
-    per_seq = [score_masks(t, base, work / "mask_quality" / p.name, model) for t, p in zip(tests, test_paths)]
-    quality = {v: {k: float(np.mean([q["variants"][v][k] for q in per_seq])) for k in ("precision", "recall", "dropped_share")}
-               for v in VARIANTS}
-    quality["moving_share"] = float(np.mean([q["moving_share"] for q in per_seq]))
+    quality = {}
+    for stage, ck in (("mask_quality", None), ("mask_quality_refine", checkpoints["selfsup"])):
+        per_seq = [score_masks(t, base, work / stage / p.name, model, checkpoint=ck) for t, p in zip(tests, test_paths)]
+        quality[stage] = {v: {k: float(np.mean([q["variants"][v][k] for q in per_seq])) for k in ("precision", "recall", "dropped_share")}
+                          for v in VARIANTS}
+        quality[stage]["moving_share"] = float(np.mean([q["moving_share"] for q in per_seq]))
     body = {"traffic_train_sequences": [str(p.relative_to(root)) for p in train],
             "traffic_test_sequences": [str(p.relative_to(root)) for p in test_paths],
-            "train_minutes": {k: round(v, 2) for k, v in minutes.items()}, "mask_quality": quality}
+            "train_minutes": {k: round(v, 2) for k, v in minutes.items()}, **quality}
     return maes, body
 
 
