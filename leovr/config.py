@@ -262,7 +262,7 @@ class SelfSupConfig(_Model):
     rigid_abs_px: float = Field(0.5, gt=0)  # rigid test tolerance: px ...
     rigid_rel: float = Field(0.3, ge=0)  # ... plus this share of the rigid flow's depth-dependent part
     rigid_support_px: float = Field(4.0, ge=0)  # initialisation stage: rigid and depth tests only this close to a LiDAR return (0: everywhere)
-    depth_mask: bool = True  # drop pixels whose depth, moved into the neighbour, disagrees with the neighbour's depth
+    depth_mask: bool = False  # drop pixels whose depth, moved into the neighbour, disagrees with the neighbour's depth
     depth_mask_rel: float = Field(0.05, gt=0, lt=1)  # depth test tolerance, relative
     auto_mask: bool = True  # monodepth2: per-pixel minimum over the neighbours, pixels that match better unwarped dropped
     weight_nll: float = Field(0.1, ge=0)  # Gaussian NLL of the uncertainty head at the LiDAR-backed landmarks (0: head untrained)

@@ -27,10 +27,19 @@ from leovr.geometry import invert_T
 from selfsup.blind import BlindSequence
 from selfsup.dataset import image_tensor
 from selfsup.losses import photometric_error
-from selfsup.supervision import TrainFrame, graph_depth_at, graph_pass, mover_keep, pair_tests, rigid_support, train_frames
+from selfsup.supervision import (
+    TrainFrame,
+    graph_depth_at,
+    graph_pass,
+    keep_mask,
+    mover_keep,
+    pair_tests,
+    rigid_support,
+    train_frames,
+)
 from selfsup.warp import warp_image
 
-VARIANTS = ("eq19", "rigid", "depth", "movers", "auto", "eq19_movers", "full")
+VARIANTS = ("eq19", "rigid", "depth", "movers", "auto", "eq19_rigid", "eq19_movers", "full")  # full: what the config switches on
 
 
 @torch.no_grad()
@@ -78,8 +87,9 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
             auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth, cfg.alpha)
             region = t.inside & has_depth
             both = mover_keep(t, True, True)
+            full = keep_mask(t, cfg) & (auto if cfg.auto_mask else True)
             dropped = {"eq19": ~plain.epipolar, "rigid": ~t.rigid, "depth": ~t.depth, "movers": ~both, "auto": ~auto,
-                       "eq19_movers": ~(t.epipolar & both), "full": ~(t.epipolar & both & auto)}
+                       "eq19_rigid": ~(t.epipolar & t.rigid), "eq19_movers": ~(t.epipolar & both), "full": ~full}
             mv = moving & region
             for v, d in dropped.items():
                 d = d & region
