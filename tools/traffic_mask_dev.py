@@ -1,11 +1,14 @@
 """Development runs for the photometric masks on the `traffic` scenario: train on the traffic recipe's
 training sequences with the bench's schedule, score on its validation sequence (seed 2000), never on
-the test seeds that `leovr bench selfsup` reports.
+the test seeds that `leovr bench selfsup` reports. MAE is given on all pixels and split into moving
+and static ones (the simulator's moving masks).
 
     .venv/bin/python tools/traffic_mask_dev.py NAME [--set rigid_mask=false --set auto_mask=false] [--epochs 24]
+    .venv/bin/python tools/traffic_mask_dev.py oracle --oracle --set rigid_mask=false --set auto_mask=false
 
 Runs go to runs/traffic_mask_dev/NAME (resumed with the same settings); the network-free
-initialisation graph pass is shared between runs.
+initialisation graph pass is shared between runs. `--oracle` is a bound, not a method: the photometric
+mask is the simulator's moving mask (ground truth, read by this tool only), in place of eq. 19.
 """
 
 from __future__ import annotations
@@ -16,13 +19,53 @@ import shutil
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import yaml
 
+import selfsup.supervision as supervision
+import selfsup.trainer as trainer
 from leovr.bench.selfsup import base_config, pick_sequences, score, train_run
 from leovr.config import BenchSelfSupConfig, CompleteConfig
 from leovr.data import open_sequence
-from leovr.depth.inference import load_generator
+from leovr.data.sequence import Sequence
+from leovr.depth.inference import load_generator, predict_at_focal
+from leovr.pipeline.completion import prepare_sample
 from leovr.sim.dataset import RECIPES, make_dataset
+from selfsup.motion_mask import PairKeep
+
+
+def moving_static_mae(model, seqs: list[Sequence], focal_px: float) -> dict[str, float]:
+    """MAE on the moving and on the static ground-truth pixels."""
+    errors: dict[str, list[np.ndarray]] = {"moving": [], "static": []}
+    for seq in seqs:
+        for i in range(len(seq)):
+            frame = seq[i]
+            s = prepare_sample(frame, CompleteConfig(input="full"))
+            depth, _ = predict_at_focal(model, frame.image, s.sparse, float(frame.K[0, 0]), focal_px)
+            ok, moving = s.gt > 0, frame.moving_mask.astype(bool)
+            errors["moving"].append(np.abs(depth - s.gt)[ok & moving])
+            errors["static"].append(np.abs(depth - s.gt)[ok & ~moving])
+    return {f"mae_{k}_m": float(np.concatenate(v).mean()) for k, v in errors.items()}
+
+
+def use_oracle_masks() -> None:
+    """The trainer's eq. 19 mask replaced by the simulator's moving mask (a development bound only)."""
+    frames_of = supervision.train_frames
+
+    def train_frames(seq, cfg):
+        frames = frames_of(seq, cfg)
+        for f in frames:
+            m = seq.base[f.index].moving_mask.astype(np.uint8)  # under the BlindSequence: ground truth
+            f.moving = cv2.resize(m, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+        return frames
+
+    def pair_tests(frames, poses, depth, cfg, k, j):
+        keep = np.ones(frames[k].sparse.shape, bool)
+        return PairKeep(keep, ~frames[k].moving, keep, keep)
+
+    trainer.train_frames = train_frames
+    supervision.pair_tests = pair_tests
 
 
 def main() -> None:
@@ -31,7 +74,10 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a selfsup config field (YAML value)")
     ap.add_argument("--epochs", type=int, default=24)
     ap.add_argument("--runs", type=Path, default=Path("runs/traffic_mask_dev"))
+    ap.add_argument("--oracle", action="store_true", help="bound: the simulator's moving masks as the photometric mask")
     args = ap.parse_args()
+    if args.oracle:
+        use_oracle_masks()
     bench = BenchSelfSupConfig()
     root = make_dataset(RECIPES["traffic"], progress=False)
     train = pick_sequences(root, "train", bench, bench.traffic_sequences, ["traffic"])
@@ -43,8 +89,10 @@ def main() -> None:
     train_run(cfg, train, run, progress=False, share_init=args.runs / "_init" if (args.runs / "_init").is_dir() else None)
     if not (args.runs / "_init").is_dir():
         shutil.copytree(run / "graph" / "init", args.runs / "_init")
-    metrics = score(load_generator(run / "generator.pt"), val, "full", bench.train_focal_px, list(CompleteConfig().bins))
-    print(json.dumps({"name": args.name, "overrides": overrides, "epochs": args.epochs, **metrics,
+    model = load_generator(run / "generator.pt")
+    metrics = score(model, val, "full", bench.train_focal_px, list(CompleteConfig().bins))
+    metrics.update(moving_static_mae(model, val, bench.train_focal_px))
+    print(json.dumps({"name": args.name, "oracle": args.oracle, "overrides": overrides, "epochs": args.epochs, **metrics,
                       "minutes": round((time.time() - t0) / 60, 1)}), flush=True)
 
 
