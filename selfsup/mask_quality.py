@@ -68,7 +68,7 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
     rigid_cfg = cfg.model_copy(update={"rigid_mask": True, "depth_mask": True})
     eq19_cfg = cfg.model_copy(update={"rigid_mask": False, "depth_mask": False})
     counts = {v: np.zeros(3) for v in VARIANTS}  # true positives, dropped, moving
-    scored = moving_total = 0
+    scored = moving_total = moving_tested = 0
     for k, f in enumerate(frames):
         gt = seq[f.index]
         size = (f.sparse.shape[1], f.sparse.shape[0])
@@ -96,6 +96,8 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
                 counts[v] += (np.sum(d & mv), np.sum(d), np.sum(mv))
             scored += int(region.sum())
             moving_total += int(mv.sum())
+            moving_tested += int((mv & (depth[k] > 0)).sum())
     variants = {v: {"precision": float(tp / max(dr, 1)), "recall": float(tp / max(mv, 1)),
                     "dropped_share": float(dr / max(scored, 1))} for v, (tp, dr, mv) in counts.items()}
-    return {"variants": variants, "moving_share": moving_total / max(scored, 1), "pixels": scored}
+    return {"variants": variants, "moving_share": moving_total / max(scored, 1), "pixels": scored,
+            "moving_with_depth": moving_tested / max(moving_total, 1)}  # the depth-based tests' reach

@@ -32,6 +32,7 @@ def main() -> None:
         model = None if a.checkpoint is None else load_generator(a.checkpoint)
         r = score_masks(open_sequence(path), cfg, work, model, checkpoint=a.checkpoint)
         print(json.dumps({"sequence": Path(path).name, "set": kw, "moving_share": round(r["moving_share"], 4),
+                          "moving_with_depth": round(r["moving_with_depth"], 3),
                           **{v: {k: round(x, 3) for k, x in m.items()} for v, m in r["variants"].items()}}), flush=True)
 
 

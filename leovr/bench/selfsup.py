@@ -243,7 +243,8 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
         per_seq = [score_masks(t, base, work / stage / p.name, model, checkpoint=ck) for t, p in zip(tests, test_paths)]
         quality[stage] = {v: {k: float(np.mean([q["variants"][v][k] for q in per_seq])) for k in ("precision", "recall", "dropped_share")}
                           for v in VARIANTS}
-        quality[stage]["moving_share"] = float(np.mean([q["moving_share"] for q in per_seq]))
+        for key in ("moving_share", "moving_with_depth"):
+            quality[stage][key] = float(np.mean([q[key] for q in per_seq]))
     body = {"traffic_train_sequences": [str(p.relative_to(root)) for p in train],
             "traffic_test_sequences": [str(p.relative_to(root)) for p in test_paths],
             "train_minutes": {k: round(v, 2) for k, v in minutes.items()}, **quality}
