@@ -54,8 +54,10 @@ def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth
 
 def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.Module | None = None,
                 progress: bool = False, checkpoint: Path | None = None) -> dict:
-    """{"variants": {variant: precision, recall, dropped_share}, "moving_share", "pixels"} over the
-    sequence ("dropped" vs "moving" on the scored pixels); `work` holds the graph pass (reused when done).
+    """{"variants": {variant: precision, recall, dropped_share}, "moving_share", "pixels",
+    "moving_with_depth"} over the sequence ("dropped" vs "moving" on the scored pixels);
+    `moving_with_depth` is the share of moving pixels with depth in frame i: an upper bound on what the
+    depth-based tests can reach. `work` holds the graph pass (reused when done with the same generator).
     `checkpoint`: the refinement stage's masks, with the graph over this generator."""
     blind = BlindSequence(seq)
     frames = train_frames(blind, cfg)
@@ -87,7 +89,9 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
             auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth, cfg.alpha)
             region = t.inside & has_depth
             both = mover_keep(t, True, True)
-            full = keep_mask(t, cfg) & (auto if cfg.auto_mask else True)
+            # the tests as the trainer runs them: the rigid test's flow, else the plain flow (and then its own depth test)
+            own = t if cfg.rigid_mask else plain if not cfg.depth_mask else pair_tests(frames, graph.poses, depth, cfg, k, j)
+            full = keep_mask(own, cfg) & (auto if cfg.auto_mask else True)
             dropped = {"eq19": ~plain.epipolar, "rigid": ~t.rigid, "depth": ~t.depth, "movers": ~both, "auto": ~auto,
                        "eq19_rigid": ~(t.epipolar & t.rigid), "eq19_movers": ~(t.epipolar & both), "full": ~full}
             mv = moving & region

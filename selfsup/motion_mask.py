@@ -1,4 +1,4 @@
-"""Movers that eq. 19 cannot see: the rigid-flow test.
+"""Movers that eq. 19 cannot see: the rigid-flow test and the depth test.
 
 A car ahead at the ego's speed, or oncoming traffic, moves along the epipolar lines, so its flow
 passes the epipolar test of eq. 19 (`selfsup.flow_mask`). The rigid flow, the flow that the graph's
@@ -143,14 +143,19 @@ def movers(drop_a: np.ndarray, drop_b: np.ndarray) -> np.ndarray:
 
 def pair_keep(image_i: np.ndarray, image_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray,
               depth: tuple[np.ndarray, np.ndarray] | None = None, lam_px: float = 1.0, abs_px: float = 0.5,
-              rel: float = 0.3, method: str = "dis", min_baseline_m: float = 1e-3, depth_rel: float = 0.05) -> PairKeep:
-    """Every test of the pair (i, j). `depth`: (depth_i, depth_j) for the rigid and depth tests; the
-    rigid-initialised flow then serves eq. 19 too; None: those two keep everything and eq. 19 runs on
-    the plain flow (`method`), as without them."""
-    if depth is not None:
+              rel: float = 0.3, method: str = "dis", min_baseline_m: float = 1e-3, depth_rel: float = 0.05,
+              rigid: bool = True, depth_test: bool = True) -> PairKeep:
+    """Every test of the pair (i, j) that is asked for. `depth`: (depth_i, depth_j) for the rigid test
+    (`rigid`; its rigid-initialised flow then serves eq. 19 too) and the depth test (`depth_test`); a
+    test not run, or run without depth, keeps everything. Without the rigid test eq. 19 runs on the
+    plain flow (`method`)."""
+    if depth is not None and rigid:
         flow, rig = rigid_tests(image_i, image_j, depth[0], depth[1], T_j_i, K, abs_px, rel)
-        dep = ~depth_disagreement(depth[0], depth[1], T_j_i, K, depth_rel)
     else:
         flow = dense_flow(image_i, image_j, method)
-        rig = dep = np.ones(flow.shape[:2], bool)
+        rig = np.ones(flow.shape[:2], bool)
+    if depth is not None and depth_test:
+        dep = ~depth_disagreement(depth[0], depth[1], T_j_i, K, depth_rel)
+    else:
+        dep = np.ones(flow.shape[:2], bool)
     return PairKeep(flow_inside(flow), epipolar_keep(flow, T_j_i, K, lam_px, min_baseline_m), rig, dep)

@@ -9,6 +9,7 @@ factors only. Refinement stage: the current generator and the full graph."""
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -85,18 +86,26 @@ def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
 
 def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | None, n_frames: int,
                progress: bool = True) -> GraphResult:
-    """`leovr poses` on the (blind) sequence into `out`; reused when `out/done.json` exists, resumed
-    when a previous pass was interrupted. `checkpoint=None`: IP-Basic depth, point factors only."""
+    """`leovr poses` on the (blind) sequence into `out`; reused when `out/done.json` exists and was made
+    with the same checkpoint file (path, size and time), resumed when a previous pass was interrupted.
+    `checkpoint=None`: IP-Basic depth, point factors only."""
     from leovr.pipeline.refine import Progress, run_refine
 
     out = Path(out)
-    if not (out / "done.json").is_file():
+    stamp = None if checkpoint is None else _file_stamp(Path(checkpoint))
+    done = out / "done.json"
+    if done.is_file():
+        left = json.loads(done.read_text())
+        same = left.get("checkpoint") == (None if checkpoint is None else str(checkpoint))
+        if not same or left.get("checkpoint_stamp", stamp) != stamp:  # a pass over other weights: run it again
+            shutil.rmtree(out)
+    if not done.is_file():
         rcfg = RefineConfig(input=cfg.input, end=n_frames, seed=cfg.seed, loop_closure=cfg.loop_closure,
                             loop_min_gap=cfg.loop_min_gap, generator_focal_px=cfg.train_focal_px,
                             depth_source="ipbasic" if checkpoint is None else "generator",
                             depth_factors=checkpoint is not None, checkpoint=None if checkpoint is None else str(checkpoint))
         run_refine(seq, rcfg, out, resume=(out / "progress.json").is_file(), progress=progress, score=False)
-        write_text(out / "done.json", json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint)}) + "\n")
+        write_text(done, json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint), "checkpoint_stamp": stamp}) + "\n")
     state = Progress.load(out / "progress.json")
     indices = list(range(n_frames))
     missing = [i for i in indices if i not in state.poses]
@@ -106,6 +115,12 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
     arrays = [np.load(require_file(out / name, "graph-pass landmarks"))
               for name in ("landmarks.npy", "landmarks_frame.npy", "landmarks_lidar.npy")]
     return GraphResult(poses, indices, *arrays, out / "depth")
+
+
+def _file_stamp(path: Path) -> list[int]:
+    """[size, modification time in ns]: a checkpoint overwritten with new weights gets a new stamp."""
+    st = require_file(path, "generator checkpoint").stat()
+    return [st.st_size, st.st_mtime_ns]
 
 
 def landmark_depth(frame: TrainFrame, T_world_cam: np.ndarray, landmarks: np.ndarray, landmark_frame: np.ndarray,
@@ -156,7 +171,8 @@ def pair_tests(frames: list[TrainFrame], poses: np.ndarray, depth: list[np.ndarr
     T_j_i = invert_T(poses[j]) @ poses[k]
     with_depth = cfg.rigid_mask or cfg.depth_mask
     return pair_keep(frames[k].image, frames[j].image, T_j_i, frames[k].K, (depth[k], depth[j]) if with_depth else None,
-                     cfg.flow_lambda_px, cfg.rigid_abs_px, cfg.rigid_rel, cfg.flow_method, depth_rel=cfg.depth_mask_rel)
+                     cfg.flow_lambda_px, cfg.rigid_abs_px, cfg.rigid_rel, cfg.flow_method, depth_rel=cfg.depth_mask_rel,
+                     rigid=cfg.rigid_mask, depth_test=cfg.depth_mask)
 
 
 def mover_keep(t: PairKeep, rigid: bool, depth: bool) -> np.ndarray:
@@ -186,7 +202,7 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
     fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
               for k, f in enumerate(frames)]
     graph_depth = [graph_depth_at(graph, f) for f in frames] if with_refined or cfg.rigid_mask or cfg.depth_mask else [None] * n
-    # initialisation stage: the graph's depth is a classical fill, trusted by the rigid test only near returns
+    # initialisation stage: the graph's depth is a classical fill, trusted by the rigid and depth tests only near returns
     rigid_depth = graph_depth if with_refined else [rigid_support(d, f.sparse, cfg.rigid_support_px)
                                                     for d, f in zip(graph_depth, frames)]
     refined: list[np.ndarray | None] = [None] * n

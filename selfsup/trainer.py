@@ -54,6 +54,13 @@ def init_epochs(cfg: SelfSupConfig) -> int:
     return int(round(cfg.epochs * cfg.init_fraction))
 
 
+def config_changes(saved: dict, cfg: SelfSupConfig) -> list[str]:
+    """Settings in which a run's saved config differs from `cfg`; a setting the saved config lacks (added
+    to leovr after the run began) counts as its default."""
+    default = SelfSupConfig().model_dump()
+    return sorted(k for k, v in cfg.model_dump().items() if saved.get(k, default[k]) != v)
+
+
 def pass_tag(epoch: int, cfg: SelfSupConfig) -> str:
     """Which graph pass supervises this epoch: 'init', or 'refine_eN' renewed every `refresh_every`."""
     n = init_epochs(cfg)
@@ -178,7 +185,7 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
     last = out / "checkpoint_last.pt"
     if resume:
         state = load_resume(last, model, opt, sched)
-        changed = sorted(k for k, v in cfg.model_dump().items() if k != "epochs" and state.get("config", {}).get(k) != v)
+        changed = [k for k in config_changes(state.get("config", {}), cfg) if k != "epochs"]
         if changed:
             raise DataError(last, f"was trained with other settings ({', '.join(changed)}); resume with the same "
                                   "config (only epochs may change) or start a new --out folder")

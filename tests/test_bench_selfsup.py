@@ -23,10 +23,5 @@ def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
         q = r[stage]
         for v in ("eq19", "rigid", "depth", "movers", "auto", "eq19_rigid", "eq19_movers", "full"):
             assert 0.0 <= q[v]["precision"] <= 1.0 and 0.0 <= q[v]["recall"] <= 1.0
-        # the default mask (eq. 19, rigid test, auto-mask) drops at least what its parts drop (eq. 19 alone runs on
-        # the plain flow); the depth test is off by default, so the full mask need not drop what it drops
-        assert q["full"]["dropped_share"] >= max(q[v]["dropped_share"] for v in ("eq19_rigid", "auto"))
-        # the hysteresis keeps only regions that one of the two tests drops
-        assert q["movers"]["dropped_share"] <= q["rigid"]["dropped_share"] + q["depth"]["dropped_share"] + 1e-9
-        assert 0.0 < q["moving_share"] < 1.0
+        assert 0.0 < q["moving_share"] < 1.0 and 0.0 <= q["moving_with_depth"] <= 1.0
     assert "revisit" in doc["loop_closure_note"]

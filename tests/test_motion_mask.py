@@ -66,3 +66,38 @@ def test_movers_keep_regions_both_tests_confirm():
     assert (mover_keep(t, True, True) == ~out).all()
     assert (mover_keep(t, True, False) == ~a).all() and (mover_keep(t, False, True) == ~b).all()
     assert mover_keep(t, False, False).all()
+
+
+def test_keep_mask_follows_the_switches():
+    from leovr.config import SelfSupConfig
+    from selfsup.supervision import keep_mask
+
+    one = np.ones((H, W), bool)
+    inside, epi, rig, dep = one.copy(), one.copy(), one.copy(), one.copy()
+    inside[:, :5] = False
+    epi[50:55, :] = False
+    rig[10:30, 10:30] = False
+    dep[20:25, 20:40] = False
+    dep[90:100, 90:100] = False  # only the depth test: dropped when it runs alone, not under the hysteresis
+    t = PairKeep(inside, epi, rig, dep)
+
+    def keep(**switches):
+        return keep_mask(t, SelfSupConfig(**switches))
+
+    assert (keep(flow_mask=False, rigid_mask=False, depth_mask=False) == inside).all()
+    assert (keep(rigid_mask=False, depth_mask=False) == (inside & epi)).all()
+    assert (keep() == (inside & epi & rig)).all()  # the defaults: eq. 19 and the rigid test, not the depth test
+    assert (keep(rigid_mask=False, depth_mask=True) == (inside & epi & dep)).all()
+    both = keep(depth_mask=True)
+    assert not both[10:30, 10:30].any() and not both[20:25, 30:40].any() and both[90:100, 90:100].all()
+
+
+def test_resume_check_counts_a_missing_setting_as_its_default():
+    from leovr.config import SelfSupConfig
+    from selfsup.trainer import config_changes
+
+    saved = SelfSupConfig().model_dump()
+    del saved["depth_mask"]  # a run begun before the setting existed
+    assert config_changes(saved, SelfSupConfig()) == []
+    assert config_changes(saved, SelfSupConfig(depth_mask=True)) == ["depth_mask"]
+    assert config_changes({**saved, "lr": 0.5}, SelfSupConfig()) == ["lr"]

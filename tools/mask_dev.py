@@ -11,6 +11,8 @@ import argparse
 import json
 from pathlib import Path
 
+import yaml
+
 from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
 from leovr.depth.inference import load_generator
@@ -25,7 +27,7 @@ def main() -> None:
     ap.add_argument("--focal", type=float, default=130.0)
     ap.add_argument("--checkpoint", type=Path, default=None, help="refinement-stage masks: the graph over this generator")
     a = ap.parse_args()
-    kw = {k: float(v) for k, v in (s.split("=") for s in a.set)}
+    kw = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in a.set)}
     cfg = SelfSupConfig(train_focal_px=a.focal, **kw)
     for path in a.sequences:
         work = Path(a.work) / (Path(path).name + ("" if a.checkpoint is None else "_" + a.checkpoint.parent.name))

@@ -46,7 +46,7 @@ def moving_static_mae(model, seqs: list[Sequence], focal_px: float) -> dict[str,
             ok, moving = s.gt > 0, frame.moving_mask.astype(bool)
             errors["moving"].append(np.abs(depth - s.gt)[ok & moving])
             errors["static"].append(np.abs(depth - s.gt)[ok & ~moving])
-    return {f"mae_{k}_m": float(np.concatenate(v).mean()) for k, v in errors.items()}
+    return {f"mae_{k}_m": float(np.concatenate(v).mean()) if sum(e.size for e in v) else None for k, v in errors.items()}
 
 
 def use_oracle_masks() -> None:
@@ -84,7 +84,15 @@ def main() -> None:
     val = [open_sequence(p) for p in pick_sequences(root, "val", bench, 1, ["traffic"])]
     overrides = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}
     cfg = base_config(bench, args.epochs, **overrides)
+    if args.oracle and not cfg.flow_mask:
+        ap.error("--oracle replaces eq. 19's mask: it needs flow_mask=true")
     run = args.runs / args.name
+    marker = run / "oracle.json"  # --oracle is not part of the config: a run is resumed only the same way
+    started = json.loads(marker.read_text())["oracle"] if marker.is_file() else False
+    if run.is_dir() and started != args.oracle:
+        ap.error(f"{run} was started {'with' if started else 'without'} --oracle; give another NAME")
+    run.mkdir(parents=True, exist_ok=True)
+    marker.write_text(json.dumps({"oracle": args.oracle}) + "\n")
     t0 = time.time()
     train_run(cfg, train, run, progress=False, share_init=args.runs / "_init" if (args.runs / "_init").is_dir() else None)
     if not (args.runs / "_init").is_dir():

@@ -36,7 +36,7 @@ from leovr.pipeline.completion import prepare_sample
 from leovr.sim.dataset import RECIPES, Recipe, default_root, make_dataset
 from selfsup.mask_quality import VARIANTS, score_masks
 from selfsup.supervision import train_frames
-from selfsup.trainer import train_selfsup
+from selfsup.trainer import config_changes, train_selfsup
 
 NO_MASKS = {"flow_mask": False, "rigid_mask": False, "depth_mask": False, "auto_mask": False}  # the "no mask" variants
 # --quick: one short sequence per scenario in each split, rendered on demand (a fresh clone has no dataset)
@@ -76,7 +76,7 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
     the same settings (a few minutes: no per-epoch resume)."""
     t0 = time.time()
     final = out / "generator.pt"
-    if final.is_file() and torch.load(final, weights_only=False).get("config") == cfg.model_dump():
+    if final.is_file() and not config_changes(torch.load(final, weights_only=False).get("config", {}), cfg):
         return final
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
@@ -122,7 +122,7 @@ def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bo
     last = run / "checkpoint_last.pt"
     if last.is_file():
         state = torch.load(last, weights_only=False)
-        if state.get("config") != cfg.model_dump():
+        if config_changes(state.get("config", {}), cfg):
             print(f"{run}: left by a run with other settings, starting it again")
             shutil.rmtree(run)
         elif done.is_file() and state["epoch"] + 1 >= cfg.epochs:
