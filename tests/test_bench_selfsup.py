@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 
-from leovr.bench.selfsup import run_selfsup_bench
-from leovr.config import BenchSelfSupConfig
+import torch
+
+from leovr.bench.selfsup import run_selfsup_bench, untrained_generator
+from leovr.config import BenchSelfSupConfig, SelfSupConfig
 
 
 def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
@@ -25,3 +27,13 @@ def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
             assert 0.0 <= q[v]["precision"] <= 1.0 and 0.0 <= q[v]["recall"] <= 1.0
         assert 0.0 < q["moving_share"] < 1.0 and 0.0 <= q["moving_with_depth"] <= 1.0
     assert "revisit" in doc["loop_closure_note"]
+
+
+def test_untrained_reference_does_not_depend_on_what_ran_before():
+    cfg = SelfSupConfig(channels=[8, 8, 16, 16, 16], blocks=[1, 1, 1, 1])
+    a = untrained_generator(cfg).state_dict()
+    torch.rand(1000)  # what a training run before it would consume
+    b = untrained_generator(cfg).state_dict()
+    c = untrained_generator(cfg.model_copy(update={"seed": 1})).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)

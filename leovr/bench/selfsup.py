@@ -70,6 +70,14 @@ def score(model: DepthGenerator, seqs: list[Sequence], input_name: str, focal_px
     return {"mae_m": r["mae_m"], "rmse_m": r["rmse_m"], "absrel": r.get("absrel"), "delta1": r.get("delta1")}
 
 
+def untrained_generator(cfg: SelfSupConfig) -> DepthGenerator:
+    """Untrained weights drawn with cfg.seed, as the trainer seeds, whatever ran before: the untrained
+    figures do not depend on what the bench trained first."""
+    with torch.random.fork_rng():
+        torch.manual_seed(cfg.seed)
+        return DepthGenerator(generator_config(cfg))
+
+
 def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: Path, progress: bool) -> Path:
     """The same network, frames, input, resolution and schedule as the self-supervised run, with an L1
     loss on ground-truth depth instead: the bench's 'supervised' figure. Reused when it finished with
@@ -200,8 +208,7 @@ def synthetic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, train: list[Pat
         checkpoints[name], minutes[name] = train_run(vcfg, train, work / name, progress, share)
     checkpoints["supervised"] = train_supervised_reference(base, train, work / "supervised", progress)
     minutes["supervised"] = _minutes(work / "supervised")
-    untrained = DepthGenerator(generator_config(base))
-    synthetic = {"untrained": score(untrained, tests, "full", cfg.train_focal_px, bins)}
+    synthetic = {"untrained": score(untrained_generator(base), tests, "full", cfg.train_focal_px, bins)}
     for name, ck in checkpoints.items():
         synthetic[name] = score_paths(ck, tests, cfg, bins)
     results: dict = {f"{k}_mae_m": v["mae_m"] for k, v in synthetic.items()}
@@ -262,7 +269,7 @@ def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, wo
                                    "refresh_every": cfg.kitti_refresh_every, "lr_step_epochs": max(1, epochs // 4)})
     test = [SequenceView(seq, list(range(len(seq) - cfg.kitti_test_frames, len(seq))))]
     ck, minutes = train_run(kcfg, [raw], work / "kitti_cold_start", progress)
-    models = {"untrained": (DepthGenerator(generator_config(kcfg)), cfg.train_focal_px),
+    models = {"untrained": (untrained_generator(kcfg), cfg.train_focal_px),
               **({"synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px)} if synthetic_ck else {}),
               "shipped_supervised_synthetic": (load_generator(shipped_checkpoint()), 260.0),
               "kitti_cold_start": (load_generator(ck), cfg.train_focal_px)}
