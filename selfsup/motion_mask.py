@@ -43,9 +43,10 @@ class PairKeep:
     depth: np.ndarray  # frame i's depth moved into frame j meets frame j's depth (True where either is unknown)
 
 
-def rigid_flow(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Flow of a static scene with depth `depth` (H x W metres, 0 = unknown) under the motion T_j_i
-    (frame i to frame j): (H x W x 2 rigid flow, H x W x 2 flow of the rotation alone, H x W valid)."""
+def move_pixels(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frame i's pixels at `depth` (H x W metres, 0 = unknown), moved as static points by T_j_i into
+    frame j: (H x W x 2 pixel in frame j, H x W depth in frame j, H x W x 2 pixel of the rotation alone,
+    H x W valid). Invalid pixels hold their own position and depth 0."""
     h, w = depth.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T  # z = 1
@@ -57,9 +58,18 @@ def rigid_flow(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.
     q = rot @ K.T
     uv = np.stack([u, v], -1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        full = p[..., :2] / np.where(valid, p[..., 2], 1.0)[..., None] - uv
-        rot_only = q[..., :2] / np.where(valid, q[..., 2], 1.0)[..., None] - uv
-    return np.where(valid[..., None], full, 0.0), np.where(valid[..., None], rot_only, 0.0), valid
+        moved = p[..., :2] / np.where(valid, p[..., 2], 1.0)[..., None]
+        rot_only = q[..., :2] / np.where(valid, q[..., 2], 1.0)[..., None]
+    keep = valid[..., None]
+    return np.where(keep, moved, uv), np.where(valid, X[..., 2], 0.0), np.where(keep, rot_only, uv), valid
+
+
+def rigid_flow(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flow of a static scene with depth `depth` (H x W metres, 0 = unknown) under the motion T_j_i
+    (frame i to frame j): (H x W x 2 rigid flow, H x W x 2 flow of the rotation alone, H x W valid)."""
+    moved, _, rot_only, valid = move_pixels(depth, T_j_i, K)
+    uv = np.stack(np.meshgrid(np.arange(depth.shape[1]), np.arange(depth.shape[0])), -1).astype(np.float64)
+    return moved - uv, rot_only - uv, valid
 
 
 def dis_flow(a: np.ndarray, b: np.ndarray, init: np.ndarray | None) -> np.ndarray:
@@ -108,16 +118,9 @@ def depth_disagreement(depth_i: np.ndarray, depth_j: np.ndarray, T_j_i: np.ndarr
     evidence) is nearer than z / (1 + rel) or further than z / (1 - rel). Further: the static scene
     would be seen through (a mover keeping its distance); nearer: an oncoming mover or an occluder.
     Unknown depth (0) in either frame: no disagreement."""
-    h, w = depth_i.shape
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    X = (np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T) * depth_i[..., None]
-    Y = X @ T_j_i[:3, :3].T + T_j_i[:3, 3]
-    z = Y[..., 2]
-    ok = (depth_i > 0) & (z > 1e-3)
-    p = Y @ K.T
-    zs = np.where(ok, z, 1.0)
-    uj = np.where(ok, p[..., 0] / zs, -1.0).astype(np.float32)
-    vj = np.where(ok, p[..., 1] / zs, -1.0).astype(np.float32)
+    moved, z, _, ok = move_pixels(depth_i, T_j_i, K)
+    uj = np.where(ok, moved[..., 0], -1.0).astype(np.float32)
+    vj = np.where(ok, moved[..., 1], -1.0).astype(np.float32)
     known = depth_j > 0
     box = np.ones((3, 3), np.uint8)
     near = cv2.erode(np.where(known, depth_j, np.inf).astype(np.float32), box)  # nearest known depth around

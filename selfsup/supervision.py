@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from leovr.config import RefineConfig, SelfSupConfig
-from leovr.data.io import require_file, write_text
+from leovr.data.io import read_json_object, require_file, write_text
 from leovr.data.run_info import read_run_depth
 from leovr.data.sequence import Sequence
 from leovr.depth.inference import rescale_sparse
@@ -95,7 +95,7 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
     stamp = None if checkpoint is None else _file_stamp(Path(checkpoint))
     done = out / "done.json"
     if done.is_file():
-        left = json.loads(done.read_text())
+        left = read_json_object(done)
         same = left.get("checkpoint") == (None if checkpoint is None else str(checkpoint))
         if not same or left.get("checkpoint_stamp", stamp) != stamp:  # a pass over other weights: run it again
             shutil.rmtree(out)
