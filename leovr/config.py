@@ -156,6 +156,13 @@ class RefineConfig(FrameSelection):
     mono_speed_sigma_log: float = 0.005  # no LiDAR: step-length change per frame (inertia; chosen on development clips, tools/mono_dev.py)
     mono_odometry_sigma_rad: float = 0.005  # no LiDAR: the epipolar motion's weight in the graph
     mono_odometry_sigma_rel: float = 0.05  # no LiDAR: its translation sigma per metre of step
+    # no LiDAR: the camera's height above the road (m); the road plane then gives the metric scale and
+    # corrects the generator's depth. None: the recording's own (KITTI: 1.65 m); 0: off (scale from the generator)
+    camera_height_m: float | None = Field(None, ge=0)
+    mono_ground_sigma_log: float = Field(0.08, gt=0)  # no LiDAR: one frame's road-based step length, log sigma at 20 road corners
+    # no LiDAR: the epipolar motion's translation sigma per metre of step where the road gave its length
+    # (chosen on development clips, tools/mono_dev.py: 0.01 against 0.05)
+    mono_ground_odometry_sigma_rel: float = Field(0.01, gt=0)
 
     @field_validator("input")
     @classmethod

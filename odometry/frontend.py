@@ -49,11 +49,15 @@ class FrontEnd:
     next_landmark: int = 0
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     sources: list[str] = field(default_factory=list)
+    camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
+    depth_scale: float = 1.0  # camera only: the factor last applied to the generator's depth (the road's scale)
 
     def __post_init__(self) -> None:
-        self.icp = LidarOdometry(self.T_cam_lidar, cov_inflation=self.cfg.icp_cov_inflation) if self.use_lidar else None
-        self.mono = None if self.use_lidar else MonoMotion(self.K, self.cfg.mono_depth_sigma_log,
-                                                             self.cfg.mono_track_sigma_log, self.cfg.mono_speed_sigma_log)
+        cfg = self.cfg
+        self.icp = LidarOdometry(self.T_cam_lidar, cov_inflation=cfg.icp_cov_inflation) if self.use_lidar else None
+        self.mono = None if self.use_lidar else MonoMotion(
+            self.K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
+            camera_height=self.camera_height, ground_sigma_log=cfg.mono_ground_sigma_log)
 
     def _feature_points(self, feats: Features, depth: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, list]:
         uv = feats.uv
@@ -75,6 +79,10 @@ class FrontEnd:
         """Build the graph input of a new frame (`depth`: generator depth; `sparse`: the LiDAR input
         as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP)."""
         cfg = self.cfg
+        step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
+        if self.mono is not None and self.camera_height:  # the generator's depth at the road's metric scale
+            self.depth_scale = self.mono.depth_scale
+            depth, log_sigma = depth * self.depth_scale, log_sigma + np.log(self.depth_scale)
         feats = detect(image, cfg.n_features)
         cam_pts, lidar_cam = self._feature_points(feats, depth, sparse)
         T_icp = self.icp.register(scan) if self.icp is not None and scan is not None else None
@@ -82,7 +90,6 @@ class FrontEnd:
         observations: list[Observation] = []
         new_landmarks: dict[int, np.ndarray] = {}
         trusted = None
-        step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
         odo_cov = None
         if self.prev is None:
             T_init, source, T_rel = np.eye(4), "first", None
@@ -109,6 +116,9 @@ class FrontEnd:
                 inl = np.zeros(0, bool)
             elif step is not None:  # camera only: the epipolar test picks the matches
                 inl = sampson_px(T_rel, p.feats.uv[ia], feats.uv[ib], self.K) < cfg.pnp_reproj_px
+                # a vehicle driving along with the camera passes the epipolar test (it moves along its
+                # epipolar lines) but shows far less parallax than its depth predicts
+                inl &= parallax_agrees(T_rel, p.cam_pts[ia], p.feats.uv[ia], feats.uv[ib], self.K)
                 obj = self._triangulated(obj, T_prev, T_rel, p.feats.uv[ia], feats.uv[ib])
             else:
                 inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px)
@@ -146,7 +156,8 @@ class FrontEnd:
         cfg = self.cfg
         if step.scale_source != "constant_speed":
             length = float(np.linalg.norm(step.T_rel[:3, 3]))
-            sigmas = np.r_[np.full(3, cfg.mono_odometry_sigma_rad), np.full(3, max(cfg.mono_odometry_sigma_rel * length, 0.01))]
+            rel = cfg.mono_ground_odometry_sigma_rel if step.scale_source.startswith("ground") else cfg.mono_odometry_sigma_rel
+            sigmas = np.r_[np.full(3, cfg.mono_odometry_sigma_rad), np.full(3, max(rel * length, 0.01))]
             return T_prev @ step.T_rel, f"epipolar ({step.scale_source})", np.diag(sigmas**2)
         T_pnp = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
         if T_pnp is not None and epipolar_agrees(invert_T(T_prev) @ T_pnp, uv0, uv1, self.K):
@@ -179,6 +190,27 @@ def sampson_px(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarra
     num = np.sum(x1 * Fx0, axis=1) ** 2
     den = Fx0[:, 0] ** 2 + Fx0[:, 1] ** 2 + Ftx1[:, 0] ** 2 + Ftx1[:, 1] ** 2
     return np.sqrt(num / np.maximum(den, 1e-12))
+
+
+def parallax_agrees(T_rel: np.ndarray, X0: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray,
+                    max_ratio: float = 3.0, min_px: float = 3.0) -> np.ndarray:
+    """Per match: whether its parallax (the displacement left once the rotation is taken out) is
+    within `max_ratio` of the parallax its depth-seeded point `X0` (first camera) predicts under the
+    motion T_rel; matches whose predicted parallax is under `min_px` are not judged (the depth is
+    too uncertain to tell)."""
+    if not len(uv0):
+        return np.zeros(0, bool)
+    T_1_0 = invert_T(T_rel)
+    x0 = np.c_[uv0, np.ones(len(uv0))] @ (K @ T_1_0[:3, :3] @ np.linalg.inv(K)).T
+    rot = x0[:, :2] / x0[:, 2:3]
+    X1 = X0 @ T_1_0[:3, :3].T + T_1_0[:3, 3]
+    ahead = X1[:, 2] > 1e-3
+    proj = (X1 @ K.T)[:, :2] / np.where(ahead, X1[:, 2], 1.0)[:, None]
+    predicted = np.linalg.norm(proj - rot, axis=1)
+    seen = np.linalg.norm(uv1 - rot, axis=1)
+    judged = ahead & (predicted >= min_px)
+    ratio = seen / np.maximum(predicted, 1e-9)
+    return ~judged | ((ratio >= 1.0 / max_ratio) & (ratio <= max_ratio))
 
 
 def epipolar_agrees(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float = 2.0,

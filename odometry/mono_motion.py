@@ -6,8 +6,12 @@ tracks (USAC with local optimisation rather than the textbook's RANSAC); the ste
   triangulating them again with a unit step gives the change of step length. With a vehicle's
   inertia as a second opinion on that change (the step length of a car at 10 Hz changes by a few
   per cent per frame);
-- absolute scale (noisy, unbiased over time only as far as the generator is): the generator's depth
-  at the tracked corners divided by their unit-step triangulated depth.
+- absolute scale from the road, when the camera's height above it is known (`odometry.ground_plane`):
+  the height over the road plane of road corners triangulated with a unit step. Unbiased, and it
+  also measures the generator's depth bias, which then corrects the generator's depth;
+- absolute scale from the generator (noisy, unbiased over time only as far as the generator is): the
+  generator's depth at the tracked corners divided by their unit-step triangulated depth, corrected
+  by the bias the road measured. Used in frames where the road gives no reading.
 
 Both are medians weighted by how well each corner's depth is known: the generator's predicted
 uncertainty, and the triangulation's, which falls with the corner's parallax.
@@ -24,6 +28,7 @@ import cv2
 import numpy as np
 
 from leovr.geometry import invert_T
+from odometry.ground_plane import fit_ground, road_corners
 from odometry.mono_vo import corners, follow, gray, relative_motion
 
 
@@ -34,7 +39,7 @@ class MonoStep:
     T_rel: np.ndarray
     inliers: int
     parallax_px: float
-    scale_source: str  # "depth", "depth+tracks", "standing" or "constant_speed"
+    scale_source: str  # "ground", "depth" (each "+tracks" when tracks gave the change), "standing" or "constant_speed"
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -67,6 +72,10 @@ class MonoMotion:
     speed_sigma_log: float = 0.02  # how much the step length changes from one frame to the next (log)
     min_parallax_px: float = 1.0  # below: the camera stands
     max_corners: int = 2000
+    camera_height: float | None = None  # metres above the road; None: no road-plane scale
+    ground_sigma_log: float = 0.08  # how far one frame's road-based step length may be off (log), at 20 road corners
+    bias_rate: float = 0.2  # how fast the generator's depth bias estimate follows the road's
+    max_road_corners: int = 600
 
     def __post_init__(self) -> None:
         self.prev_gray: np.ndarray | None = None
@@ -77,6 +86,13 @@ class MonoMotion:
         self.log_len: float | None = None  # Kalman state: log step length (m) and its variance
         self.var = 0.0
         self.last = MonoStep(np.eye(4), 0, 0.0, "constant_speed")
+        self.depth_log_bias: float | None = None  # log of (generator depth / metric depth), measured on the road
+        self.ground_rejected: list[float] = []  # road readings (log step length) refused in a row
+
+    @property
+    def depth_scale(self) -> float:
+        """Factor that brings the generator's depth to the road's metric scale (1 until measured)."""
+        return 1.0 if self.depth_log_bias is None else float(np.exp(-self.depth_log_bias))
 
     def _depth_at(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h, w = self.prev_depth.shape
@@ -84,31 +100,43 @@ class MonoMotion:
         vi = np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
         return self.prev_depth[vi, ui], self.prev_w[vi, ui]
 
-    def _fuse(self, log_meas: float | None, log_ratio: float | None) -> str:
+    def _fuse(self, absolute: tuple[float, float] | None, log_ratio: float | None) -> bool:
         """Kalman update of the log step length: predict the change from the tracks' relative scale
-        fused with the vehicle's inertia (no change), then correct by the depth measurement."""
+        fused with the vehicle's inertia (no change), then correct by an absolute measurement
+        (log length, its sigma). Returns whether the state is set."""
         if self.log_len is None:
-            if log_meas is None:
-                return "constant_speed"
-            self.log_len, self.var = log_meas, self.depth_sigma_log**2
-            return "depth"
+            if absolute is None:
+                return False
+            self.log_len, self.var = absolute[0], max(absolute[1], 0.25 if self.camera_height else 0.0) ** 2
+            return True
         q, r = self.speed_sigma_log**2, self.track_sigma_log**2
         if log_ratio is not None:
             self.log_len += log_ratio * q / (q + r)
             self.var += q * r / (q + r)
         else:
             self.var += q
-        if log_meas is not None:
-            gain = self.var / (self.var + self.depth_sigma_log**2)
-            self.log_len += gain * (log_meas - self.log_len)
+        if absolute is not None:
+            gain = self.var / (self.var + absolute[1] ** 2)
+            self.log_len += gain * (absolute[0] - self.log_len)
             self.var *= 1.0 - gain
-        return ("depth+tracks" if log_ratio is not None else "depth") if log_meas is not None else "constant_speed"
+        return True
 
-    def _implausible(self, log_meas: float, gate_sigmas: float = 3.0) -> bool:
-        """Whether a depth-based step length is further from the predicted one than the filter's and
+    def _implausible(self, log_meas: float, sigma: float, gate_sigmas: float = 3.0) -> bool:
+        """Whether an absolute step length is further from the predicted one than the filter's and
         the measurement's uncertainty allow."""
-        spread = self.var + self.speed_sigma_log**2 + self.depth_sigma_log**2
+        spread = self.var + self.speed_sigma_log**2 + sigma**2
         return (log_meas - self.log_len) ** 2 > gate_sigmas**2 * spread
+
+    def _road_reading(self, p0: np.ndarray, p1: np.ndarray, motion: np.ndarray) -> tuple[float, float] | None:
+        """Log step length and its sigma from the road plane of the tracked road corners, or None."""
+        if self.camera_height is None or len(p0) < 8:
+            return None
+        X = triangulate(motion, p0, p1, self.K)
+        par = rotation_parallax(p0, p1, motion[:3, :3].T, self.K)
+        fit = fit_ground(X[par > self.min_parallax_px])
+        if fit is None:
+            return None
+        return float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
 
     def step(self, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
         """The motion from the previous frame to this one; None for the first frame."""
@@ -118,20 +146,25 @@ class MonoMotion:
         if prev is not None:
             n_old = len(self.carried_uv)
             p0 = np.r_[self.carried_uv, corners(prev, self.max_corners)]
-            result = self._motion(prev, cur, p0, n_old)
+            road = (road_corners(prev, self.K, self.camera_height, self.max_road_corners) if self.camera_height
+                    else np.zeros((0, 2)))
+            result = self._motion(prev, cur, p0, n_old, road)
         self.prev_gray, self.prev_depth = cur, depth
         self.prev_w = 1.0 / np.maximum(np.exp(log_sigma) / np.maximum(depth, 1e-3), 1e-3) ** 2
         if result is not None:
             self.last = result
         return result
 
-    def _motion(self, prev: np.ndarray, cur: np.ndarray, p0: np.ndarray, n_old: int) -> MonoStep:
+    def _motion(self, prev: np.ndarray, cur: np.ndarray, p0: np.ndarray, n_old: int, road: np.ndarray) -> MonoStep:
         keep_last = MonoStep(self.last.T_rel, 0, 0.0, "constant_speed")
         if len(p0) < 8:
             self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
             return keep_last
+        n_main = len(p0)
+        p0 = np.r_[p0, road]  # the road corners are tracked too, but only read for the road plane
         p1, ok = follow(prev, cur, p0)
-        idx = np.nonzero(ok)[0]
+        road_idx = n_main + np.nonzero(ok[n_main:])[0]
+        idx = np.nonzero(ok[:n_main])[0]
         # USAC_ACCURATE (local optimisation) gets the rotation several times closer than plain RANSAC,
         # and a tenth of a degree of rotation is a pixel of the parallax the step length is read from
         motion, inl = relative_motion(p0[idx], p1[idx], self.K, method=cv2.USAC_ACCURATE)
@@ -164,13 +197,37 @@ class MonoMotion:
         if old.sum() >= 20 and self.log_len is not None:
             log_ratio = float(np.log(weighted_median(self.carried_z[good[old]] / z[old], 1.0 / tri_var[old])))
             log_ratio -= float(self.log_len)
-        if self.log_len is not None and log_meas is not None and self._implausible(log_meas):
+        ground = self._road_reading(p0[road_idx], p1[road_idx], motion)
+        if ground is not None and self.log_len is not None and self._implausible(*ground):
+            self.ground_rejected = (self.ground_rejected + [ground[0]])[-3:]
+            recent = np.array(self.ground_rejected)
+            if len(recent) == 3 and np.ptp(recent) < 3 * self.ground_sigma_log:
+                # three refused readings in a row that agree with each other: the filter, whose state
+                # is only inertia since, is what is wrong; restart from the road
+                self.log_len, self.ground_rejected = None, []
+                ground = (float(np.median(recent)), ground[1])
+            else:
+                ground = None
+        elif ground is not None:
+            self.ground_rejected = []
+        bias = self.depth_log_bias or 0.0
+        depth = None if log_meas is None else (log_meas - bias, self.depth_sigma_log)
+        if ground is None and self.log_len is not None and depth is not None and self._implausible(*depth):
             # both scale readings come from this essential matrix: a wrong one (a rare bad RANSAC draw
             # in forward motion) shows as a jump in speed no vehicle makes; keep the last motion instead
             self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
             self.var += self.speed_sigma_log**2
             return MonoStep(self.last.T_rel, 0, parallax, "constant_speed")
-        source = self._fuse(log_meas, log_ratio)
+        absolute = ground if ground is not None else depth
+        if not self._fuse(absolute, log_ratio):
+            source = "constant_speed"
+        else:
+            source = "constant_speed" if absolute is None else ("ground" if ground is not None else "depth")
+            source += "+tracks" if log_ratio is not None and absolute is not None else ""
+        if ground is not None and log_meas is not None:  # the road measures the generator's depth bias
+            resid = log_meas - float(self.log_len)
+            old_bias = resid if self.depth_log_bias is None else self.depth_log_bias
+            self.depth_log_bias = old_bias + self.bias_rate * (resid - old_bias)
         length = float(np.exp(self.log_len)) if self.log_len is not None else 0.0
         T = motion.copy()
         T[:3, 3] *= length

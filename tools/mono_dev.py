@@ -21,7 +21,7 @@ from leovr.data import open_sequence
 from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import invert_T
 from leovr.pipeline.completion import EvalSample, generator_method
-from leovr.pipeline.refine import completion_config, run_refine
+from leovr.pipeline.refine import completion_config, road_height, run_refine
 from odometry.initial_pose import LidarOdometry
 from odometry.mono_motion import MonoMotion
 from odometry.mono_vo import mono_vo_poses
@@ -40,7 +40,7 @@ def main() -> None:
     ap.add_argument("sequences", nargs="+")
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--refine", action="store_true")
-    ap.add_argument("--set", nargs="*", default=[], help="MonoMotion field=value")
+    ap.add_argument("--set", nargs="*", default=[], help="MonoMotion field=value (over the config's)")
     ap.add_argument("--cfg", nargs="*", default=[], help="RefineConfig field=value (for --refine)")
     a = ap.parse_args()
     cfg = RefineConfig(input="none", **{k: float(v) for k, v in (s.split("=") for s in a.cfg)})
@@ -53,7 +53,11 @@ def main() -> None:
         K = seq[0].K
         row = {"sequence": Path(path).name, "frames": n, "reference": ref_name}
         row["mono_vo"] = trajectory_metrics(mono_vo_poses((seq[i].image for i in range(n)), K), ref, "sim3")
-        mm, poses, sources = MonoMotion(K, **kw), [np.eye(4)], []
+        mm = MonoMotion(K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
+                        camera_height=road_height(seq, cfg), ground_sigma_log=cfg.mono_ground_sigma_log)
+        for k, v in kw.items():
+            setattr(mm, k, v)
+        poses, sources = [np.eye(4)], []
         for i in range(n):
             f = seq[i]
             d, ls = gen(EvalSample(f, np.zeros(f.shape, np.float32), None, "none", None))

@@ -9,6 +9,10 @@ import numpy as np
 from leovr.data.io import require_finite_rows
 from leovr.errors import DataError
 
+# the KITTI recording platform's cameras sit 1.65 m above the road (Geiger et al., "Vision meets
+# robotics: the KITTI dataset", IJRR 2013, sensor setup)
+KITTI_CAMERA_HEIGHT_M = 1.65
+
 
 def split_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split a rectified 3x4 projection P = K [I | t] into K and the 4x4 transform [I | t]."""

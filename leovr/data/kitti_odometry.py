@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from leovr.data.io import read_timestamp_file, require_file
-from leovr.data.kitti_common import read_kitti_poses, split_projection
+from leovr.data.kitti_common import KITTI_CAMERA_HEIGHT_M, read_kitti_poses, split_projection
 from leovr.data.sequence import FileSequence
 from leovr.errors import DataError
 from leovr.geometry import invert_T
@@ -50,6 +50,7 @@ class KittiOdometrySequence(FileSequence):
     """A KITTI odometry sequence; prefers the colour camera (image_2) when present."""
 
     name = "kitti_odometry"
+    camera_height_m = KITTI_CAMERA_HEIGHT_M
 
     def __init__(self, path: str | Path) -> None:
         self.path = path = Path(path)

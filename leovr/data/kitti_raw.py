@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from leovr.data.io import check_timestamps, read_matrix_rows
-from leovr.data.kitti_common import split_projection
+from leovr.data.kitti_common import KITTI_CAMERA_HEIGHT_M, split_projection
 from leovr.data.sequence import FileSequence
 from leovr.errors import DataError, brief
 from leovr.geometry import invert_T, make_T
@@ -91,6 +91,7 @@ class KittiRawSequence(FileSequence):
     """One KITTI raw drive in "sync" layout; calibration is read from the date folder above it."""
 
     name = "kitti_raw"
+    camera_height_m = KITTI_CAMERA_HEIGHT_M
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)

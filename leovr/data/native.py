@@ -104,6 +104,8 @@ class NativeSequence(Sequence):
         self.K = _matrix(cam, "K", (3, 3), meta_file)
         self.width, self.height = _number(cam, "width", 0, int, meta_file), _number(cam, "height", 0, int, meta_file)
         self.rate_hz = _number(meta, "rate_hz", 10.0, float, meta_file)
+        if cam.get("height_above_road_m") is not None:
+            self.camera_height_m = _number(cam, "height_above_road_m", None, float, meta_file)
         n = _number(meta, "frames", -1, int, meta_file)
         self.image_files = sorted((path / "images").glob("*.png"))
         if n < 0 or len(self.image_files) != n:
@@ -194,6 +196,7 @@ class NativeWriter:
         lidar_name: str = "lidar",
         extra: dict[str, Any] | None = None,
         depth_scale: float = DEPTH_SCALE,
+        camera_height_m: float | None = None,
     ) -> None:
         self.out = Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
@@ -201,6 +204,7 @@ class NativeWriter:
         self.camera_name, self.lidar_name = camera_name, lidar_name
         self.extra = extra or {}
         self.depth_scale = depth_scale
+        self.camera_height_m = camera_height_m
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
         self.first: Frame | None = None
@@ -257,6 +261,8 @@ class NativeWriter:
                 "K": np.asarray(f.K, float).tolist(),
             },
         }
+        if self.camera_height_m is not None:
+            meta["camera"]["height_above_road_m"] = float(self.camera_height_m)
         if self.fields:
             meta["lidar"] = {
                 "name": self.lidar_name,
@@ -270,7 +276,7 @@ class NativeWriter:
 
 def write_native(seq: Sequence, out: str | Path, name: str | None = None) -> Path:
     """Copy any readable sequence into the native format."""
-    writer = NativeWriter(out, name=name or Path(seq.path).name, rate_hz=seq.rate_hz)
+    writer = NativeWriter(out, name=name or Path(seq.path).name, rate_hz=seq.rate_hz, camera_height_m=seq.camera_height_m)
     for frame in seq:
         writer.write(frame)
     return writer.close()

@@ -34,6 +34,9 @@ class Sequence(ABC):
     has_poses: bool = False
     has_depth: bool = False
     rate_hz: float = 10.0
+    # the camera's height above the road (m), where the recording says it: camera-only runs read their
+    # metric scale from the road plane (`odometry.ground_plane`); None: unknown
+    camera_height_m: float | None = None
 
     def __len__(self) -> int:
         return self._num_frames()

@@ -192,10 +192,11 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
     first = seq[indices[0]]
     K, shape = first.K, first.shape
-    front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar)
+    front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar,
+                     camera_height=None if has_lidar else road_height(seq, cfg))
     textbook = MonoVO(K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
     graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
-    pending: dict[int, np.ndarray] = {}
+    pending: dict[int, tuple[np.ndarray, float]] = {}  # generator depth, and the road's scale for it (camera only)
     replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
     empty: list[int] = []  # frames whose LiDAR input has no return inside the image
     scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
@@ -203,16 +204,16 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     checkpoint = generator_checkpoint(ccfg) if cfg.depth_source == "generator" else None
     start_run(out, "refine", run_identity("refine", cfg.model_dump(), [seq.path], checkpoint), resume,
               input=cfg.input if has_lidar else "none", sequence=str(Path(seq.path).resolve()),
-              frame_numbers=names)
+              frame_numbers=names, **({} if has_lidar else {"camera_height_m": front.camera_height}))
     frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
     def finish(results) -> None:
         for r in results:
-            gen_depth = pending.pop(r.index)
+            gen_depth, scale = pending.pop(r.index)
             if r.index in done:
                 replayed[r.index] = r.T_world_cam
                 continue
-            refined = np.where(gen_depth > 0, gen_depth * np.exp(r.log_offset), 0.0)
+            refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
             if r.index in scored:
                 scored[r.index].add("generator", gen_depth)
                 scored[r.index].add("refined", refined)
@@ -264,7 +265,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             t2 = time.perf_counter()
             if n + 1 < len(indices):
                 nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None)
-            pending[i] = depth
+            pending[i] = depth, front.depth_scale
             fs = FrameScore.of(sample) if score and i not in done else None
             if fs is not None:
                 scored[i] = fs
@@ -324,6 +325,13 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"])
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
+
+
+def road_height(seq: Sequence, cfg: RefineConfig) -> float | None:
+    """The camera's height above the road for camera-only runs: the config's, else the recording's;
+    None (or 0 in the config): unknown, the generator's depth sets the scale."""
+    h = cfg.camera_height_m if cfg.camera_height_m is not None else seq.camera_height_m
+    return h if h else None
 
 
 def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], tol_m: float = 0.05) -> None:
