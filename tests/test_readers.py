@@ -114,6 +114,22 @@ def test_native_round_trip(kitti_raw_tiny, tmp_path):
     np.testing.assert_allclose(a.K, b.K)
     np.testing.assert_allclose(a.T_cam_lidar, b.T_cam_lidar)
     assert b.timestamp == pytest.approx(a.timestamp)
+    # the camera's height above the road (camera-only scale) travels with the copy: KITTI's platform
+    assert src.camera_height_m == seq.camera_height_m == pytest.approx(1.65)
+
+
+def test_native_camera_height_must_be_a_positive_number(kitti_raw_tiny, tmp_path):
+    import yaml
+
+    out = write_native(open_sequence(kitti_raw_tiny), tmp_path / "native")
+    meta = yaml.safe_load((out / "sequence.yaml").read_text())
+    del meta["camera"]["height_above_road_m"]
+    (out / "sequence.yaml").write_text(yaml.safe_dump(meta))
+    assert open_sequence(out).camera_height_m is None  # unknown: the generator's depth sets the scale
+    meta["camera"]["height_above_road_m"] = -1.0
+    (out / "sequence.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(DataError, match="height_above_road_m.*positive"):
+        open_sequence(out)
 
 
 def test_native_writer_keeps_poses_depth_times_and_masks(tmp_path):
