@@ -195,7 +195,10 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar,
                      camera_height=None if has_lidar else road_height(seq, cfg))
     textbook = MonoVO(K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
-    graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(cfg.seed))
+    # camera only: a leaving frame's observations are marginalised (conditioning them on its pose carried
+    # its pitch error on to the landmarks that stay; development clips, docs/benchmarks.md)
+    gcfg = cfg if has_lidar else cfg.model_copy(update={"condition_leaving_observations": cfg.mono_condition_leaving_observations})
+    graph = WindowGraph(gcfg, K, shape, rng=np.random.default_rng(cfg.seed))
     pending: dict[int, tuple[np.ndarray, float]] = {}  # generator depth, and the road's scale for it (camera only)
     replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
     empty: list[int] = []  # frames whose LiDAR input has no return inside the image
