@@ -166,6 +166,11 @@ class RefineConfig(FrameSelection):
     # no LiDAR: `condition_leaving_observations` for camera-only runs (off: mean ATE 0.159 against 0.170 m on
     # the development clips, better on 5 of 6; tools/mono_dev.py)
     mono_condition_leaving_observations: bool = False
+    # no LiDAR, road scale: landmarks are triangulated from the metric motion where the rays part by at least
+    # this angle (else seeded from the generator's depth, which tilts the structure), with a loose depth prior
+    # (sigma per metre of depth); chosen on development clips (tools/mono_dev.py): 0.3 deg and 1.0 against 1 deg, 0.3
+    mono_ground_triangulation_min_deg: float = Field(0.3, gt=0)
+    mono_triangulated_prior_rel: float = Field(1.0, gt=0)
 
     @field_validator("input")
     @classmethod

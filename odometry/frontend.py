@@ -89,6 +89,7 @@ class FrontEnd:
         landmark = np.full(len(feats), -1, np.int64)
         observations: list[Observation] = []
         new_landmarks: dict[int, np.ndarray] = {}
+        prior_rel: dict[int, float] = {}
         trusted = None
         odo_cov = None
         if self.prev is None:
@@ -112,6 +113,7 @@ class FrontEnd:
                 else:
                     T_init, source = guess.T_world_cam, guess.source
             T_rel = invert_T(T_prev) @ T_init
+            triangulated = np.zeros(len(ia), bool)
             if not len(ia):
                 inl = np.zeros(0, bool)
             elif step is not None:  # camera only: the epipolar test picks the matches
@@ -119,7 +121,10 @@ class FrontEnd:
                 # a vehicle driving along with the camera passes the epipolar test (it moves along its
                 # epipolar lines) but shows far less parallax than its depth predicts
                 inl &= parallax_agrees(T_rel, p.cam_pts[ia], p.feats.uv[ia], feats.uv[ib], self.K)
-                obj = self._triangulated(obj, T_prev, T_rel, p.feats.uv[ia], feats.uv[ib])
+                # where the road gave the step, its metric motion places landmarks from a smaller ray angle
+                road = step.scale_source.startswith("ground")
+                obj, triangulated = self._triangulated(obj, T_prev, T_rel, p.feats.uv[ia], feats.uv[ib],
+                                                       cfg.mono_ground_triangulation_min_deg if road else 1.0)
             else:
                 inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px)
             if inl.sum() >= 6:
@@ -131,6 +136,9 @@ class FrontEnd:
                     k = self.next_landmark
                     self.next_landmark += 1
                     new_landmarks[k] = obj[m]
+                    if triangulated[m] and step is not None and step.scale_source.startswith("ground"):
+                        # placed by the metric motion, not by the generator's depth: a loose depth prior
+                        prior_rel[k] = cfg.mono_triangulated_prior_rel
                     observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
                 landmark[b] = k
                 observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b]))
@@ -146,7 +154,7 @@ class FrontEnd:
         if T_icp is not None and cfg.icp_prior != "off" and self.icp.spinning and self.icp.covariance is not None:
             icp_pose = (T_icp, self.icp.covariance)
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
-                          trusted, lidar_uvz, T_rel, odo_cov, icp_pose)
+                          trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel)
 
     def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
                           uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:
@@ -165,11 +173,11 @@ class FrontEnd:
         return T_prev @ self.velocity, "constant_velocity", None
 
     def _triangulated(self, obj: np.ndarray, T_prev: np.ndarray, T_rel: np.ndarray, uv0: np.ndarray,
-                      uv1: np.ndarray, min_angle_deg: float = 1.0) -> np.ndarray:
+                      uv1: np.ndarray, min_angle_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """World points of matches triangulated from the two poses where the rays part by at least
-        `min_angle_deg`; the depth-seeded point `obj` elsewhere."""
+        `min_angle_deg`, the depth-seeded point `obj` elsewhere; and which were triangulated."""
         if np.linalg.norm(T_rel[:3, 3]) < 1e-6:
-            return obj
+            return obj, np.zeros(len(obj), bool)
         X0 = triangulate(T_rel, uv0.astype(float), uv1.astype(float), self.K)  # previous camera
         ray0 = X0 / np.maximum(np.linalg.norm(X0, axis=1, keepdims=True), 1e-9)
         d1 = X0 - T_rel[:3, 3]
@@ -177,7 +185,7 @@ class FrontEnd:
         angle = np.degrees(np.arccos(np.clip(np.sum(ray0 * ray1, axis=1), -1, 1)))
         ok = (X0[:, 2] > 0.5) & ((X0 - T_rel[:3, 3]) @ T_rel[:3, 2] > 0.5) & (angle >= min_angle_deg)
         world = X0 @ T_prev[:3, :3].T + T_prev[:3, 3]
-        return np.where(ok[:, None], world, obj)
+        return np.where(ok[:, None], world, obj), ok
 
 
 def sampson_px(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray) -> np.ndarray:

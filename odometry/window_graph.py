@@ -65,6 +65,8 @@ class FrameInput:
     T_prev_rel: np.ndarray | None = None  # front-end motion from the previous frame
     odometry_cov: np.ndarray | None = None  # its 6 x 6 covariance (rotation rad, translation m); None: the config's weak sigmas
     icp_pose: tuple[np.ndarray, np.ndarray] | None = None  # KISS-ICP's pose (camera to world) and its 6 x 6 covariance
+    # landmark id -> its prior's sigma per metre of depth where it differs from `landmark_prior_rel`
+    landmark_prior_rel: dict[int, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -139,8 +141,8 @@ class WindowGraph:
             self.landmarks[k] = np.asarray(P, float)
             # the depth it was initialised from (generator or LiDAR) keeps a landmark determined when the baseline is short
             depth = max(1.0, float(np.linalg.norm(P - self.poses.get(self.last, f.T_init)[:3, 3])))
-            graph.add(gtsam.PriorFactorPoint3(L(k), np.asarray(P, float),
-                                              gtsam.noiseModel.Isotropic.Sigma(3, cfg.landmark_prior_rel * depth)))
+            rel = f.landmark_prior_rel.get(k, cfg.landmark_prior_rel)
+            graph.add(gtsam.PriorFactorPoint3(L(k), np.asarray(P, float), gtsam.noiseModel.Isotropic.Sigma(3, rel * depth)))
         for o in f.observations:
             graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, cfg.pixel_sigma))
             if o.lidar_cam is not None:

@@ -17,7 +17,7 @@ from leovr.geometry import invert_T
 from leovr.paths import kitti_odometry_dir
 from leovr.pipeline.refine import run_refine
 from leovr.sim.simulate import simulate
-from odometry.frontend import epipolar_agrees, sampson_px
+from odometry.frontend import epipolar_agrees, parallax_agrees, sampson_px
 from odometry.mono_motion import MonoMotion
 from odometry.mono_vo import gray, mono_vo_poses, relative_motion, track
 from tests.conftest import needs_shared
@@ -89,6 +89,54 @@ def test_the_road_gives_the_scale_where_the_depth_is_off(drive):
     assert np.median(lengths[None] / true_len) == pytest.approx(0.5, rel=0.15)
     assert np.median(lengths[1.65] / true_len) == pytest.approx(1.0, abs=0.05)
     assert np.abs(lengths[1.65] / true_len - 1).max() < 0.15
+
+
+def test_a_vehicle_driving_along_fails_the_parallax_test():
+    """Forward motion of 1 m: a static point 10 m ahead shows the parallax its depth predicts; a car ahead
+    at the camera's speed passes the epipolar test (no parallax at all lies on every epipolar line) but
+    not this one; an oncoming car shows far more; a far point (under 3 px predicted) is not judged."""
+    K = np.array([[720.0, 0, 620], [0, 720.0, 187], [0, 0, 1]])
+    T = np.eye(4)
+    T[2, 3] = 1.0
+    X0 = np.array([[2.0, 1.0, 10.0], [1.0, 0.5, 10.0], [-2.0, 0.5, 10.0], [1.0, 0.0, 300.0]])
+
+    def px(X):
+        return (X @ K.T)[:, :2] / X[:, 2:3]
+
+    uv0 = px(X0)
+    moved = X0 - [0, 0, 1.0]  # the static scene seen from the new camera
+    uv1 = px(moved)
+    uv1[1] = uv0[1]  # driving along: the same pixel
+    uv1[2] = px(X0[2:3] - [0, 0, 3.0])[0]  # oncoming at twice the speed
+    assert (sampson_px(T, uv0, uv1, K) < 0.01).all()  # all of them pass the epipolar test
+    assert parallax_agrees(T, X0, uv0, uv1, K).tolist() == [True, False, False, True]
+
+
+def test_with_the_road_triangulated_landmarks_get_the_loose_prior(drive):
+    """Where the road gave the step, landmarks whose rays part by at least
+    `mono_ground_triangulation_min_deg` are placed by the metric motion and get the loose depth prior;
+    without a camera height (scale from the generator's depth) every landmark keeps the default prior."""
+    from odometry.frontend import FrontEnd
+    from odometry.window_graph import WindowGraph
+
+    _, frames = drive
+    K, shape = frames[0].K, frames[0].shape
+    cfg = RefineConfig(input="none")
+    flagged = {}
+    for h in (None, 1.65):
+        front = FrontEnd(cfg, K, shape, np.eye(4), use_lidar=False, camera_height=h)
+        graph = WindowGraph(cfg, K, shape, rng=np.random.default_rng(0))
+        n_new, n_loose = 0, 0
+        for i, f in enumerate(frames[:4]):
+            depth = 0.7 * np.where(f.depth > 0, f.depth, 100.0)  # a generator has depth everywhere (sky: far)
+            fi = front.process(i, f.image, depth, np.log(0.1 * depth), None, None, graph)
+            assert set(fi.landmark_prior_rel) <= set(fi.new_landmarks)
+            assert all(r == cfg.mono_triangulated_prior_rel for r in fi.landmark_prior_rel.values())
+            n_new, n_loose = n_new + len(fi.new_landmarks), n_loose + len(fi.landmark_prior_rel)
+            graph.add_frame(fi)
+        flagged[h] = (n_loose, n_new)
+    assert flagged[None][0] == 0 and flagged[None][1] > 100
+    assert 0.1 * flagged[1.65][1] < flagged[1.65][0] < flagged[1.65][1]
 
 
 def test_a_pnp_pose_that_breaks_the_epipolar_geometry_is_refused(drive):
