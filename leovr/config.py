@@ -171,6 +171,9 @@ class RefineConfig(FrameSelection):
     # (sigma per metre of depth); chosen on development clips (tools/mono_dev.py): 0.3 deg and 1.0 against 1 deg, 0.3
     mono_ground_triangulation_min_deg: float = Field(0.3, gt=0)
     mono_triangulated_prior_rel: float = Field(1.0, gt=0)
+    # no LiDAR, road scale: the road's normal as a prior on each frame's pitch and roll (rad; 0: off); assumes a
+    # flat road (the world normal is the mean of the first 10 seen); 0.003 chosen on development clips
+    mono_road_attitude_sigma_rad: float = Field(0.003, ge=0)
 
     @field_validator("input")
     @classmethod

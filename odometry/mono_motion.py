@@ -40,6 +40,7 @@ class MonoStep:
     inliers: int
     parallax_px: float
     scale_source: str  # "ground", "depth" (each "+tracks" when tracks gave the change), "standing" or "constant_speed"
+    road_normal: np.ndarray | None = None  # the road's normal in the previous frame's camera, where the road was read
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -88,6 +89,7 @@ class MonoMotion:
         self.last = MonoStep(np.eye(4), 0, 0.0, "constant_speed")
         self.depth_log_bias: float | None = None  # log of (generator depth / metric depth), measured on the road
         self.ground_rejected: list[float] = []  # road readings (log step length) refused in a row
+        self.road_normal: np.ndarray | None = None  # the last fitted road normal (previous frame's camera)
 
     @property
     def depth_scale(self) -> float:
@@ -134,6 +136,7 @@ class MonoMotion:
         X = triangulate(motion, p0, p1, self.K)
         par = rotation_parallax(p0, p1, motion[:3, :3].T, self.K)
         fit = fit_ground(X[par > self.min_parallax_px])
+        self.road_normal = fit.normal if fit is not None and fit.fitted and fit.inliers >= 20 else None
         if fit is None:
             return None
         return float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
@@ -236,4 +239,4 @@ class MonoMotion:
         X1 = (X * length) @ T_1_0[:3, :3].T + T_1_0[:3, 3]
         carry = front & (X1[:, 2] > 0.5)
         self.carried_uv, self.carried_z = p1[good][carry], X1[carry, 2]
-        return MonoStep(T, len(good), parallax, source)
+        return MonoStep(T, len(good), parallax, source, self.road_normal if ground is not None else None)

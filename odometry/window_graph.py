@@ -67,6 +67,7 @@ class FrameInput:
     icp_pose: tuple[np.ndarray, np.ndarray] | None = None  # KISS-ICP's pose (camera to world) and its 6 x 6 covariance
     # landmark id -> its prior's sigma per metre of depth where it differs from `landmark_prior_rel`
     landmark_prior_rel: dict[int, float] = field(default_factory=dict)
+    road_normal_prev: np.ndarray | None = None  # camera only: the road's normal in the previous frame's camera
 
 
 @dataclass
@@ -109,6 +110,7 @@ class WindowGraph:
         self.pairs: list[_Pair] = []
         self.icp_poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.last: int | None = None
+        self.road_up: list[np.ndarray] = []  # camera only: the road's normal in the world, the first ones seen
 
     # ----------------------------------------------------------------- factors of one new frame
     def _frame_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
@@ -125,6 +127,8 @@ class WindowGraph:
             graph.add(gtsam.BetweenFactorPose3(X(self.last), X(f.index), gtsam.Pose3(rel), noise))
         if f.icp_pose is not None:
             self._icp_factors(f.index, *f.icp_pose, graph)
+        if f.road_normal_prev is not None and self.last is not None and cfg.mono_road_attitude_sigma_rad > 0:
+            self._road_attitude(self.last, f.road_normal_prev, graph)
         fd = FrameDepth(f.log_depth, self.grid)
         self.depths[f.index] = fd
         values.insert(C(f.index), np.zeros(self.grid.size))
@@ -154,6 +158,16 @@ class WindowGraph:
             self._resample(pair)
             self.pairs.append(pair)
             graph.add(consistency_factor(dc, [X(f.index), X(self.last), C(f.index), C(self.last)]))
+
+    def _road_attitude(self, i: int, normal_cam: np.ndarray, graph: gtsam.NonlinearFactorGraph, n_ref: int = 10) -> None:
+        """Camera only: the road's normal seen from frame i fixes that frame's pitch and roll against the road
+        (a flat road: the world normal is the mean of the first `n_ref` seen, each through its frame's pose
+        estimate then). It holds back the pitch drift that the landmarks' depth priors bring into the window."""
+        if len(self.road_up) < n_ref:
+            self.road_up.append(self.poses[i][:3, :3] @ normal_cam)
+        up = np.mean(self.road_up, axis=0)
+        noise = gtsam.noiseModel.Isotropic.Sigma(2, self.cfg.mono_road_attitude_sigma_rad)
+        graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(up / np.linalg.norm(up)), noise, gtsam.Unit3(normal_cam)))
 
     def _icp_factors(self, i: int, T: np.ndarray, cov: np.ndarray, graph: gtsam.NonlinearFactorGraph) -> None:
         """KISS-ICP as the pose prior. `window`: its motion from every frame still in the window to this
