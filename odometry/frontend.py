@@ -24,7 +24,7 @@ from odometry.initial_pose import (
     reprojection_inliers,
 )
 from odometry.lidar_assoc import associate
-from odometry.mono_motion import MonoMotion, MonoStep, triangulate
+from odometry.mono_motion import MonoMotion, MonoStep, rotation_parallax, triangulate
 from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
 
 
@@ -50,7 +50,6 @@ class FrontEnd:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
-    depth_scale: float = 1.0  # camera only: the factor last applied to the generator's depth (the road's scale)
 
     def __post_init__(self) -> None:
         cfg = self.cfg
@@ -58,6 +57,12 @@ class FrontEnd:
         self.mono = None if self.use_lidar else MonoMotion(
             self.K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
             camera_height=self.camera_height, ground_sigma_log=cfg.mono_ground_sigma_log)
+
+    @property
+    def depth_scale(self) -> float:
+        """The factor applied to the generator's depth of the last frame: the road's scale (camera only,
+        with a camera height), else 1."""
+        return self.mono.depth_scale if self.mono is not None and self.camera_height else 1.0
 
     def _feature_points(self, feats: Features, depth: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, list]:
         uv = feats.uv
@@ -80,8 +85,7 @@ class FrontEnd:
         as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP)."""
         cfg = self.cfg
         step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
-        if self.mono is not None and self.camera_height:  # the generator's depth at the road's metric scale
-            self.depth_scale = self.mono.depth_scale
+        if self.depth_scale != 1.0:  # the generator's depth at the road's metric scale
             depth, log_sigma = depth * self.depth_scale, log_sigma + np.log(self.depth_scale)
         feats = detect(image, cfg.n_features)
         cam_pts, lidar_cam = self._feature_points(feats, depth, sparse)
@@ -210,13 +214,11 @@ def parallax_agrees(T_rel: np.ndarray, X0: np.ndarray, uv0: np.ndarray, uv1: np.
     if not len(uv0):
         return np.zeros(0, bool)
     T_1_0 = invert_T(T_rel)
-    x0 = np.c_[uv0, np.ones(len(uv0))] @ (K @ T_1_0[:3, :3] @ np.linalg.inv(K)).T
-    rot = x0[:, :2] / x0[:, 2:3]
     X1 = X0 @ T_1_0[:3, :3].T + T_1_0[:3, 3]
     ahead = X1[:, 2] > 1e-3
     proj = (X1 @ K.T)[:, :2] / np.where(ahead, X1[:, 2], 1.0)[:, None]
-    predicted = np.linalg.norm(proj - rot, axis=1)
-    seen = np.linalg.norm(uv1 - rot, axis=1)
+    predicted = rotation_parallax(uv0, proj, T_1_0[:3, :3], K)
+    seen = rotation_parallax(uv0, uv1, T_1_0[:3, :3], K)
     judged = ahead & (predicted >= min_px)
     ratio = seen / np.maximum(predicted, 1e-9)
     return ~judged | ((ratio >= 1.0 / max_ratio) & (ratio <= max_ratio))

@@ -11,6 +11,7 @@ not), then refined by a plane fit to the points near that mode."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -32,13 +33,20 @@ def road_corners(image: np.ndarray, K: np.ndarray, camera_height: float, max_cor
     (the principal point's row plus a margin) and within `corridor_m` of the camera's track sideways,
     a triangle from the vanishing point. Neighbouring lanes' vehicles stay mostly outside it. A low
     quality threshold: road texture is faint, and it is the only texture that gives the scale."""
-    h, w = image.shape[:2]
-    v, u = np.mgrid[0:h, 0:w]
-    below = v - K[1, 2]
-    inside = (below > horizon_margin * h) & (np.abs(u - K[0, 2]) * camera_height <= below * corridor_m * K[0, 0] / K[1, 1])
-    mask = inside.astype(np.uint8) * 255
+    mask = _corridor_mask(image.shape[:2], tuple(np.asarray(K, float).ravel()), camera_height, corridor_m, horizon_margin)
     p = cv2.goodFeaturesToTrack(image, maxCorners=max_corners, qualityLevel=0.001, minDistance=5, mask=mask)
     return np.zeros((0, 2)) if p is None else p.reshape(-1, 2).astype(np.float64)
+
+
+@lru_cache(maxsize=8)
+def _corridor_mask(shape: tuple[int, int], K: tuple[float, ...], camera_height: float, corridor_m: float,
+                   horizon_margin: float) -> np.ndarray:
+    """The corridor of `road_corners` as an 8-bit mask; the same for every frame of a sequence, so built once."""
+    h, w = shape
+    v, u = np.mgrid[0:h, 0:w]
+    below = v - K[5]
+    inside = (below > horizon_margin * h) & (np.abs(u - K[2]) * camera_height <= below * corridor_m * K[0] / K[4])
+    return inside.astype(np.uint8) * 255
 
 
 def height_mode(h: np.ndarray, rel_band: float, second_share: float = 0.5) -> float:
@@ -60,13 +68,13 @@ def height_mode(h: np.ndarray, rel_band: float, second_share: float = 0.5) -> fl
     return float(hs[best])
 
 
-def fit_ground(X: np.ndarray, prior_normal: np.ndarray | None = None, rel_band: float = 0.05,
-               near_share: float = 0.6, max_tilt_deg: float = 10.0, min_inliers: int = 8) -> GroundFit | None:
+def fit_ground(X: np.ndarray, rel_band: float = 0.05, near_share: float = 0.6, max_tilt_deg: float = 10.0,
+               min_inliers: int = 8) -> GroundFit | None:
     """The road plane among unit-step triangulated points `X` (N x 3, first camera frame), or None
-    when too few points lie on one. `prior_normal`: the road normal expected in the camera frame
-    (default: a level camera, image y pointing down); the fitted normal may tilt from it by at most
-    `max_tilt_deg` (the vehicle pitches and rolls a little, a wall or a car side is far off)."""
-    n0 = np.array([0.0, 1.0, 0.0]) if prior_normal is None else prior_normal / np.linalg.norm(prior_normal)
+    when too few points lie on one. The camera is taken as level (image y pointing down to the road);
+    the fitted normal may tilt from that by at most `max_tilt_deg` (the vehicle pitches and rolls a
+    little, a wall or a car side is far off)."""
+    n0 = np.array([0.0, 1.0, 0.0])
     X = X[np.isfinite(X).all(1) & (X[:, 2] > 0)]
     if len(X) < min_inliers:
         return None

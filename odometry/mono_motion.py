@@ -89,7 +89,6 @@ class MonoMotion:
         self.last = MonoStep(np.eye(4), 0, 0.0, "constant_speed")
         self.depth_log_bias: float | None = None  # log of (generator depth / metric depth), measured on the road
         self.ground_rejected: list[float] = []  # road readings (log step length) refused in a row
-        self.road_normal: np.ndarray | None = None  # the last fitted road normal (previous frame's camera)
 
     @property
     def depth_scale(self) -> float:
@@ -102,15 +101,14 @@ class MonoMotion:
         vi = np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1)
         return self.prev_depth[vi, ui], self.prev_w[vi, ui]
 
-    def _fuse(self, absolute: tuple[float, float] | None, log_ratio: float | None) -> bool:
+    def _fuse(self, absolute: tuple[float, float] | None, log_ratio: float | None) -> None:
         """Kalman update of the log step length: predict the change from the tracks' relative scale
         fused with the vehicle's inertia (no change), then correct by an absolute measurement
-        (log length, its sigma). Returns whether the state is set."""
+        (log length, its sigma). Without a state yet, the measurement starts it."""
         if self.log_len is None:
-            if absolute is None:
-                return False
-            self.log_len, self.var = absolute[0], max(absolute[1], 0.25 if self.camera_height else 0.0) ** 2
-            return True
+            if absolute is not None:
+                self.log_len, self.var = absolute[0], max(absolute[1], 0.25 if self.camera_height else 0.0) ** 2
+            return
         q, r = self.speed_sigma_log**2, self.track_sigma_log**2
         if log_ratio is not None:
             self.log_len += log_ratio * q / (q + r)
@@ -121,7 +119,6 @@ class MonoMotion:
             gain = self.var / (self.var + absolute[1] ** 2)
             self.log_len += gain * (absolute[0] - self.log_len)
             self.var *= 1.0 - gain
-        return True
 
     def _implausible(self, log_meas: float, sigma: float, gate_sigmas: float = 3.0) -> bool:
         """Whether an absolute step length is further from the predicted one than the filter's and
@@ -129,17 +126,19 @@ class MonoMotion:
         spread = self.var + self.speed_sigma_log**2 + sigma**2
         return (log_meas - self.log_len) ** 2 > gate_sigmas**2 * spread
 
-    def _road_reading(self, p0: np.ndarray, p1: np.ndarray, motion: np.ndarray) -> tuple[float, float] | None:
-        """Log step length and its sigma from the road plane of the tracked road corners, or None."""
+    def _road_reading(self, p0: np.ndarray, p1: np.ndarray,
+                      motion: np.ndarray) -> tuple[tuple[float, float] | None, np.ndarray | None]:
+        """From the road plane of the tracked road corners: the log step length and its sigma, and the
+        road's normal where the plane is well fitted (20 corners or more); None for what it cannot give."""
         if self.camera_height is None or len(p0) < 8:
-            return None
+            return None, None
         X = triangulate(motion, p0, p1, self.K)
         par = rotation_parallax(p0, p1, motion[:3, :3].T, self.K)
         fit = fit_ground(X[par > self.min_parallax_px])
-        self.road_normal = fit.normal if fit is not None and fit.fitted and fit.inliers >= 20 else None
         if fit is None:
-            return None
-        return float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
+            return None, None
+        reading = float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
+        return reading, (fit.normal if fit.fitted and fit.inliers >= 20 else None)
 
     def step(self, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
         """The motion from the previous frame to this one; None for the first frame."""
@@ -200,7 +199,7 @@ class MonoMotion:
         if old.sum() >= 20 and self.log_len is not None:
             log_ratio = float(np.log(weighted_median(self.carried_z[good[old]] / z[old], 1.0 / tri_var[old])))
             log_ratio -= float(self.log_len)
-        ground = self._road_reading(p0[road_idx], p1[road_idx], motion)
+        ground, road_normal = self._road_reading(p0[road_idx], p1[road_idx], motion)
         if ground is not None and self.log_len is not None and self._implausible(*ground):
             self.ground_rejected = (self.ground_rejected + [ground[0]])[-3:]
             recent = np.array(self.ground_rejected)
@@ -222,11 +221,9 @@ class MonoMotion:
             self.var += self.speed_sigma_log**2
             return MonoStep(self.last.T_rel, 0, parallax, "constant_speed")
         absolute = ground if ground is not None else depth
-        if not self._fuse(absolute, log_ratio):
-            source = "constant_speed"
-        else:
-            source = "constant_speed" if absolute is None else ("ground" if ground is not None else "depth")
-            source += "+tracks" if log_ratio is not None and absolute is not None else ""
+        self._fuse(absolute, log_ratio)
+        source = "constant_speed" if absolute is None else ("ground" if ground is not None else "depth")
+        source += "+tracks" if log_ratio is not None and absolute is not None else ""
         if ground is not None and log_meas is not None:  # the road measures the generator's depth bias
             resid = log_meas - float(self.log_len)
             old_bias = resid if self.depth_log_bias is None else self.depth_log_bias
@@ -239,4 +236,4 @@ class MonoMotion:
         X1 = (X * length) @ T_1_0[:3, :3].T + T_1_0[:3, 3]
         carry = front & (X1[:, 2] > 0.5)
         self.carried_uv, self.carried_z = p1[good][carry], X1[carry, 2]
-        return MonoStep(T, len(good), parallax, source, self.road_normal if ground is not None else None)
+        return MonoStep(T, len(good), parallax, source, road_normal if ground is not None else None)
