@@ -57,7 +57,8 @@ def _pid() -> int:
 def idle_cpu(seconds: float = 20.0) -> float:
     import ray
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
+             _system_config={"enable_metrics_collection": False})
     ray.get([ray.remote(_pid).remote() for _ in range(2)])
     time.sleep(3)
     a = _ray_cpu_seconds()
@@ -92,7 +93,8 @@ def main() -> None:
     t0 = time.perf_counter()
     import ray
 
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False,
+             _system_config={"enable_metrics_collection": False})  # as `leovr batch` starts it
     t1 = time.perf_counter()
     inside = ray.get(ray.remote(first_task).remote())
     t2 = time.perf_counter()
