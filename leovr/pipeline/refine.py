@@ -195,9 +195,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     front = FrontEnd(cfg, K, shape, first.T_cam_lidar, use_lidar=has_lidar,
                      camera_height=None if has_lidar else road_height(seq, cfg))
     textbook = MonoVO(K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
-    # camera only: a leaving frame's observations are marginalised (conditioning them on its pose carried
-    # its pitch error on to the landmarks that stay; development clips, docs/benchmarks.md)
-    gcfg = cfg if has_lidar else cfg.model_copy(update={"condition_leaving_observations": cfg.mono_condition_leaving_observations})
+    gcfg = cfg if has_lidar else camera_only_graph_config(cfg)
     graph = WindowGraph(gcfg, K, shape, rng=np.random.default_rng(cfg.seed))
     pending: dict[int, tuple[np.ndarray, float]] = {}  # generator depth, and the road's scale for it (camera only)
     replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
@@ -328,6 +326,16 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"])
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
+
+
+def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
+    """The graph's settings without LiDAR: a leaving frame's observations are marginalised (conditioning
+    them on its pose carried its pitch error on to the landmarks that stay), and the generator's depth, far
+    less sure without LiDAR, gets the camera-only landmark prior and depth-consistency sigma (development
+    clips, docs/benchmarks.md)."""
+    return cfg.model_copy(update={"condition_leaving_observations": cfg.mono_condition_leaving_observations,
+                                  "landmark_prior_rel": cfg.mono_landmark_prior_rel,
+                                  "consistency_sigma_log": cfg.mono_consistency_sigma_log})
 
 
 def road_height(seq: Sequence, cfg: RefineConfig) -> float | None:
