@@ -9,6 +9,7 @@ fresh pixel sample before every update, which a cached linearisation (iSAM2) wou
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
@@ -205,9 +206,30 @@ class WindowGraph:
         for o in f.observations:
             self.frame_landmarks.setdefault(o.frame, set()).add(o.landmark)
         drop = self._condition_leaving(f.index, graph)
-        self.smoother.update(graph, values, stamps, drop)
+        try:
+            self.smoother.update(graph, values, stamps, drop)
+        except RuntimeError as exc:
+            if "ndetermin" not in str(exc):
+                raise
+            self._anchor_landmarks(f.index)
         self.last = f.index
         return self._collect()
+
+    def _anchor_landmarks(self, index: int, rel: float = 1.0) -> None:
+        """gtsam found the window's system (nearly) indeterminate, which loose landmark priors (camera only)
+        can make it: give every landmark of the window a depth prior of `rel` per metre at its current
+        estimate and update again (the failed update's factors and values are already in the smoother)."""
+        est = self.smoother.calculateEstimate()
+        centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
+        graph = gtsam.NonlinearFactorGraph()
+        for k in self.landmarks:
+            if est.exists(L(k)):
+                P = est.atPoint3(L(k))
+                sigma = rel * max(1.0, float(np.linalg.norm(P - centre)))
+                graph.add(gtsam.PriorFactorPoint3(L(k), P, gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+        warnings.warn(f"frame {index}: the window's system was indeterminate; every landmark got a depth prior of "
+                      f"{rel} per metre", stacklevel=3)
+        self.smoother.update(graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
 
     def _condition_leaving(self, newest: int, graph: gtsam.NonlinearFactorGraph) -> list[int]:
         """Observations, by the frames about to leave the window, of landmarks that stay in it: returns their
