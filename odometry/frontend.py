@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from leovr.config import RefineConfig
-from leovr.geometry import back_project, fundamental, invert_T
+from leovr.geometry import back_project, invert_T
 from odometry.features import Features, detect, match
 from odometry.initial_pose import (
     LidarOdometry,
@@ -24,7 +24,7 @@ from odometry.initial_pose import (
     reprojection_inliers,
 )
 from odometry.lidar_assoc import associate
-from odometry.mono_motion import MonoMotion, MonoStep, rotation_parallax, triangulate
+from odometry.mono_motion import MonoMotion, MonoStep, rotation_parallax, sampson_px, triangulate
 from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
 
 
@@ -191,18 +191,6 @@ class FrontEnd:
         ok = (X0[:, 2] > 0.5) & ((X0 - T_rel[:3, 3]) @ T_rel[:3, 2] > 0.5) & (angle >= min_angle_deg)
         world = X0 @ T_prev[:3, :3].T + T_prev[:3, 3]
         return np.where(ok[:, None], world, obj), ok
-
-
-def sampson_px(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """First-order distance (pixels) of each match from the epipolar geometry of the motion T_rel
-    (pose of the second camera in the first)."""
-    F = fundamental(invert_T(T_rel), K)
-    x0 = np.c_[uv0, np.ones(len(uv0))]
-    x1 = np.c_[uv1, np.ones(len(uv1))]
-    Fx0, Ftx1 = x0 @ F.T, x1 @ F
-    num = np.sum(x1 * Fx0, axis=1) ** 2
-    den = Fx0[:, 0] ** 2 + Fx0[:, 1] ** 2 + Ftx1[:, 0] ** 2 + Ftx1[:, 1] ** 2
-    return np.sqrt(num / np.maximum(den, 1e-12))
 
 
 def parallax_agrees(T_rel: np.ndarray, X0: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray,

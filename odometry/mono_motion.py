@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from leovr.geometry import invert_T
+from leovr.geometry import fundamental, invert_T
 from odometry.ground_plane import fit_ground, road_corners
 from odometry.mono_vo import corners, follow, gray, relative_motion
 
@@ -54,6 +54,25 @@ def triangulate(T_0_1: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray
     T_1_0 = invert_T(T_0_1)
     X = cv2.triangulatePoints(K @ np.eye(3, 4), K @ T_1_0[:3], p0.T.astype(np.float64), p1.T.astype(np.float64))
     return (X[:3] / np.where(np.abs(X[3]) > 1e-12, X[3], 1e-12)).T
+
+
+def sampson_px(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """First-order distance (pixels) of each match from the epipolar geometry of the motion T_rel
+    (pose of the second camera in the first)."""
+    F = fundamental(invert_T(T_rel), K)
+    x0 = np.c_[uv0, np.ones(len(uv0))]
+    x1 = np.c_[uv1, np.ones(len(uv1))]
+    Fx0, Ftx1 = x0 @ F.T, x1 @ F
+    num = np.sum(x1 * Fx0, axis=1) ** 2
+    den = Fx0[:, 0] ** 2 + Fx0[:, 1] ** 2 + Ftx1[:, 0] ** 2 + Ftx1[:, 1] ** 2
+    return np.sqrt(num / np.maximum(den, 1e-12))
+
+
+def in_front(T_0_1: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Per match: whether its triangulated point lies in front of both cameras (cheirality)."""
+    X = triangulate(T_0_1, p0, p1, K)
+    X1 = (X - T_0_1[:3, 3]) @ T_0_1[:3, :3]
+    return (X[:, 2] > 0) & (X1[:, 2] > 0) & np.isfinite(X).all(axis=1)
 
 
 def rotation_parallax(p0: np.ndarray, p1: np.ndarray, R_1_0: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -87,6 +106,7 @@ class MonoMotion:
         self.log_len: float | None = None  # Kalman state: log step length (m) and its variance
         self.var = 0.0
         self.last = MonoStep(np.eye(4), 0, 0.0, "constant_speed")
+        self.heading: np.ndarray | None = None  # unit direction of the last step made while moving
         self.depth_log_bias: float | None = None  # log of (generator depth / metric depth), measured on the road
         self.ground_rejected: list[float] = []  # road readings (log step length) refused in a row
 
@@ -125,6 +145,18 @@ class MonoMotion:
         the measurement's uncertainty allow."""
         spread = self.var + self.speed_sigma_log**2 + sigma**2
         return (log_meas - self.log_len) ** 2 > gate_sigmas**2 * spread
+
+    def _keep_heading(self, motion: np.ndarray, p0: np.ndarray, p1: np.ndarray,
+                      inl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The essential matrix's motion points against the direction of travel. A vehicle cannot reverse
+        between two frames without standing still in between: the sign came from the cheirality vote of
+        movers (traffic driving ahead faster than the camera moves along the same epipolar lines, as if the
+        camera went backwards; KITTI raw clip, frames 31-47). Keeps the rotation and the epipole, flips the
+        direction, and takes the matches that fit it and lie in front; the original where too few do."""
+        flipped = motion.copy()
+        flipped[:3, 3] *= -1.0
+        ok = (sampson_px(flipped, p0, p1, self.K) < 1.0) & in_front(flipped, p0, p1, self.K)
+        return (flipped, ok) if ok.sum() >= 8 else (motion, inl)
 
     def _road_reading(self, p0: np.ndarray, p1: np.ndarray,
                       motion: np.ndarray) -> tuple[tuple[float, float] | None, np.ndarray | None]:
@@ -173,6 +205,8 @@ class MonoMotion:
         if motion is None:
             self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
             return keep_last
+        if self.heading is not None and motion[:3, 3] @ self.heading < 0:
+            motion, inl = self._keep_heading(motion, p0[idx], p1[idx], inl)
         good = idx[inl]
         R_1_0 = motion[:3, :3].T
         flow = rotation_parallax(p0[good], p1[good], R_1_0, self.K)
@@ -181,6 +215,7 @@ class MonoMotion:
             T = np.eye(4)
             T[:3, :3] = motion[:3, :3]
             self.carried_uv, self.carried_z = np.zeros((0, 2)), np.zeros(0)
+            self.heading = None  # from standing still the vehicle may set off either way
             return MonoStep(T, len(good), parallax, "standing")
         X = triangulate(motion, p0[good], p1[good], self.K)  # unit step, camera 0
         z = X[:, 2]
@@ -229,6 +264,7 @@ class MonoMotion:
             old_bias = resid if self.depth_log_bias is None else self.depth_log_bias
             self.depth_log_bias = old_bias + self.bias_rate * (resid - old_bias)
         length = float(np.exp(self.log_len)) if self.log_len is not None else 0.0
+        self.heading = motion[:3, 3].copy()
         T = motion.copy()
         T[:3, 3] *= length
         # carry this step's corners on, with metric depth in the new frame

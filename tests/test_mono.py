@@ -256,3 +256,52 @@ def test_an_indeterminate_window_is_anchored_and_the_run_goes_on(drive, tmp_path
     assert made and made[0].smoother.calls > 5
     assert len((tmp_path / "o" / "poses_kitti.txt").read_text().splitlines()) == len(frames)
     assert m["trajectory"]["leovr"]["ate_m"] < 1.0 and 0.8 < m["trajectory"]["leovr"]["scale"] < 1.25
+
+
+def test_a_reversed_epipolar_motion_is_turned_back_to_the_heading():
+    """Static points seen from a camera driving forward; the essential matrix's motion with its sign flipped
+    (what a cheirality vote carried by movers gives) is turned back, with the points in front as inliers."""
+    rng = np.random.default_rng(0)
+    K = np.array([[700.0, 0, 620], [0, 700.0, 190], [0, 0, 1]])
+    X = np.c_[rng.uniform(-15, 15, 300), rng.uniform(-3, 1.6, 300), rng.uniform(8, 60, 300)]
+    T = np.eye(4)
+    T[2, 3] = 1.0  # the second camera 1 m ahead of the first
+    uv0 = X @ K.T
+    uv1 = (X - T[:3, 3]) @ K.T
+    p0, p1 = uv0[:, :2] / uv0[:, 2:], uv1[:, :2] / uv1[:, 2:]
+    mm = MonoMotion(K)
+    mm.heading = np.array([0.0, 0.0, 1.0])
+    wrong = T.copy()
+    wrong[2, 3] = -1.0
+    motion, inl = mm._keep_heading(wrong, p0, p1, np.zeros(len(p0), bool))
+    assert motion[2, 3] == pytest.approx(1.0) and inl.all()
+    # a motion no match fits stays as it was
+    same, kept = mm._keep_heading(wrong, p0, p1[::-1], np.zeros(len(p0), bool))
+    assert same[2, 3] == pytest.approx(-1.0) and not kept.any()
+
+
+@needs_shared
+def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
+    """KITTI raw clip, camera only: from frame 31 trucks drive off ahead while the car creeps forward
+    (KISS-ICP on the full scan: every step forward); the essential matrix's cheirality vote, carried by the
+    trucks, said backwards for every later step. Every step now goes forward and the track is metric."""
+    from leovr.pipeline.completion import EvalSample, generator_method
+    from leovr.pipeline.refine import completion_config, road_height
+    from odometry.initial_pose import LidarOdometry
+
+    seq, n = open_sequence(kitti_raw_dir()), 40
+    cfg = RefineConfig(input="none")
+    gen = generator_method(completion_config(cfg))
+    mm = MonoMotion(seq[0].K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
+                    camera_height=road_height(seq, cfg), ground_sigma_log=cfg.mono_ground_sigma_log)
+    icp = LidarOdometry(seq[0].T_cam_lidar)
+    poses, ref = [np.eye(4)], []
+    for i in range(n):
+        f = seq[i]
+        ref.append(icp.register(f.points))
+        step = mm.step(f.image, *gen(EvalSample(f, np.zeros(f.shape, np.float32), None, "none", None)))
+        if step is not None:
+            assert step.T_rel[2, 3] > 0, f"frame {i}: {step.T_rel[:3, 3]} ({step.scale_source})"
+            poses.append(poses[-1] @ step.T_rel)
+    traj = trajectory_metrics(np.stack(poses), np.stack(ref), "sim3")
+    assert traj["ate_m"] < 0.2 and 0.8 < traj["scale"] < 1.25
