@@ -168,7 +168,9 @@ class RefineConfig(FrameSelection):
     mono_condition_leaving_observations: bool = False
     # no LiDAR, road scale: landmarks are triangulated from the metric motion where the rays part by at least
     # this angle (else seeded from the generator's depth, which tilts the structure), with a loose depth prior
-    # (sigma per metre of depth); chosen on development clips (tools/mono_dev.py): 0.3 deg and 1.0 against 1 deg, 0.3
+    # (sigma per metre of depth); chosen on development clips (tools/mono_dev.py): 0.3 deg and 1.0 against 1 deg, 0.3.
+    # Since the generator-seeded landmarks got `mono_landmark_prior_rel` 10, these are the tighter ones; 10 for them
+    # too measured no better on the development clips (docs/benchmarks.md)
     mono_ground_triangulation_min_deg: float = Field(0.3, gt=0)
     mono_triangulated_prior_rel: float = Field(1.0, gt=0)
     # no LiDAR, road scale: the road's normal as a prior on each frame's pitch and roll (rad; 0: off); assumes a

@@ -141,7 +141,7 @@ class FrontEnd:
                     self.next_landmark += 1
                     new_landmarks[k] = obj[m]
                     if triangulated[m] and step is not None and step.scale_source.startswith("ground"):
-                        # placed by the metric motion, not by the generator's depth: a loose depth prior
+                        # placed by the metric motion, not by the generator's depth: its own depth prior
                         prior_rel[k] = cfg.mono_triangulated_prior_rel
                     observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
                 landmark[b] = k

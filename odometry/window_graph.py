@@ -229,7 +229,11 @@ class WindowGraph:
                 graph.add(gtsam.PriorFactorPoint3(L(k), P, gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
         warnings.warn(f"frame {index}: the window's system was indeterminate; every landmark got a depth prior of "
                       f"{rel} per metre", stacklevel=3)
-        self.smoother.update(graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+        try:
+            self.smoother.update(graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+        except RuntimeError as exc:  # not the landmarks: a pose or a depth field without support
+            raise RuntimeError(f"frame {index}: the window's system stayed indeterminate after every landmark got a "
+                               f"depth prior ({str(exc).strip().splitlines()[0]})") from exc
 
     def _condition_leaving(self, newest: int, graph: gtsam.NonlinearFactorGraph) -> list[int]:
         """Observations, by the frames about to leave the window, of landmarks that stay in it: returns their
