@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from leovr.cli import app
 from leovr.config import RefineConfig, SimulateConfig
 from leovr.data import open_sequence
+from leovr.data.kitti_common import read_kitti_poses
 from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import invert_T
 from leovr.paths import kitti_odometry_dir, kitti_raw_dir
@@ -214,8 +215,7 @@ def test_camera_only_poses_on_the_real_raw_clip_stay_metric(tmp_path):
                                                                   "mono_consistency_sigma_log": 0.05})):
         run_refine(seq, RefineConfig(input="none", end=n, loop_closure=False, **extra), tmp_path / name,
                    progress=False, score=False)
-        est = np.loadtxt(tmp_path / name / "poses_kitti.txt").reshape(-1, 3, 4)
-        est = np.concatenate([est, np.tile([[[0.0, 0.0, 0.0, 1.0]]], (n, 1, 1))], 1)
+        est = read_kitti_poses(tmp_path / name / "poses_kitti.txt")
         scales[name] = trajectory_metrics(est, ref, "sim3")["scale"]
     print(scales)
     assert 0.8 < scales["camera_only"] < 1.25

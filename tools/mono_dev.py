@@ -18,6 +18,7 @@ import numpy as np
 
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
+from leovr.data.kitti_common import read_kitti_poses
 from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import invert_T
 from leovr.pipeline.completion import EvalSample, generator_method
@@ -70,8 +71,7 @@ def main() -> None:
         if a.refine:
             with tempfile.TemporaryDirectory() as tmp:
                 run_refine(seq, cfg.model_copy(update={"end": n}), Path(tmp), progress=False, score=False)
-                est = np.loadtxt(Path(tmp) / "poses_kitti.txt").reshape(-1, 3, 4)
-                est = np.concatenate([est, np.tile([[[0, 0, 0, 1.0]]], (len(est), 1, 1))], 1)
+                est = read_kitti_poses(Path(tmp) / "poses_kitti.txt")
                 row["leovr"] = trajectory_metrics(est, ref, "sim3")
         print(json.dumps({k: ({kk: (round(vv, 3) if isinstance(vv, float) else vv) for kk, vv in v.items()}
                               if isinstance(v, dict) else v) for k, v in row.items()}), flush=True)

@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
+from leovr.data.kitti_common import read_kitti_poses
 from leovr.geometry import invert_T
 from leovr.pipeline.refine import run_refine
 
@@ -28,8 +29,7 @@ def main() -> None:
     cfg = RefineConfig(input="none", **{"camera_height_m": 1.65, **{k: float(v) for k, v in overrides.items()}})
     with tempfile.TemporaryDirectory() as tmp:
         run_refine(seq, cfg, Path(tmp), progress=False, score=False)
-        est = np.loadtxt(Path(tmp) / "poses_kitti.txt").reshape(-1, 3, 4)
-    est = np.concatenate([est, np.tile([[[0, 0, 0, 1.0]]], (len(est), 1, 1))], 1)
+        est = read_kitti_poses(Path(tmp) / "poses_kitti.txt")
     for i in range(0, len(seq), 5):
         err = Rotation.from_matrix(est[i][:3, :3].T @ truth[i][:3, :3]).as_euler("xyz", degrees=True)
         step = 1.0

@@ -19,6 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from leovr.pipeline.batch import LOCAL_SYSTEM_CONFIG
+
 
 def first_task() -> float:
     t = time.perf_counter()
@@ -58,7 +60,7 @@ def idle_cpu(seconds: float = 20.0) -> float:
     import ray
 
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             _system_config={"enable_metrics_collection": False})
+             _system_config=LOCAL_SYSTEM_CONFIG)
     ray.get([ray.remote(_pid).remote() for _ in range(2)])
     time.sleep(3)
     a = _ray_cpu_seconds()
@@ -94,7 +96,7 @@ def main() -> None:
     import ray
 
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             _system_config={"enable_metrics_collection": False})  # as `leovr batch` starts it
+             _system_config=LOCAL_SYSTEM_CONFIG)  # as `leovr batch` starts it
     t1 = time.perf_counter()
     inside = ray.get(ray.remote(first_task).remote())
     t2 = time.perf_counter()

@@ -28,6 +28,9 @@ from leovr.pipeline.batch_summary import read_json_or_empty, write_summary
 STATE_FILE = "batch.json"
 ADAPT_DIR = "_adapt"  # the adapted generator of an adapt+refine batch
 ERROR_FILE = "error.json"  # a data error the adaptation met (written by its process 0)
+# a local instance without the dashboard: nothing reads Ray's own metrics, and not collecting them spares the
+# raylet's wait for the metrics agent at start (ray.init 4.0 -> 2.9 s here, tools/ray_overhead.py)
+LOCAL_SYSTEM_CONFIG = {"enable_metrics_collection": False}
 
 
 def task_settings(job: str, section: dict[str, Any], path: Path | None = None) -> dict[str, Any]:
@@ -119,9 +122,7 @@ def _init_ray(bcfg: BatchConfig) -> bool:
     else:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private local instance needs no token
         cpus = (bcfg.workers or os.cpu_count() or 1) * bcfg.cpus_per_task
-        # without the dashboard nothing reads Ray's own metrics; not collecting them spares the raylet's wait
-        # for the metrics agent at start (ray.init 4.0 -> 2.9 s here, tools/ray_overhead.py)
-        system = {} if bcfg.dashboard else {"enable_metrics_collection": False}
+        system = {} if bcfg.dashboard else LOCAL_SYSTEM_CONFIG
         ray.init(num_cpus=cpus, include_dashboard=bcfg.dashboard, log_to_driver=False, configure_logging=False,
                  _system_config=system)
     return True
