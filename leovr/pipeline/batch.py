@@ -29,7 +29,7 @@ STATE_FILE = "batch.json"
 ADAPT_DIR = "_adapt"  # the adapted generator of an adapt+refine batch
 ERROR_FILE = "error.json"  # a data error the adaptation met (written by its process 0)
 # a local instance without the dashboard: nothing reads Ray's own metrics, and not collecting them spares the
-# raylet's wait for the metrics agent at start (ray.init 4.0 -> 2.9 s here, tools/ray_overhead.py)
+# raylet's wait for the metrics agent at start (ray.init alone about 4.0 -> 2.9 s here; docs/benchmarks.md)
 LOCAL_SYSTEM_CONFIG = {"enable_metrics_collection": False}
 
 
