@@ -202,7 +202,7 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
     typer.echo(m["mode"])
     for method, r in m["depth"].items():
         if r.get("n"):
-            typer.echo(f"{method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
+            typer.echo(f"{method:15s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
     if not any(r.get("n") for r in m["depth"].values()):
         why = ("the whole scan is the input; --input vlp16|mid40|none holds points out" if m["input"] == "full"
                else "the sequence has neither ground-truth depth nor LiDAR")

@@ -120,6 +120,10 @@ class RefineConfig(FrameSelection):
     depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
     depth_factors: bool = True  # False: point factors only (no depth-consistency / LiDAR-depth factors)
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
+    # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's
+    # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,
+    # their accumulated returns made the generator worse on the development drives; docs/benchmarks.md)
+    accumulate_frames: int = Field(8, ge=0)
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
     compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and score it beside leovr

@@ -118,3 +118,39 @@ def test_ratio_input_fraction_disjoint_and_seeded():
 def test_parse_input_rejects_bad_specs(bad):
     with pytest.raises(ValueError):
         parse_input(bad)
+
+
+def test_scan_history_places_earlier_scans_in_the_current_camera():
+    from leovr.lidar.accumulate import ScanHistory
+
+    h = ScanHistory(frames=2)
+    T_cam_lidar = np.eye(4)
+    for i in range(3):  # only the last two are kept
+        h.add(i, np.array([[0.0, 0.0, 10.0 + i]]), T_cam_lidar)
+    assert [i for i, _ in h.scans] == [1, 2]
+    step = np.eye(4)
+    step[2, 3] = 1.0  # each frame 1 m further along the optical axis
+    poses = {1: step, 2: step @ step}
+    pts = h.gather(poses | {5: np.eye(4)}, T_world_cam=step @ step @ step)
+    # frame 1's point (11 m ahead of a camera at z=1) seen from z=3: 9 m; frame 2's (12 m ahead of z=2): 11 m
+    np.testing.assert_allclose(sorted(pts[:, 2]), [9.0, 11.0])
+    assert len(h.gather({2: step}, step)) == 1  # a frame without a pose is left out
+    h0 = ScanHistory(frames=0)
+    h0.add(0, np.ones((3, 3)), T_cam_lidar)
+    assert not h0.scans
+
+
+def test_with_history_keeps_the_own_scan_and_thins_earlier_returns_per_cell():
+    from leovr.lidar.accumulate import with_history
+
+    K = np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])
+    sparse = np.zeros((100, 100), np.float32)
+    sparse[50, 50] = 5.0
+    # earlier returns: one on the own pixel (ignored), two in one empty 4 x 4 cell (nearest wins), one far off
+    uvz = np.array([[50, 50, 3.0], [10, 10, 8.0], [11, 10, 6.0], [90, 20, 7.0]])
+    pts = np.stack([(uvz[:, 0] - 50) / 100 * uvz[:, 2], (uvz[:, 1] - 50) / 100 * uvz[:, 2], uvz[:, 2]], 1)
+    out = with_history(sparse, pts, K, cell=4)
+    assert out[50, 50] == 5.0 and out[20, 90] == 7.0
+    assert out[10, 11] == 6.0 and out[10, 10] == 0.0
+    assert (out > 0).sum() == 3
+    assert with_history(sparse, np.zeros((0, 3)), K) is sparse

@@ -30,7 +30,9 @@ from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.pipeline.completion import ground_truth_note
 from leovr.pipeline.refine import FrameScore, completion_config, frame_sample, run_refine
 
-METHODS = ("nearest", "ipbasic", "interp", "generator", "refined", "adapted", "adapted_refined")
+# generator: the shipped generator as it ran in refine (with earlier scans for a cone LiDAR, Mid-40-like);
+# generator_frame: on the frame's own input alone (only where earlier scans were added)
+METHODS = ("nearest", "ipbasic", "interp", "generator", "generator_frame", "refined", "adapted", "adapted_refined")
 
 
 def prepared_work(work: Path, settings: dict) -> None:
@@ -58,6 +60,8 @@ def pooled(frames: dict[int, FrameScore], indices: list[int], bins: list[float])
         for i in indices:
             if i in frames and method in frames[i].pred:
                 acc.add(frames[i].pred[method], frames[i].gt)
+        if not acc._gt:
+            continue
         out[method] = depth_entry(acc.result())
         out[method].pop("ms_per_frame")
     return out
@@ -106,9 +110,9 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     summary = {}
     for key, r in results.items():
         near = r["nearest"]["mae_m"]
-        summary[key] = {f"{m}_vs_nearest": r[m]["mae_m"] / near for m in METHODS if m != "nearest" and r[m]["mae_m"]}
+        summary[key] = {f"{m}_vs_nearest": r[m]["mae_m"] / near for m in r if m != "nearest" and r[m]["mae_m"]}
         summary[key]["worse_than_nearest_0_20m"] = [
-            m for m in METHODS if (r[m]["bins"].get("0-20") or {}).get("mae_m", 0) > r["nearest"]["bins"]["0-20"]["mae_m"]]
+            m for m in r if (r[m]["bins"].get("0-20") or {}).get("mae_m", 0) > r["nearest"]["bins"]["0-20"]["mae_m"]]
     body = {
         "quick": quick,
         "clip": str(clip),

@@ -23,7 +23,7 @@ from leovr.pipeline.refine import TIMED, run_refine
 from leovr.sim.dataset import Recipe, default_root, make_dataset
 
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
-DEPTH_METHODS = ("nearest", "ipbasic", "generator", "refined")
+DEPTH_METHODS = ("nearest", "ipbasic", "generator", "generator_frame", "refined")  # generator_frame: cone LiDARs only
 TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
 
 
@@ -63,8 +63,8 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
             pool = {m: DepthMetricAccumulator(base.bins) for m in DEPTH_METHODS}
             runs = [refine(e["path"], base.model_copy(update={"input": "full"}), f"{lidar}_{e['scenario']}", pool)
                     for e in entries if e["lidar"] == lidar]
-            results[f"synthetic_{lidar}"] = {m: depth_entry({**a.result(), "ms_per_frame": None}) for m, a in pool.items()}
-            for m in DEPTH_METHODS:
+            results[f"synthetic_{lidar}"] = {m: depth_entry({**a.result(), "ms_per_frame": None}) for m, a in pool.items() if a._gt}
+            for m in results[f"synthetic_{lidar}"]:
                 results[f"synthetic_{lidar}"][m]["per_sequence_mae_m"] = {
                     Path(r["sequence"]).name: r["depth"][m]["mae_m"] for r in runs}
             trajectory[f"synthetic_{lidar}"] = _traj(runs)

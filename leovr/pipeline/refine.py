@@ -35,6 +35,7 @@ from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.heldout import parallax_filter
 from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import interpolate_poses, invert_T, transform_points
+from leovr.lidar.accumulate import ScanHistory, with_history
 from leovr.lidar.deskew import deskew
 from leovr.lidar.projection import sparse_depth
 from leovr.pipeline.completion import (
@@ -116,7 +117,8 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
 # because the generator of the next frame runs while the graph updates
 TIMED = ("generator_ms", "frontend_ms", "graph_ms", "output_ms")
 WALL = "wall_ms"
-SCORED = ("nearest", "ipbasic", "generator", "refined")  # depth methods in metrics.json, same pixels
+SCORED = ("nearest", "ipbasic", "generator", "generator_frame", "refined")  # depth methods in metrics.json, same pixels
+# generator: as it ran in the graph (with earlier scans for a cone LiDAR); generator_frame: on the frame's own scan alone
 PNG_FOLDER = {"ipbasic": "depth_ipbasic", "generator": "depth_generator", "refined": "depth"}
 
 
@@ -129,6 +131,9 @@ class FrameScore:
     pick: tuple[np.ndarray, np.ndarray]
     gt: np.ndarray
     pred: dict[str, np.ndarray] = field(default_factory=dict)
+    # the frame's own cheap input (rows, cols, depth) when earlier scans joined the generator's: the
+    # single-frame generator (`generator_frame`) is scored from it after the run, not timed
+    own_input: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def of(cls, sample: EvalSample) -> "FrameScore | None":
@@ -175,6 +180,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     `collect` receives each frame's FrameScore (benchmarks that score subsets of frames).
     `score=False` skips everything that reads ground truth (the self-supervised trainer's pose pass)."""
     from odometry.frontend import FrontEnd
+    from odometry.initial_pose import is_spinning
     from odometry.mono_vo import MonoVO
     from odometry.window_graph import WindowGraph
 
@@ -227,11 +233,17 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     if done:
         desc += f", replaying {len(done)} finished"
 
-    def prepare(i: int, motion: np.ndarray | None) -> tuple[EvalSample, np.ndarray, np.ndarray, float]:
-        """Frame i's input and generator depth; runs beside the graph update of the previous frame."""
+    # a narrow-cone LiDAR's last scans, placed by the graph's poses, join the generator's input (spinning: off)
+    history = ScanHistory(cfg.accumulate_frames if has_lidar else 0)
+    history_poses: dict[int, np.ndarray] = {}
+
+    def prepare(i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> tuple[EvalSample, np.ndarray, np.ndarray, float]:
+        """Frame i's input and generator depth; runs beside the graph update of the previous frame.
+        `earlier`: returns of the frames before, in frame i's predicted camera (the generator's input only)."""
         sample = frame_sample(seq, i, ccfg, motion, frame_dt, camera_only)
         t0 = time.perf_counter()
-        depth, log_sigma = generator(sample)
+        seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, sample.frame.K))
+        depth, log_sigma = generator(seen)
         return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0)
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
@@ -240,12 +252,12 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     # (one core's worth of threads, as in a batch task with one CPU: sequential, in this thread)
     ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-generator") if torch_threads() > 1 else None
 
-    def submit(i: int, motion: np.ndarray | None) -> Future:
+    def submit(i: int, motion: np.ndarray | None, earlier: np.ndarray | None = None) -> Future:
         if ahead is not None:
-            return ahead.submit(prepare, i, motion)
+            return ahead.submit(prepare, i, motion, earlier)
         fut: Future = Future()
         try:
-            fut.set_result(prepare(i, motion))
+            fut.set_result(prepare(i, motion, earlier))
         except Exception as exc:  # raised where the frame is used, as from the thread
             fut.set_exception(exc)
         return fut
@@ -264,12 +276,20 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph)
             t2 = time.perf_counter()
+            if history.frames and n == 0 and sample.kept_points is not None and is_spinning(sample.kept_points[:, :3]):
+                history.frames = 0
+            history.add(i, sample.kept_points, sample.frame.T_cam_lidar)
             if n + 1 < len(indices):
-                nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None)
+                earlier = None
+                if history.frames:  # the next frame's pose predicted at constant velocity from this one's
+                    earlier = history.gather(history_poses | {i: fi.T_init}, fi.T_init @ front.velocity)
+                nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None, earlier)
             pending[i] = depth, front.depth_scale
             fs = FrameScore.of(sample) if score and i not in done else None
             if fs is not None:
                 scored[i] = fs
+            if fs is not None and history.frames:
+                fs.own_input = (*np.nonzero(sample.sparse), sample.sparse[sample.sparse > 0])
             if has_lidar and i not in done:  # the classical baselines on the very same input, for the metrics (not timed)
                 ipb = complete_depth(sample.sparse, "ipbasic")
                 write_depth_png(out / "depth_ipbasic" / png_name(names, i), ipb)
@@ -280,6 +300,10 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             left = graph.add_frame(fi)
             t3 = time.perf_counter()
             finish(left)
+            if history.frames:
+                kept = {j for j, _ in history.scans}
+                history_poses = {j: T for j, T in history_poses.items() if j in kept}
+                history_poses |= {r.index: r.T_world_cam for r in left} | {j: graph.poses[j] for j in kept if j in graph.poses}
             t4 = time.perf_counter()
             if textbook is not None:
                 textbook.add(sample.frame.image)
@@ -298,6 +322,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if ahead is not None:
             ahead.shutdown(wait=True)
     finish(graph.flush())
+    single_frame_generator(seq, scored, generator, progress)
     if empty:
         warn_empty_input(seq, empty)
     if replayed:
@@ -365,6 +390,20 @@ def input_label(name: str, has_lidar: bool) -> str:
     return "own scan" if name == "full" else f"{name} simulated from the scan"
 
 
+def single_frame_generator(seq: Sequence, scored: dict[int, "FrameScore"], generator, progress: bool) -> None:
+    """`generator_frame` for the scored frames whose generator input held earlier scans: the generator on
+    the frame's own scan alone, the same-run yardstick for what the earlier scans and the graph add."""
+    todo = [i for i, fs in scored.items() if fs.own_input is not None]
+    for i in tqdm(todo, desc="score single-frame generator", unit="frame", disable=not progress or not todo):
+        fs = scored[i]
+        f = seq[i]
+        sparse = np.zeros(f.shape, np.float32)
+        rows, cols, z = fs.own_input
+        sparse[rows, cols] = z
+        fs.add("generator_frame", generator(EvalSample(f, sparse, sparse, "none"))[0])
+        fs.own_input = None
+
+
 def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lidar: bool) -> FrameScore | None:
     """Score of a frame finished before a resume: its maps read back from the PNGs at the run's scale."""
     sample = frame_sample(seq, i, ccfg, camera_only=not has_lidar)
@@ -415,15 +454,20 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     accs = {m: DepthMetricAccumulator(cfg.bins) for m in SCORED}
     scored = scored or {}
     kinds, gt_poses = set(), []
+    frame_scores = []
     for i in tqdm(indices if score else [], desc="score", unit="frame", disable=not progress):
         gt_poses.append(seq[i].T_world_cam)
         fs = scored[i] if i in scored else frame_score(seq, ccfg, out, i, has_lidar)
-        if fs is None:
-            continue
-        if collect is not None:
-            collect[i] = fs
+        if fs is not None:
+            frame_scores.append(fs)
+            if collect is not None:
+                collect[i] = fs
+    partial = {m for m in SCORED if 0 < sum(m in fs.pred for fs in frame_scores) < len(frame_scores)}
+    for fs in frame_scores:  # a method some frames lack (a resumed run's single-frame generator) is left out
         kinds.add(fs.kind)
         for method, pred in fs.pred.items():
+            if method in partial:
+                continue
             for target in (accs, pool or {}):
                 if method in target:
                     target[method].add(pred, fs.gt)
