@@ -74,7 +74,7 @@ def speed_record(seq, rcfg: RefineConfig, run: Path, progress: bool) -> dict:
     rec["total_over_ipbasic"] = round(median_total / max(rec["ipbasic_ms_per_frame"], 1e-9), 1)
     rec["wall_over_ipbasic"] = round(stats[WALL]["median"] / max(rec["ipbasic_ms_per_frame"], 1e-9), 1)
     depth = metrics.get("depth", {})
-    rec["mae_m"] = {m: round(depth[m]["mae_m"], 4) for m in ("nearest", "generator", "refined") if m in depth}
+    rec["mae_m"] = {m: round(depth[m]["mae_m"], 4) for m in ("nearest", "generator", "generator_frame", "refined") if m in depth}
     traj = metrics.get("trajectory", {})
     rec["ate_m"] = {m: round(t["ate_m"], 4) for m, t in traj.items()}
     return rec
