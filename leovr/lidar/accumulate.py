@@ -26,6 +26,7 @@ class ScanHistory:
 
     frames: int
     scans: deque = field(default_factory=deque)  # (frame index, N x 3 camera-frame points)
+    sensor_known: bool = False  # whether the sensor was judged (cone or spinning) on a scan with enough returns
 
     def add(self, index: int, points_lidar: np.ndarray | None, T_cam_lidar: np.ndarray) -> None:
         if self.frames <= 0 or points_lidar is None or not len(points_lidar):

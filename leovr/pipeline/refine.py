@@ -276,12 +276,14 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph)
             t2 = time.perf_counter()
-            if history.frames and n == 0 and sample.kept_points is not None and is_spinning(sample.kept_points[:, :3]):
-                history.frames = 0
+            if history.frames and not history.sensor_known and sample.kept_points is not None and len(sample.kept_points) >= 100:
+                history.sensor_known = True  # judged on the first scan with returns: a spinning sensor keeps its own scan
+                if is_spinning(sample.kept_points[:, :3]):
+                    history.frames = 0
             history.add(i, sample.kept_points, sample.frame.T_cam_lidar)
             if n + 1 < len(indices):
                 earlier = None
-                if history.frames:  # the next frame's pose predicted at constant velocity from this one's
+                if history.frames and history.sensor_known:  # the next frame's pose predicted at constant velocity
                     earlier = history.gather(history_poses | {i: fi.T_init}, fi.T_init @ front.velocity)
                 nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None, earlier)
             pending[i] = depth, front.depth_scale
