@@ -103,7 +103,10 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
         rcfg = RefineConfig(input=cfg.input, end=n_frames, seed=cfg.seed, loop_closure=cfg.loop_closure,
                             loop_min_gap=cfg.loop_min_gap, generator_focal_px=cfg.train_focal_px,
                             depth_source="ipbasic" if checkpoint is None else "generator",
-                            depth_factors=checkpoint is not None, checkpoint=None if checkpoint is None else str(checkpoint))
+                            depth_factors=checkpoint is not None, checkpoint=None if checkpoint is None else str(checkpoint),
+                            # the trainer's graph passes as measured by `bench selfsup`: each frame's own scan only
+                            # (the earlier scans of a cone LiDAR in the depth input are not measured in training yet)
+                            accumulate_frames=0)
         run_refine(seq, rcfg, out, resume=(out / "progress.json").is_file(), progress=progress, score=False)
         write_text(done, json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint), "checkpoint_stamp": stamp}) + "\n")
     state = Progress.load(out / "progress.json")
