@@ -60,7 +60,7 @@ def pooled(frames: dict[int, FrameScore], indices: list[int], bins: list[float])
         for i in indices:
             if i in frames and method in frames[i].pred:
                 acc.add(frames[i].pred[method], frames[i].gt)
-        if not acc._gt:
+        if acc.empty:
             continue
         out[method] = depth_entry(acc.result())
         out[method].pop("ms_per_frame")

@@ -63,7 +63,7 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
             pool = {m: DepthMetricAccumulator(base.bins) for m in DEPTH_METHODS}
             runs = [refine(e["path"], base.model_copy(update={"input": "full"}), f"{lidar}_{e['scenario']}", pool)
                     for e in entries if e["lidar"] == lidar]
-            results[f"synthetic_{lidar}"] = {m: depth_entry({**a.result(), "ms_per_frame": None}) for m, a in pool.items() if a._gt}
+            results[f"synthetic_{lidar}"] = {m: depth_entry({**a.result(), "ms_per_frame": None}) for m, a in pool.items() if not a.empty}
             for m in results[f"synthetic_{lidar}"]:
                 results[f"synthetic_{lidar}"][m]["per_sequence_mae_m"] = {
                     Path(r["sequence"]).name: r["depth"][m]["mae_m"] for r in runs}

@@ -69,6 +69,11 @@ class DepthMetricAccumulator:
         self._pred.append(np.maximum(p, min_pred))
         self._gt.append(gt[valid].astype(np.float64))
 
+    @property
+    def empty(self) -> bool:
+        """Whether no frame was added (a method a run did not score)."""
+        return not self._gt
+
     def result(self) -> dict:
         pred = np.concatenate(self._pred) if self._pred else np.zeros(0)
         gt = np.concatenate(self._gt) if self._gt else np.zeros(0)

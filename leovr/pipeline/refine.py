@@ -235,7 +235,18 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
 
     # a narrow-cone LiDAR's last scans, placed by the graph's poses, join the generator's input (spinning: off)
     history = ScanHistory(cfg.accumulate_frames if has_lidar else 0)
-    history_poses: dict[int, np.ndarray] = {}
+
+    def latest_poses(indices_kept: list[int]) -> dict[int, np.ndarray]:
+        """The graph's current pose of each frame still in the window, else the pose it left with."""
+        out = {}
+        for j in indices_kept:
+            if j in graph.poses:
+                out[j] = graph.poses[j]
+            elif j in replayed:
+                out[j] = replayed[j]
+            elif j in state.poses:
+                out[j] = np.array(state.poses[j]).reshape(4, 4)
+        return out
 
     def prepare(i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> tuple[EvalSample, np.ndarray, np.ndarray, float]:
         """Frame i's input and generator depth; runs beside the graph update of the previous frame.
@@ -284,7 +295,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             if n + 1 < len(indices):
                 earlier = None
                 if history.frames and history.sensor_known:  # the next frame's pose predicted at constant velocity
-                    earlier = history.gather(history_poses | {i: fi.T_init}, fi.T_init @ front.velocity)
+                    poses = latest_poses([j for j, _ in history.scans]) | {i: fi.T_init}
+                    earlier = history.gather(poses, fi.T_init @ front.velocity)
                 nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None, earlier)
             pending[i] = depth, front.depth_scale
             fs = FrameScore.of(sample) if score and i not in done else None
@@ -302,10 +314,6 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             left = graph.add_frame(fi)
             t3 = time.perf_counter()
             finish(left)
-            if history.frames:
-                kept = {j for j, _ in history.scans}
-                history_poses = {j: T for j, T in history_poses.items() if j in kept}
-                history_poses |= {r.index: r.T_world_cam for r in left} | {j: graph.poses[j] for j in kept if j in graph.poses}
             t4 = time.perf_counter()
             if textbook is not None:
                 textbook.add(sample.frame.image)
@@ -479,7 +487,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         "frames": len(indices), "window": cfg.window,
         "mode": "visual-LiDAR" if has_lidar else input_label(cfg.input, has_lidar),
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),
-        "depth": {m: a.result() for m, a in accs.items() if a._gt},
+        "depth": {m: a.result() for m, a in accs.items() if not a.empty},
         "timing": {k: v for k, v in timing.items() if k != "series"},  # the series is in timing.json
     }
     if score and all(T is not None for T in gt_poses) and len(indices) >= 3:
