@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 
-import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 from scipy.spatial import Delaunay
@@ -26,10 +25,7 @@ from leovr.lidar.cheap_sensor import vlp16_mask
 from leovr.paths import kitti_raw_dir
 from leovr.pipeline.refine import completion_config, frame_sample
 from odometry.initial_pose import LidarOdometry
-
-
-def gray(img: np.ndarray) -> np.ndarray:
-    return (cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img).astype(np.float32)
+from odometry.mono_vo import gray
 
 
 def cheap_points(s) -> np.ndarray:
@@ -81,7 +77,7 @@ def main() -> None:
     samples = [frame_sample(seq, i, ccfg) for i in range(n)]
     odo = LidarOdometry(samples[0].frame.T_cam_lidar)
     poses = [odo.register(cheap_points(s) if a.poses == 'cheap' else s.frame.points) for s in samples]
-    grays = [gray(s.frame.image) for s in samples]
+    grays = [gray(s.frame.image).astype(np.float32) for s in samples]
     steps = np.linalg.norm(np.diff(np.array([p[:3, 3] for p in poses]), axis=0), axis=1)
     print(json.dumps({"step_m_median": round(float(np.median(steps)), 3), "path_m": round(float(steps.sum()), 2)}))
     tot = {"prior": 0.0, "photo": 0.0, "oracle": 0.0, "n": 0, "all_prior": 0.0, "all_photo": 0.0, "all_n": 0,
