@@ -124,6 +124,9 @@ class RefineConfig(FrameSelection):
     # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,
     # their accumulated returns made the generator worse on the development drives; docs/benchmarks.md)
     accumulate_frames: int = Field(8, ge=0)
+    # drop an earlier return once a later scan sees free space in front of it or a surface in front of it
+    # (movers that left, surfaces hidden now; leovr.lidar.accumulate.RangeImage)
+    accumulate_check: bool = True
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
     compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and score it beside leovr

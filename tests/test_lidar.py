@@ -123,11 +123,11 @@ def test_parse_input_rejects_bad_specs(bad):
 def test_scan_history_places_earlier_scans_in_the_current_camera():
     from leovr.lidar.accumulate import ScanHistory
 
-    h = ScanHistory(frames=2)
     T_cam_lidar = np.eye(4)
+    h = ScanHistory(frames=2, T_cam_lidar=T_cam_lidar, check=False)
     for i in range(3):  # only the last two are kept
-        h.add(i, np.array([[0.0, 0.0, 10.0 + i]]), T_cam_lidar)
-    assert [i for i, _ in h.scans] == [1, 2]
+        h.add(i, np.array([[0.0, 0.0, 10.0 + i]]))
+    assert [s.index for s in h.scans] == [1, 2]
     step = np.eye(4)
     step[2, 3] = 1.0  # each frame 1 m further along the optical axis
     poses = {1: step, 2: step @ step}
@@ -136,8 +136,35 @@ def test_scan_history_places_earlier_scans_in_the_current_camera():
     np.testing.assert_allclose(sorted(pts[:, 2]), [9.0, 11.0])
     assert len(h.gather({2: step}, step)) == 1  # a frame without a pose is left out
     h0 = ScanHistory(frames=0)
-    h0.add(0, np.ones((3, 3)), T_cam_lidar)
+    h0.add(0, np.ones((3, 3)))
     assert not h0.scans
+
+
+def test_scan_history_drops_returns_a_later_scan_contradicts():
+    """A later scan that sees free space where an earlier return was (a mover that left) or a nearer
+    surface in front of it (hidden now) drops it; a static wall seen by both, and a direction the later
+    scan did not see, keep theirs."""
+    from leovr.lidar.accumulate import ScanHistory
+
+    # camera: z forward; LiDAR: x forward (KITTI-like axes)
+    T_cam_lidar = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)
+    h = ScanHistory(frames=4, T_cam_lidar=T_cam_lidar)
+    wall = np.array([[20.0, y, 0.0] for y in (-1.0, 0.0, 1.0)])  # LiDAR frame, seen by both scans
+    car = np.array([[10.0, 3.0, 0.0]])  # in front of the wall at 16.7 degrees: gone in the later scan
+    behind = np.array([[30.0, -8.0, 0.0]])  # later hidden by a truck at 15 m in that direction
+    aside = np.array([[10.0, 0.0, 5.0]])  # a direction the later scan has no return in
+    h.add(0, np.concatenate([wall, car, behind, aside]))
+    later = np.concatenate([wall, [[20.0, 6.0, 0.0]], behind * 0.5])  # the wall behind the car's place; the truck
+    h.add(1, later)
+    poses = {0: np.eye(4), 1: np.eye(4)}  # a parked ego
+    pts = h.gather(poses, np.eye(4))
+    first = h.scans[0]
+    assert first.dropped.tolist() == [False, False, False, True, True, False]
+    assert len(pts) == 4 + len(later)
+    h_off = ScanHistory(frames=4, T_cam_lidar=T_cam_lidar, check=False)
+    h_off.add(0, np.concatenate([wall, car, behind, aside]))
+    h_off.add(1, later)
+    assert len(h_off.gather(poses, np.eye(4))) == 6 + len(later)
 
 
 def test_with_history_keeps_the_own_scan_and_thins_earlier_returns_per_cell():

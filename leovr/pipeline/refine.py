@@ -234,7 +234,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         desc += f", replaying {len(done)} finished"
 
     # a narrow-cone LiDAR's last scans, placed by the graph's poses, join the generator's input (spinning: off)
-    history = ScanHistory(cfg.accumulate_frames if has_lidar else 0)
+    history = ScanHistory(cfg.accumulate_frames if has_lidar else 0, first.T_cam_lidar, cfg.accumulate_check)
 
     def latest_poses(indices_kept: list[int]) -> dict[int, np.ndarray]:
         """The graph's current pose of each frame still in the window, else the pose it left with."""
@@ -253,6 +253,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         `earlier`: returns of the frames before, in frame i's predicted camera (the generator's input only)."""
         sample = frame_sample(seq, i, ccfg, motion, frame_dt, camera_only)
         t0 = time.perf_counter()
+        if earlier is not None:
+            earlier = history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, sample.frame.K))
         depth, log_sigma = generator(seen)
         return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0)
@@ -291,11 +293,11 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 history.sensor_known = True  # judged on the first scan with returns: a spinning sensor keeps its own scan
                 if is_spinning(sample.kept_points[:, :3]):
                     history.frames = 0
-            history.add(i, sample.kept_points, sample.frame.T_cam_lidar)
+            history.add(i, sample.kept_points)
             if n + 1 < len(indices):
                 earlier = None
                 if history.frames and history.sensor_known:  # the next frame's pose predicted at constant velocity
-                    poses = latest_poses([j for j, _ in history.scans]) | {i: fi.T_init}
+                    poses = latest_poses([s.index for s in history.scans]) | {i: fi.T_init}
                     earlier = history.gather(poses, fi.T_init @ front.velocity)
                 nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None, earlier)
             pending[i] = depth, front.depth_scale
