@@ -123,7 +123,7 @@ class RefineConfig(FrameSelection):
     # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's
     # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,
     # their accumulated returns made the generator worse on the development drives; docs/benchmarks.md)
-    accumulate_frames: int = Field(8, ge=0)
+    accumulate_frames: int = Field(16, ge=0)
     # drop an earlier return once a later scan sees free space in front of it or a surface in front of it
     # (movers that left, surfaces hidden now; leovr.lidar.accumulate.RangeImage)
     accumulate_check: bool = True
