@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from leovr.geometry import invert_T
-from leovr.lidar.projection import project_points
+from leovr.lidar.projection import MIN_DEPTH_M
 
 
 @dataclass(frozen=True)
@@ -144,14 +144,27 @@ def with_history(sparse: np.ndarray, points_cam: np.ndarray, K: np.ndarray, cell
         return sparse
     h, w = sparse.shape
     cols = -(-w // cell)
-    earlier = project_points(points_cam, K, np.eye(4), sparse.shape)  # the nearest return per pixel
-    cell_of = (earlier.v // cell) * cols + earlier.u // cell
+    pu, pv, z = pixels_of(points_cam, K, sparse.shape)
+    cell_of = (pv // cell) * cols + pu // cell
     v, u = np.nonzero(sparse > 0)
     own = np.zeros(-(-h // cell) * cols, bool)
     own[(v // cell) * cols + u // cell] = True
-    order = np.lexsort((earlier.depth, cell_of))  # by cell, nearest first
+    order = np.lexsort((z, cell_of))  # by cell, nearest first (the nearest per cell is its pixel's nearest)
     _, first = np.unique(cell_of[order], return_index=True)
     pick = order[first][~own[cell_of[order[first]]]]
     out = np.array(sparse, np.float32)
-    out[earlier.v[pick], earlier.u[pick]] = earlier.depth[pick]
+    out[pv[pick], pu[pick]] = z[pick]
     return out
+
+
+def pixels_of(points_cam: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel (u, v) and depth of the camera-frame points in front of the camera and inside the image,
+    rounded as `project_points` rounds them (every point, not only the nearest per pixel)."""
+    z = points_cam[:, 2]
+    front = z > MIN_DEPTH_M
+    uvw = points_cam[front] @ K.T
+    z = z[front]
+    u = np.floor(uvw[:, 0] / z + 0.5).astype(np.int64)
+    v = np.floor(uvw[:, 1] / z + 0.5).astype(np.int64)
+    inside = (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    return u[inside], v[inside], z[inside].astype(np.float32)
