@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from leovr.geometry import invert_T
-from leovr.lidar.projection import MIN_DEPTH_M
+from leovr.lidar.projection import image_pixels
 
 
 @dataclass(frozen=True)
@@ -101,11 +101,12 @@ class ScanHistory:
     def _check(self, poses: Mapping[int, np.ndarray]) -> None:
         """Each stored return against every later stored scan not yet asked, placed by `poses` (camera to world)."""
         T_lidar_cam = invert_T(self.T_cam_lidar)
-        for n, later in enumerate(self.scans):
+        scans = list(self.scans)
+        for n, later in enumerate(scans):
             if later.index not in poses:
                 continue
             T_later = T_lidar_cam @ invert_T(poses[later.index])  # world -> later LiDAR
-            for older in list(self.scans)[:n]:
+            for older in scans[:n]:
                 if later.index in older.checked or older.index not in poses:
                     continue
                 T = T_later @ poses[older.index]
@@ -144,7 +145,7 @@ def with_history(sparse: np.ndarray, points_cam: np.ndarray, K: np.ndarray, cell
         return sparse
     h, w = sparse.shape
     cols = -(-w // cell)
-    pu, pv, z = pixels_of(points_cam, K, sparse.shape)
+    pu, pv, z, _ = image_pixels(points_cam, K, np.eye(4), sparse.shape)
     cell_of = (pv // cell) * cols + pu // cell
     v, u = np.nonzero(sparse > 0)
     own = np.zeros(-(-h // cell) * cols, bool)
@@ -156,15 +157,3 @@ def with_history(sparse: np.ndarray, points_cam: np.ndarray, K: np.ndarray, cell
     out[pv[pick], pu[pick]] = z[pick]
     return out
 
-
-def pixels_of(points_cam: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pixel (u, v) and depth of the camera-frame points in front of the camera and inside the image,
-    rounded as `project_points` rounds them (every point, not only the nearest per pixel)."""
-    z = points_cam[:, 2]
-    front = z > MIN_DEPTH_M
-    uvw = points_cam[front] @ K.T
-    z = z[front]
-    u = np.floor(uvw[:, 0] / z + 0.5).astype(np.int64)
-    v = np.floor(uvw[:, 1] / z + 0.5).astype(np.int64)
-    inside = (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
-    return u[inside], v[inside], z[inside].astype(np.float32)

@@ -38,6 +38,19 @@ def project_points(
     Points behind the camera, nearer than `min_depth` or outside the image are dropped; when several
     points fall on one pixel the nearest wins.
     """
+    u, v, z, idx = image_pixels(points, K, T_cam_lidar, shape, min_depth)
+    lin = v * shape[1] + u
+    order = np.lexsort((z, lin))  # by pixel, nearest first
+    _, first = np.unique(lin[order], return_index=True)
+    win = order[first]
+    return Projection(u=u[win], v=v[win], depth=z[win].astype(np.float32), index=idx[win], shape=shape)
+
+
+def image_pixels(
+    points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int], min_depth: float = MIN_DEPTH_M
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel (u, v), depth and input index of every point in front of the camera (beyond `min_depth`)
+    and inside the image, rounded as `project_points` rounds them, several per pixel allowed."""
     h, w = shape
     xyz = np.asarray(points, np.float64)[:, :3]
     cam = xyz @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
@@ -48,12 +61,7 @@ def project_points(
     u = np.floor(uv[:, 0] / z + 0.5).astype(np.int64)
     v = np.floor(uv[:, 1] / z + 0.5).astype(np.int64)
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    u, v, z, idx = u[inside], v[inside], z[inside], front[inside]
-    lin = v * w + u
-    order = np.lexsort((z, lin))  # by pixel, nearest first
-    _, first = np.unique(lin[order], return_index=True)
-    win = order[first]
-    return Projection(u=u[win], v=v[win], depth=z[win].astype(np.float32), index=idx[win], shape=(h, w))
+    return u[inside], v[inside], z[inside], front[inside]
 
 
 def sparse_depth(
