@@ -183,7 +183,7 @@ def poses(
     loop_closure: bool = typer.Option(True, "--loop-closure/--no-loop-closure", help="Close loops (default on)."),
     input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), vlp16 | mid40 | ratio:R simulated from it, or none (camera only)."),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
-    compare: bool = typer.Option(False, "--compare", help="Also run the textbook monocular VO (mono_vo) and score it beside leovr."),
+    compare: bool = typer.Option(False, "--compare", help="Also run the textbook monocular VO (mono_vo) and, with LiDAR, KISS-ICP alone (kiss_icp), and score them beside leovr."),
 ) -> None:
     """The offline pose pass the self-supervised trainer uses: window odometry, then loop closure."""
     cfg = override(load_config(config).refine, loop_closure=loop_closure, input=input, compare=compare or None)

@@ -129,7 +129,7 @@ class RefineConfig(FrameSelection):
     accumulate_check: bool = True
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
-    compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and score it beside leovr
+    compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and KISS-ICP alone (`kiss_icp`, with LiDAR; always with ground-truth poses)
     vocabulary: str | None = None  # ORB vocabulary (.npz); None = the shipped one
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
     grid_cols: int = Field(14, ge=2)

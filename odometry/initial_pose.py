@@ -22,16 +22,19 @@ class PoseGuess:
 
 
 class LidarOdometry:
-    """KISS-ICP on raw scans (deskew off: our scans are deskewed before, or carry no times), reported
-    as camera poses in the world frame of the first camera, each with the covariance of its
-    registration (`covariance`)."""
+    """KISS-ICP on scans, reported as camera poses in the world frame of the first camera, each with the
+    covariance of its registration (`covariance`). `deskew=False` (the graph's front end): the scans
+    come deskewed by leovr, or carry no times. `deskew=True` (the `kiss_icp` baseline): KISS-ICP
+    deskews each scan itself from its point times with its own last motion, as its pipeline does; its
+    pose then refers to the end of the sweep."""
 
-    def __init__(self, T_cam_lidar: np.ndarray, max_range: float = 100.0, cov_inflation: float = 1.0) -> None:
+    def __init__(self, T_cam_lidar: np.ndarray, max_range: float = 100.0, cov_inflation: float = 1.0,
+                 deskew: bool = False) -> None:
         from kiss_icp.config import KISSConfig
         from kiss_icp.kiss_icp import KissICP
 
         cfg = KISSConfig()
-        cfg.data.deskew = False
+        cfg.data.deskew = deskew
         cfg.data.max_range = max_range
         cfg.data.min_range = 1.0
         cfg.mapping.voxel_size = max_range / 100.0
@@ -44,16 +47,19 @@ class LidarOdometry:
         self._fit: tuple | None = None  # the last registration's inputs, for `covariance` (computed on demand)
         self._covariance: np.ndarray | None = None
 
-    def register(self, points: np.ndarray) -> np.ndarray | None:
-        """Camera pose (camera to world) after registering this scan, or None when it has too few points."""
+    def register(self, points: np.ndarray, times: np.ndarray | None = None) -> np.ndarray | None:
+        """Camera pose (camera to world) after registering this scan, or None when it has too few points.
+        `times` (one per point, any unit: KISS-ICP normalises them over the sweep) are used only with
+        `deskew=True`."""
         xyz = np.ascontiguousarray(points[:, :3], np.float64)
         self._fit, self._covariance = None, None
         if len(xyz) < MIN_SCAN_POINTS:
             return None
         if self.spinning is None:
             self.spinning = is_spinning(xyz)
+        timed = self.icp.config.data.deskew and times is not None and len(times) == len(xyz) and np.ptp(times) > 0
         local_map = self.icp.local_map.point_cloud() if self.frames else None  # before this scan joins it
-        _, source = self.icp.register_frame(xyz, np.array([]))
+        _, source = self.icp.register_frame(xyz, np.asarray(times, np.float64) if timed else np.array([]))
         self.frames += 1
         T_l0_l = self.icp.last_pose
         self._fit = (source, local_map, T_l0_l, 3.0 * self.icp.adaptive_threshold.get_threshold())

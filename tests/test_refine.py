@@ -51,6 +51,23 @@ def test_refine_tracks_the_camera_and_does_not_degrade_depth(refined):
     assert m["depth"]["generator"]["mae_m"] < m["depth"]["generator_frame"]["mae_m"]  # the earlier scans help
 
 
+def test_the_kiss_icp_baseline_is_kiss_icp_alone_deskewing_the_raw_scans_itself(refined):
+    from leovr.data.kitti_common import read_kitti_poses
+    from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
+    from leovr.pipeline.refine import completion_config
+    from odometry.initial_pose import LidarOdometry
+
+    seq_dir, out, m = refined
+    seq = open_sequence(seq_dir)
+    alone = kiss_icp_trajectory(seq, list(range(7)), completion_config(RefineConfig(input="full")))
+    written = read_kitti_poses(out / "poses_kiss_icp_kitti.txt")
+    assert np.abs(written - alone).max() < 1e-4  # the run's baseline is KISS-ICP by itself: nothing of leovr's motion
+    assert m["trajectory"]["kiss_icp"]["align"] == "se3" and m["trajectory"]["kiss_icp"]["ate_m"] < 1.0
+    odo = LidarOdometry(seq[0].T_cam_lidar)  # the same scans without their times: KISS-ICP's deskew is what differs
+    undeskewed = np.stack([odo.register(seq[i].points) for i in range(7)])
+    assert np.abs(undeskewed[1:, :3, 3] - alone[1:, :3, 3]).max() > 0.01
+
+
 def test_refine_resumes_after_an_interruption(refined, tmp_path):
     seq_dir, out, _ = refined
     import shutil

@@ -3,8 +3,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from leovr.data.records import Frame
 from leovr.geometry import interpolate_poses, invert_T
 
 
@@ -42,3 +45,16 @@ def deskew(
     out = np.array(points, copy=True)
     out[:, :3] = xyz
     return out
+
+
+def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Frame:
+    """The frame with its scan motion-compensated to the camera time (LeoVR Sec. III-C-2): each point
+    moved by the camera motion predicted over its offset in the sweep (constant velocity, the last
+    frame-to-frame motion `motion_cam`, linearly interpolated). Unchanged without point times or motion."""
+    if f.points is None or f.point_times is None or motion_cam is None or not len(f.points):
+        return f
+    T_cl = f.T_cam_lidar
+    motion_lidar = invert_T(T_cl) @ motion_cam @ T_cl  # per frame interval, LiDAR frame
+    sweep = max(float(np.max(f.point_times)), 1e-3)
+    T_end = interpolate_poses(np.eye(4), motion_lidar, np.array(sweep / frame_dt))
+    return replace(f, points=deskew(f.points, f.point_times, np.eye(4), T_end, sweep, t_ref=0.0))

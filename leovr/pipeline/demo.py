@@ -109,9 +109,8 @@ def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
     gt = [seq[i].T_world_cam for i in indices]
     if all(T is not None for T in gt):
         tracks["ground_truth"] = np.stack([(invert_T(gt[0]) @ T)[:3, 3] for T in gt])
-    icp = json.loads((out / "refine" / "progress.json").read_text()).get("icp_poses", {})
-    if len(icp) == len(indices):
-        tracks["kiss_icp"] = np.stack([np.array(icp[str(i)]).reshape(4, 4)[:3, 3] for i in indices])
+    if (out / "refine" / "poses_kiss_icp_kitti.txt").is_file():
+        tracks["kiss_icp"] = read_kitti_poses(out / "refine" / "poses_kiss_icp_kitti.txt")[:, :3, 3]
     plot_trajectories(tracks, out / "trajectory.png")
     write_recording(out / "refine", out / "demo.rrd")
     write_text(out / "report.md", report(m, source, inp))

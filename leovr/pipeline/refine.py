@@ -3,7 +3,8 @@ frame by frame as a live system would see them; refined depth, poses, metrics an
 
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 256, the KITTI
 depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
-`depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `metrics.json` (when the sequence has ground
+`depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP alone on the same input, with
+ground-truth poses or `--compare`), `poses_mono_vo_kitti.txt` (`--compare`), `metrics.json` (when the sequence has ground
 truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
 continues from. A resumed run replays its finished frames through the front end and the window without
 rewriting their outputs, so that it ends as the uninterrupted run would: resuming saves the writing and
@@ -26,7 +27,6 @@ from leovr.config import CompleteConfig, FrameSelection, RefineConfig
 from leovr.data.io import atomic_write, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
-from leovr.data.records import Frame
 from leovr.data.run_info import png_name, read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
@@ -34,9 +34,9 @@ from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.heldout import parallax_filter
 from leovr.eval.trajectory import trajectory_metrics
-from leovr.geometry import interpolate_poses, invert_T, transform_points
+from leovr.geometry import invert_T, transform_points
 from leovr.lidar.accumulate import ScanHistory, with_history
-from leovr.lidar.deskew import deskew
+from leovr.lidar.deskew import deskew_frame
 from leovr.lidar.projection import sparse_depth
 from leovr.pipeline.completion import (
     EvalSample,
@@ -47,6 +47,7 @@ from leovr.pipeline.completion import (
     prepare_sample,
     warn_empty_input,
 )
+from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
 from leovr.threads import single_threaded_blas
 
 
@@ -73,19 +74,6 @@ def classical_source(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
         _, (iv, iu) = distance_transform_edt(hole, return_indices=True)
         depth = depth[iv, iu]
     return depth, np.log(0.2 * depth)
-
-
-def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Frame:
-    """The frame with its scan motion-compensated to the camera time (LeoVR Sec. III-C-2): each point
-    moved by the camera motion predicted over its offset in the sweep (constant velocity, the last
-    frame-to-frame motion `motion_cam`, linearly interpolated). Unchanged without point times or motion."""
-    if f.points is None or f.point_times is None or motion_cam is None or not len(f.points):
-        return f
-    T_cl = f.T_cam_lidar
-    motion_lidar = invert_T(T_cl) @ motion_cam @ T_cl  # per frame interval, LiDAR frame
-    sweep = max(float(np.max(f.point_times)), 1e-3)
-    T_end = interpolate_poses(np.eye(4), motion_lidar, np.array(sweep / frame_dt))
-    return replace(f, points=deskew(f.points, f.point_times, np.eye(4), T_end, sweep, t_ref=0.0))
 
 
 def torch_threads() -> int:
@@ -357,10 +345,15 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     atomic_write(out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
     lidar_backed = graph.lidar_backed()
     atomic_write(out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
-    baselines = {}
+    baselines: dict[str, tuple[np.ndarray, str]] = {}
     if textbook is not None:
-        baselines["mono_vo"] = np.stack(textbook.poses)
-        write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"])
+        baselines["mono_vo"] = np.stack(textbook.poses), "sim3"
+        write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"][0])
+    if has_lidar and (cfg.compare or score and first.T_world_cam is not None):
+        icp = kiss_icp_trajectory(seq, indices, ccfg, progress)
+        if icp is not None:
+            baselines["kiss_icp"] = icp, "se3"
+            write_kitti_poses(out / "poses_kiss_icp_kitti.txt", icp)
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
 
@@ -451,10 +444,11 @@ def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
                   out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
                   scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None,
-                  baselines: dict[str, np.ndarray] | None = None) -> dict:
+                  baselines: dict[str, tuple[np.ndarray, str]] | None = None) -> dict:
     """Poses in KITTI and TUM form, timing, and depth / trajectory metrics. Depth is scored from the
     arrays the run produced (`scored`); frames finished before a resume are read back from their PNGs.
-    `baselines` (name -> poses of the same frames, monocular) are scored after a Sim(3) alignment."""
+    `baselines` (name -> poses of the same frames and their alignment, "sim3" for a monocular one) are
+    scored beside leovr's trajectory."""
     poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
     stamps = seq.timestamps()[indices]
     write_kitti_poses(out / "poses_kitti.txt", poses)
@@ -499,10 +493,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         if state.poses_no_loop and all(i in state.poses_no_loop for i in indices):
             before = np.stack([np.array(state.poses_no_loop[i]).reshape(4, 4) for i in indices])
             metrics["trajectory"]["leovr_no_loop"] = trajectory_metrics(before, ref, align)
-        if len(state.icp_poses) == len(indices):
-            icp = np.stack([np.array(state.icp_poses[i]).reshape(4, 4) for i in indices])
-            metrics["trajectory"]["kiss_icp"] = trajectory_metrics(icp, ref, align)
-        for name, est in (baselines or {}).items():
-            metrics["trajectory"][name] = trajectory_metrics(est, ref, "sim3")
+        for name, (est, how) in (baselines or {}).items():
+            metrics["trajectory"][name] = trajectory_metrics(est, ref, how)
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return metrics

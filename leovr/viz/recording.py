@@ -167,9 +167,9 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
     strips = {}
     if poses is not None:
         strips["leovr"] = poses[: len(indices), :3, 3]
-    icp = progress.get("icp_poses", {})
-    if icp and all(str(i) in icp for i in indices):
-        strips["kiss_icp"] = np.stack([np.array(icp[str(i)]).reshape(4, 4)[:3, 3] for i in indices])
+    icp = run / "poses_kiss_icp_kitti.txt" if run is not None else None
+    if icp is not None and icp.is_file() and len(baseline := read_kitti_poses(icp)) >= len(indices):
+        strips["kiss_icp"] = baseline[: len(indices), :3, 3]  # KISS-ICP alone on the run's input
     if run is not None and poses is not None and (run / "loops.json").is_file():
         at = {i: n for n, i in enumerate(indices)}
         pairs = [(at[r["frame"]], at[r["candidate"]]) for r in _json_field(run / "loops.json", "loops")
