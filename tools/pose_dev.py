@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Development check of leovr's poses against KISS-ICP in the same run, on development data only
 (simulator validation sequences, seeds 2000-2002; never the test seeds or the clips the benchmark
-reports). ATE (SE(3) alignment with LiDAR: metric) of leovr and of the KISS-ICP front end alone.
+reports). ATE (SE(3) alignment with LiDAR: metric) of leovr and of KISS-ICP alone (the `kiss_icp` baseline).
 
     .venv/bin/python tools/pose_dev.py [--input full] [--frames N] [--cfg F=V ...] -- SEQ [SEQ ...]
 """
