@@ -156,4 +156,3 @@ def with_history(sparse: np.ndarray, points_cam: np.ndarray, K: np.ndarray, cell
     out = np.array(sparse, np.float32)
     out[pv[pick], pu[pick]] = z[pick]
     return out
-

@@ -114,7 +114,7 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
         progress = read_json_object(run / "progress.json") if (run / "progress.json").is_file() else {}
         indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
     else:
-        seq, poses, progress = open_sequence(target), None, {}
+        seq, poses = open_sequence(target), None
         indices = list(range(len(seq)))
     if max_frames is not None:
         indices = indices[:max_frames]
@@ -123,7 +123,7 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".part")
     try:
-        strips = _record(tmp, run, seq, poses, progress, indices)
+        strips = _record(tmp, run, seq, poses, indices)
         tmp.replace(out)
     finally:
         tmp.unlink(missing_ok=True)  # a failed recording leaves nothing behind
@@ -149,20 +149,19 @@ def _json_field(path: Path, key: str):
     return doc[key]
 
 
-def _record(tmp: Path, run: Path | None, seq, poses: np.ndarray | None, progress: dict, indices: list[int]) -> dict:
+def _record(tmp: Path, run: Path | None, seq, poses: np.ndarray | None, indices: list[int]) -> dict:
     """Log everything into the recording file `tmp`; returns the trajectory strips logged."""
     rec = rr.RecordingStream("leovr")
     rec.save(tmp, default_blueprint=blueprint(poses[: len(indices), :3, 3] if poses is not None else None))
     try:
-        strips = _log_all(rec, run, seq, poses, progress, indices)
+        strips = _log_all(rec, run, seq, poses, indices)
         rec.flush()
     finally:
         rec.disconnect()
     return strips
 
 
-def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray | None, progress: dict,
-             indices: list[int]) -> dict:
+def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray | None, indices: list[int]) -> dict:
     rec.log("world", rr.ViewCoordinates.RDF, static=True)  # the first camera's axes: x right, y down, z forward
     strips = {}
     if poses is not None:
