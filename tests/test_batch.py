@@ -187,5 +187,9 @@ def test_bench_batch_contract(tmp_path):
     assert doc["sequences"] == 2 and doc["frames"] == 6 and set(doc["wall_s"]) == {"1", "2"}
     assert doc["speedup"] == pytest.approx(doc["wall_s"]["1"] / doc["wall_s"]["2"], rel=1e-2)
     assert doc["frames_per_core_hour"] == pytest.approx(6 * 3600 / (2 * doc["wall_s"]["2"]), rel=1e-2)
+    t1, t2 = doc["task_s_sum"]["1"], doc["task_s_sum"]["2"]
+    assert 0 < t1 < doc["wall_s"]["1"] and 0 < t2 / 2 < doc["wall_s"]["2"]  # Ray's start and stop cost something
+    assert doc["ceiling_speedup"] == pytest.approx(2 * t1 / t2, rel=1e-2)
+    assert doc["fixed_s"]["2"] == pytest.approx(doc["wall_s"]["2"] - t2 / 2, abs=0.02)
     for w in ("workers1", "workers2"):
         assert _rows(tmp_path / "batch_work" / w).keys() == {"drive0", "drive1"}

@@ -49,6 +49,12 @@ def run_batch_bench(out: Path, cfg: LeovrConfig, progress: bool = True) -> dict:
         "wall_s": wall,
         "task_s_sum": task_s,  # the tasks' own time, summed: above wall x workers means tasks slowed each other
         "speedup": round(speedup, 3),
+        # what the machine allowed in this run: two tasks at once each ran `task_slowdown` x slower than
+        # alone (both CPU-bound, one thread each), so a scheduler with no cost of its own would have reached
+        # `ceiling_speedup`; `fixed_s` is the rest of each wall time (Ray's start and stop, idle workers)
+        "task_slowdown": round(task_s["2"] / task_s["1"], 3),
+        "ceiling_speedup": round(2.0 * task_s["1"] / task_s["2"], 3),
+        "fixed_s": {"1": round(wall["1"] - task_s["1"], 2), "2": round(wall["2"] - task_s["2"] / 2, 2)},
         "frames_per_core_hour": round(frames * 3600.0 / (2 * wall["2"]), 1),  # 2 workers, one core each
         "settings": {"lidar": bcfg.lidar, "frames_per_sequence": bcfg.frames, "seed": bcfg.seed,
                      "cpus_per_task": 1, "refine": "defaults (configs/default.yaml)"},
