@@ -134,9 +134,11 @@ class RefineConfig(FrameSelection):
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
     grid_cols: int = Field(14, ge=2)
     lm_iterations: int = Field(3, ge=1)  # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
-    # LM stops raising its damping at this lambda: a step that does not lower the error is retried at most
-    # 4 times (from 1e-5), not 11; on validation drives graph p95 610 -> 410 ms, same MAE and ATE (issue 17)
-    lm_lambda_upper_bound: float = Field(0.01, gt=0)
+    # LM stops raising its damping at this lambda: a step that does not lower the error is retried once
+    # (from 1e-5), not 11 times. The frames where LM gives up are the graph's slowest, and on the validation
+    # drives no retry above 1e-4 changed a pose or a depth (issue 17: 0.01 gave the same MAE and ATE to 1 mm;
+    # camera only, graph median 325-555 -> 200-239 ms, ATE 0.060 -> 0.061 m; docs/benchmarks.md)
+    lm_lambda_upper_bound: float = Field(1e-4, gt=0)
     # a frame leaving the window: its observations of landmarks that stay become factors on those landmarks alone
     # (conditioned on its pose); marginalised, they tied all those landmarks in one dense factor (issue 17)
     condition_leaving_observations: bool = True
