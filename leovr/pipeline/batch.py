@@ -179,7 +179,7 @@ def _finish(out: Path, rows: list[dict] | None, stop_ray: bool) -> None:
         try:
             if rows is not None:
                 write_summary(out, rows, plot=True)
-        except BaseException as exc:  # re-raised below, in the caller's thread
+        except BaseException as exc:  # noqa: BLE001  (re-raised below, in the caller's thread)
             failure.append(exc)
 
     writer = threading.Thread(target=_write, name="batch-summary")
