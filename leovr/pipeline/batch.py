@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -173,26 +173,14 @@ def _finish(out: Path, rows: list[dict] | None, stop_ray: bool) -> None:
     """Write the final summary with its plot (when `rows`) while Ray shuts down (about 1.4 s spent
     waiting on its processes here), so that the two overlap instead of adding up; an error writing it
     is raised here."""
-    failure: list[BaseException] = []
-
-    def _write() -> None:
-        try:
-            if rows is not None:
-                write_summary(out, rows, plot=True)
-        except BaseException as exc:  # noqa: BLE001  (re-raised below, in the caller's thread)
-            failure.append(exc)
-
-    writer = threading.Thread(target=_write, name="batch-summary")
-    writer.start()
-    try:
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="batch-summary") as pool:
+        summary = pool.submit(write_summary, out, rows, plot=True) if rows is not None else None
         if stop_ray:
             import ray
 
             ray.shutdown()
-    finally:
-        writer.join()
-    if failure:
-        raise failure[0]
+    if summary is not None:
+        summary.result()
 
 
 def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], settings: dict[str, dict],
