@@ -45,6 +45,32 @@ def test_depth_edges_take_the_nearest_return_instead_of_a_blend():
     assert len(np.unique(np.round(interpolated_fill(sparse, edge_ratio=np.inf), 3))) > 2  # blends without the test
 
 
+def _two_layer_scene(boundary: int, h: int = 60, w: int = 80) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A near surface (5 m, red) above row `boundary`, background (20 m, blue) below; rings every 20 rows."""
+    gt = np.where(np.arange(h)[:, None] < boundary, 5.0, 20.0).repeat(w, 1).astype(np.float32)
+    img = np.zeros((h, w, 3), np.int64)
+    img[:boundary], img[boundary:] = (200, 40, 40), (60, 60, 200)
+    img = np.clip(img + np.random.default_rng(0).integers(-10, 10, img.shape), 0, 255).astype(np.uint8)
+    sparse = np.zeros_like(gt)
+    sparse[10::20, 1::2] = gt[10::20, 1::2]
+    return gt, img, sparse
+
+
+@pytest.mark.parametrize("boundary", [37, 43])
+def test_the_image_picks_the_side_of_a_depth_edge_between_rings(boundary):
+    gt, img, sparse = _two_layer_scene(boundary)
+    gap = slice(31, 50)  # between the ring on the near surface (row 30) and the one on the background (row 50)
+    err_image = np.abs(interpolated_fill(sparse, image=img) - gt)[gap].mean()
+    err_nearest = np.abs(interpolated_fill(sparse) - gt)[gap].mean()  # splits the gap at its middle, row 40
+    assert err_image < 0.8 * err_nearest
+    if boundary == 43:
+        assert err_image < 0.05  # the colour edge is the depth edge: (nearly) every pixel on its side
+    # a float image in [0, 1] is the same image
+    np.testing.assert_array_equal(interpolated_fill(sparse, image=img / 255.0), interpolated_fill(sparse, image=img))
+    with pytest.raises(ValueError, match="image of 80x59 px"):
+        interpolated_fill(sparse, image=img[:-1])
+
+
 def test_interpolation_degenerate_inputs():
     assert not interpolated_fill(np.zeros((10, 12), np.float32)).any()
     line = np.zeros((10, 12), np.float32)
@@ -59,11 +85,12 @@ def test_untrained_residual_generator_returns_its_prior(mode):
     img = rng.integers(0, 255, (96, 160, 3), dtype=np.uint8)
     sparse = np.where(rng.random((96, 160)) < 0.05, rng.uniform(3, 60, (96, 160)), 0).astype(np.float32)
     model = DepthGenerator(GeneratorConfig(output=mode, channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))).eval()
-    depth, log_sigma = predict(model, img, sparse)
-    np.testing.assert_allclose(depth, interpolated_fill(sparse), rtol=1e-5)
+    depth, log_sigma = predict(model, img, sparse)  # the prior takes the side of depth edges from the image
+    np.testing.assert_allclose(depth, interpolated_fill(sparse, image=img), rtol=1e-5)
+    np.testing.assert_allclose(predict(model, img, sparse, image_edges=False)[0], interpolated_fill(sparse), rtol=1e-5)
     # run at another focal length: the residual is resized and the prior is built at full resolution
     full, _ = predict_at_focal(model, img, sparse, focal_px=300.0, model_focal_px=150.0)
-    np.testing.assert_allclose(full, interpolated_fill(sparse), rtol=1e-5)
+    np.testing.assert_allclose(full, interpolated_fill(sparse, image=img), rtol=1e-5)
     assert depth.shape == log_sigma.shape == sparse.shape
 
 

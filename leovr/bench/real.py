@@ -49,7 +49,8 @@ def interp_scores(seq, rcfg: RefineConfig, frames: dict[int, FrameScore]) -> Non
     """Add the classical prior alone (`interp`) to each frame's scores, on the same pixels."""
     ccfg = completion_config(rcfg)
     for i, fs in frames.items():
-        fs.add("interp", complete_depth(frame_sample(seq, i, ccfg).sparse, "interp"))
+        s = frame_sample(seq, i, ccfg)
+        fs.add("interp", complete_depth(s.sparse, "interp", s.frame.image if ccfg.prior_edges == "image" else None))
 
 
 def pooled(frames: dict[int, FrameScore], indices: list[int], bins: list[float]) -> dict:

@@ -85,17 +85,18 @@ def ipbasic(sparse: np.ndarray, cfg: IPBasicConfig | None = None) -> np.ndarray:
     return d
 
 
-def _interp(sparse: np.ndarray) -> np.ndarray:
+def _interp(sparse: np.ndarray, image: np.ndarray | None = None) -> np.ndarray:
     from leovr.depth.prior import interpolated_fill  # the generator's prior, scored on its own too
 
-    return interpolated_fill(sparse)
+    return interpolated_fill(sparse, image=image)
 
 
 METHODS = {"nearest": nearest_fill, "ipbasic": ipbasic, "interp": _interp}
 
 
-def complete_depth(sparse: np.ndarray, method: str) -> np.ndarray:
-    """Dense depth (metres) from a sparse map with a classical method."""
+def complete_depth(sparse: np.ndarray, method: str, image: np.ndarray | None = None) -> np.ndarray:
+    """Dense depth (metres) from a sparse map with a classical method; `image` (the frame) guides only
+    `interp` at depth edges (leovr.depth.prior)."""
     if method not in METHODS:
         raise ValueError(f"unknown method '{method}' (choose {', '.join(METHODS)})")
-    return METHODS[method](sparse)
+    return _interp(sparse, image) if method == "interp" else METHODS[method](sparse)

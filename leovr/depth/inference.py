@@ -51,22 +51,25 @@ def _pad32(image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None
 
 
 def forward_padded(model: torch.nn.Module, image: torch.Tensor, sparse: torch.Tensor,
-                   prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                   prior: torch.Tensor | None = None, image_edges: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Run the network on B x 3 x H x W images and B x 1 x H x W sparse depth of any size: edge-pad to
     a multiple of 32 (the encoder's total stride), crop the outputs back. A residual-mode network gets
-    the classical prior of the unpadded input (computed when not given)."""
+    the classical prior of the unpadded input (computed when not given; `image_edges`: the image picks
+    the side of its depth edges, as the shipped pipeline does; the trainers build it without)."""
     h, w = sparse.shape[-2:]
     if getattr(model, "uses_prior", False) and prior is None:
-        prior = prior_for(sparse)
+        prior = prior_for(sparse, image if image_edges else None)
     image, sparse_p, prior_p = _pad32(image, sparse, prior)
     depth, log_sigma = model(image, sparse_p, prior_p)
     return depth[..., :h, :w], log_sigma[..., :h, :w]
 
 
 @torch.no_grad()
-def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray,
+            image_edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Depth (metres) and log-sigma for a batch (B x H x W x 3 uint8 or H x W x 3; sparse B x H x W or
-    H x W, metres, 0 = none). Any size: inputs are edge-padded to a multiple of 32 and cropped back."""
+    H x W, metres, 0 = none). Any size: inputs are edge-padded to a multiple of 32 and cropped back.
+    `image_edges`: the prior takes the side of each depth edge from the image (leovr.depth.prior)."""
     single = images.ndim == 3
     if single:
         images, sparse = images[None], sparse[None]
@@ -76,7 +79,7 @@ def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray) -> tu
         raise ValueError("images must be B x H x W x 3 (RGB)")
     img = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255.0
     sp = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[:, None]
-    depth, log_sigma = forward_padded(model, img, sp)
+    depth, log_sigma = forward_padded(model, img, sp, image_edges=image_edges)
     d, s = depth[:, 0].numpy(), log_sigma[:, 0].numpy()
     return (d[0], s[0]) if single else (d, s)
 
@@ -95,7 +98,7 @@ def rescale_sparse(sparse: np.ndarray, scale: float, shape: tuple[int, int]) -> 
 
 
 def predict_at_focal(model: DepthGenerator, image: np.ndarray, sparse: np.ndarray, focal_px: float,
-                     model_focal_px: float | None) -> tuple[np.ndarray, np.ndarray]:
+                     model_focal_px: float | None, image_edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Depth and log-sigma of one frame, run at the focal length the model was trained with.
 
     A network trained on one camera learns object sizes in pixels; resampling a frame from `focal_px`
@@ -106,7 +109,7 @@ def predict_at_focal(model: DepthGenerator, image: np.ndarray, sparse: np.ndarra
         image = np.repeat(image[..., None], 3, axis=2)
     scale = 1.0 if model_focal_px is None else model_focal_px / focal_px
     if abs(scale - 1.0) < 0.05:
-        return predict(model, image, sparse)
+        return predict(model, image, sparse, image_edges)
     import cv2
 
     h, w = sparse.shape
@@ -114,26 +117,28 @@ def predict_at_focal(model: DepthGenerator, image: np.ndarray, sparse: np.ndarra
     small = cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
     small_sparse = rescale_sparse(sparse, scale, shape)
     if not model.uses_prior:
-        depth, log_sigma = predict(model, small, small_sparse)
+        depth, log_sigma = predict(model, small, small_sparse, image_edges)
         back = [cv2.resize(x, (w, h), interpolation=cv2.INTER_LINEAR) for x in (depth, log_sigma)]
         return back[0], back[1]
-    return predict_parts_full(model, small, small_sparse, sparse)
+    return predict_parts_full(model, small, small_sparse, sparse, image if image_edges else None)
 
 
 @torch.no_grad()
 def predict_parts_full(model: DepthGenerator, small_image: np.ndarray, small_sparse: np.ndarray,
-                       sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                       sparse: np.ndarray, image: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A residual-mode network run on the resampled frame, its residual, fusion uncertainty and sigma
     resized to the full frame and combined there with the full-resolution prior: the prior keeps every
-    measured return and its pixel-exact interpolation; the network adds its correction."""
+    measured return and its pixel-exact interpolation; the network adds its correction. With the
+    full-resolution `image`, both priors take the side of depth edges from the image."""
     img = torch.from_numpy(np.ascontiguousarray(small_image)).permute(2, 0, 1)[None].float() / 255.0
     sp = torch.from_numpy(np.ascontiguousarray(small_sparse, np.float32))[None, None]
-    image_p, sparse_p, prior_p = _pad32(img, sp, prior_for(sp))
+    image_p, sparse_p, prior_p = _pad32(img, sp, prior_for(sp, img if image is not None else None))
     hs, ws = small_sparse.shape
     parts = {k: v[..., :hs, :ws] for k, v in model.parts(image_p, sparse_p, prior_p).items()}
     h, w = sparse.shape
     full = {k: F.interpolate(v, size=(h, w), mode="bilinear", align_corners=False) for k, v in parts.items()}
     sp_full = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[None, None]
-    prior_full = prior_for(sp_full)
+    img_full = None if image is None else torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
+    prior_full = prior_for(sp_full, img_full)
     depth = model.combine(full, prior_full, sp_full)
     return depth[0, 0].numpy(), full["log_sigma"][0, 0].numpy()

@@ -197,12 +197,16 @@ class DepthGenerator(nn.Module):
         return self.combine(parts, prior, sparse), parts["log_sigma"]
 
 
-def prior_for(sparse: torch.Tensor) -> torch.Tensor:
+def prior_for(sparse: torch.Tensor, image: torch.Tensor | None = None) -> torch.Tensor:
     """The classical prior (leovr.depth.prior.interpolated_fill) of a B x 1 x H x W sparse batch; a map
-    without any return (a sequence without LiDAR) gets a flat DEPTH_NORM_M, which the residual reshapes."""
+    without any return (a sequence without LiDAR) gets a flat DEPTH_NORM_M, which the residual reshapes.
+    `image` (B x 3 x H x W in [0, 1]) picks the side of depth edges; without it, the nearest return."""
     from leovr.depth.prior import interpolated_fill_batch
 
-    filled = torch.from_numpy(interpolated_fill_batch(sparse.detach().cpu().numpy().astype(np.float32)))
+    images = None
+    if image is not None:
+        images = (image.detach().cpu().permute(0, 2, 3, 1).numpy() * 255.0).round().clip(0, 255).astype(np.uint8)
+    filled = torch.from_numpy(interpolated_fill_batch(sparse.detach().cpu().numpy().astype(np.float32), images))
     filled = filled.to(sparse.device, sparse.dtype)
     empty = ~(sparse > 0).flatten(1).any(1)
     if bool(empty.any()):

@@ -78,7 +78,8 @@ def generator_method(cfg: CompleteConfig):
 
     def run(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
         f = sample.frame
-        return predict_at_focal(model, f.image, sample.sparse, float(f.K[0, 0]), cfg.generator_focal_px)
+        return predict_at_focal(model, f.image, sample.sparse, float(f.K[0, 0]), cfg.generator_focal_px,
+                                cfg.prior_edges == "image")
 
     return run
 
@@ -86,7 +87,8 @@ def generator_method(cfg: CompleteConfig):
 def depth_method(cfg: CompleteConfig):
     """A function EvalSample -> dense depth for the configured method."""
     if cfg.method != "generator":
-        return lambda sample: complete_depth(sample.sparse, cfg.method)
+        image_edges = cfg.method == "interp" and cfg.prior_edges == "image"
+        return lambda sample: complete_depth(sample.sparse, cfg.method, sample.frame.image if image_edges else None)
     run = generator_method(cfg)
     return lambda sample: run(sample)[0]
 
