@@ -18,7 +18,7 @@ import time
 import numpy as np
 from scipy.spatial import Delaunay
 
-import leovr.depth.prior as prior
+from leovr.depth import prior
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.depth.classical import nearest_fill
