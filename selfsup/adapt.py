@@ -89,11 +89,12 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
         small_sparse = sp.sparse if (hs, ws) == shape else rescale_sparse(sp.sparse, scale, (hs, ws))
         s = torch.from_numpy(small_sparse)[None]
         grid = np.stack([(cols + 0.5) / w * 2 - 1, (rows + 0.5) / h * 2 - 1], 1).astype(np.float32)
-        splits.append(SplitSample(s, prior_for(s[None])[0], torch.from_numpy(grid),
+        # the priors take the side of depth edges from the image, as at inference (leovr.depth.prior)
+        splits.append(SplitSample(s, prior_for(s[None], img[None])[0], torch.from_numpy(grid),
                                   torch.from_numpy(sp.target[rows, cols]),
-                                  torch.from_numpy(interpolated_at(sp.sparse, rows, cols)),
+                                  torch.from_numpy(interpolated_at(sp.sparse, rows, cols, image=image)),
                                   torch.from_numpy(sp.sparse[rows, cols])))
-    return AdaptFrame(img, splits, whole_small, prior_for(whole_small[None])[0])
+    return AdaptFrame(img, splits, whole_small, prior_for(whole_small[None], img[None])[0])
 
 
 def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) -> list[AdaptFrame]:
