@@ -28,7 +28,7 @@ EDGE_RATIO = 1.5
 
 # The edge-aware interpolation's settings (neighbours, edge weight of the geodesic distance, weight decay),
 # chosen on the KITTI raw clip's development frames 0-37 (tools/prior_edge_side.py; never the test frames
-# 38-47): edge-triangle MAE 5.18 -> 4.17 m (VLP-16-like), 4.44 -> 3.35 m (Mid-40-like).
+# 38-47): edge-triangle MAE 5.18 -> 4.02 m (VLP-16-like), 4.44 -> 3.24 m (Mid-40-like).
 EDGE_AWARE_K = 64
 EDGE_AWARE_LAMBDA = 999.0
 EDGE_AWARE_SIGMA = 0.05
