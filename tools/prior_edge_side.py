@@ -61,7 +61,7 @@ def simulator(model, step: int) -> dict:
             if model is not None:
                 preds["generator"] = predict(model, f.image, sp, image_edges=False)[0]
                 preds["generator_image"] = predict(model, f.image, sp)[0]
-            add(err, count, {"all": m}, {k: v[m] for k, v in preds.items()}, f.depth[m])
+            add(err, count, {"all": np.ones(int(m.sum()), bool)}, {k: v[m] for k, v in preds.items()}, f.depth[m])
     return {lidar: mae_table(*ec) for lidar, ec in out.items()}
 
 
