@@ -27,7 +27,7 @@ from leovr.depth.classical import nearest_fill
 EDGE_RATIO = 1.5
 
 # The edge-aware interpolation's settings (neighbours, edge weight of the geodesic distance, weight decay),
-# chosen on the KITTI raw clip's development frames 0-37 (tools/prior_edge_side.py; never the test frames
+# chosen on the KITTI raw clip's development frames 0-37 (tools/prior_error_split.py; never the test frames
 # 38-47): edge-triangle MAE 5.18 -> 4.02 m (VLP-16-like), 4.44 -> 3.24 m (Mid-40-like).
 EDGE_AWARE_K = 64
 EDGE_AWARE_LAMBDA = 999.0
@@ -106,10 +106,10 @@ def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                 guide = guide[np.isfinite(guide)]
                 zc = z[simplex[edge]]
                 cost = np.abs(np.log(zc) - guide[:, None])
-                pick = cost.argmin(1)
+                best = zc[np.arange(len(edge)), cost.argmin(1)]
                 # the nearest return stays where it is at least as near the guide as the best corner
-                switch = cost[np.arange(len(edge)), pick] < np.abs(np.log(out[edge]) - guide)
-                out[edge[switch]] = zc[np.arange(len(edge)), pick][switch]
+                switch = cost.min(1) < np.abs(np.log(out[edge]) - guide)
+                out[edge[switch]] = best[switch]
     measured = valid[rows, cols]
     out[measured] = sparse[rows[measured], cols[measured]]
     return out

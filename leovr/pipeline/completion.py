@@ -87,7 +87,7 @@ def generator_method(cfg: CompleteConfig):
 def depth_method(cfg: CompleteConfig):
     """A function EvalSample -> dense depth for the configured method."""
     if cfg.method != "generator":
-        image_edges = cfg.method == "interp" and cfg.prior_edges == "image"
+        image_edges = cfg.prior_edges == "image"  # only `interp` reads the image
         return lambda sample: complete_depth(sample.sparse, cfg.method, sample.frame.image if image_edges else None)
     run = generator_method(cfg)
     return lambda sample: run(sample)[0]
