@@ -274,6 +274,8 @@ class TrainConfig(_Model):
     blocks: list[int] = [3, 4, 6, 3]
     max_frames: int | None = None  # cap on training frames (quick runs)
     init_checkpoint: str | None = None  # start from these weights (fine-tuning); the network must match
+    # the residual networks' classical prior at depth edges: the image's side (as at inference) or the nearest return
+    prior_edges: Literal["image", "nearest"] = "image"
     seed: int = 0
 
 

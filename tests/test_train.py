@@ -49,3 +49,22 @@ def test_fine_tuning_starts_from_init_checkpoint_and_rejects_other_networks(tmp_
     other = TrainConfig(channels=[8, 8, 16, 16, 32], init_checkpoint=str(tmp_path / "a" / "best.pt"), **small)
     with pytest.raises(DataError, match="init checkpoint"):
         train_supervised(other, tmp_path / "c", progress=False)
+
+
+def test_training_prior_takes_the_image_side_of_depth_edges_like_inference(tmp_path):
+    """A residual network is trained over the prior it gets at inference: the image picks each depth
+    edge's side (`prior_edges: image`), and `prior_edges: nearest` gives the nearest-return prior."""
+    import numpy as np
+
+    from leovr.depth.dataset import DepthSamples, split_sequences
+    from leovr.depth.prior import interpolated_fill
+
+    root = make_dataset(Recipe("t", {"train": 1}, ("vlp16",), ("day",), 1), tmp_path / "data", progress=False)
+    seqs = split_sequences(root, "train")
+    with_image = DepthSamples(seqs, random_input=False, with_prior=True)[0]
+    nearest = DepthSamples(seqs, random_input=False, with_prior=True, image_edges=False)[0]
+    sparse = with_image["sparse"][0].numpy()
+    image = (with_image["image"].permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
+    np.testing.assert_allclose(with_image["prior"][0].numpy(), interpolated_fill(sparse, image=image), rtol=1e-6)
+    np.testing.assert_allclose(nearest["prior"][0].numpy(), interpolated_fill(sparse), rtol=1e-6)
+    assert (with_image["prior"] != nearest["prior"]).sum() > 100  # the simulated street has depth edges

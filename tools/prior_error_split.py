@@ -9,9 +9,10 @@ nearest return at depth edges (`prior`) and with the image's side (`prior_image`
 shipped generator over either (`generator`, `generator_image`) and the best corner of the triangle (an
 oracle: what a perfect foreground / background choice would give).
 `--sim`: the simulator's validation split instead (dense truth, each sequence's own scan, all pixels).
-`--set K=.. LAMBDA=.. SIGMA=..` overrides the edge-aware interpolation's settings.
+`--set K=.. LAMBDA=.. SIGMA=..` overrides the edge-aware interpolation's settings; `--checkpoint` scores
+other generator weights.
 
-    .venv/bin/python tools/prior_error_split.py [--input vlp16] [--step 3] [--sim] [--set K=64 ...]
+    .venv/bin/python tools/prior_error_split.py [--input vlp16] [--step 3] [--sim] [--set K=64 ...] [--checkpoint PT]
 """
 
 from __future__ import annotations
@@ -79,13 +80,14 @@ def main() -> None:
     ap.add_argument("--step", type=int, default=3)
     ap.add_argument("--dev-end", type=int, default=38)
     ap.add_argument("--sim", action="store_true", help="the simulator's validation split (every --step-th frame)")
+    ap.add_argument("--checkpoint", default=None, help="generator weights (default: the shipped checkpoint)")
     ap.add_argument("--set", nargs="*", default=[], help="K=, LAMBDA=, SIGMA= of the edge-aware interpolation")
     a = ap.parse_args()
     for kv in a.set:
         k, v = kv.split("=")
         name = f"EDGE_AWARE_{k.upper()}"
         setattr(prior, name, type(getattr(prior, name))(float(v)))
-    model = for_inference(load_generator(shipped_checkpoint()))
+    model = for_inference(load_generator(a.checkpoint or shipped_checkpoint()))
     if a.sim:
         print(json.dumps({"data": f"simulator validation split, every {a.step}th frame", "set": a.set,
                           "groups": simulator(model, a.step)}, indent=1))

@@ -44,7 +44,8 @@ class DepthSamples(Dataset):
     """
 
     def __init__(self, sequences: list[Path], ratio: tuple[float, float] = (0.005, 0.30), native_prob: float = 0.5,
-                 max_frames: int | None = None, seed: int = 0, random_input: bool = True, with_prior: bool = False) -> None:
+                 max_frames: int | None = None, seed: int = 0, random_input: bool = True, with_prior: bool = False,
+                 image_edges: bool = True) -> None:
         self.seqs = [open_sequence(p) for p in sequences]
         self.index = [(k, i) for k, s in enumerate(self.seqs) for i in range(len(s))]
         if max_frames is not None and len(self.index) > max_frames:
@@ -53,6 +54,7 @@ class DepthSamples(Dataset):
         self.ratio, self.native_prob, self.seed = ratio, native_prob, seed
         self.random_input = random_input
         self.with_prior = with_prior  # add the classical prior (residual-mode networks)
+        self.image_edges = image_edges  # the prior takes the image's side of depth edges (leovr.depth.prior)
         self.epoch = 0
 
     def __len__(self) -> int:
@@ -77,5 +79,5 @@ class DepthSamples(Dataset):
             "gt": torch.from_numpy(gt)[None],
         }
         if self.with_prior:
-            out["prior"] = prior_for(out["sparse"][None])[0]
+            out["prior"] = prior_for(out["sparse"][None], out["image"][None] if self.image_edges else None)[0]
         return out

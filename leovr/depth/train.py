@@ -111,11 +111,11 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     root = Path(cfg.dataset) if cfg.dataset else default_root() / cfg.recipe
-    prior = cfg.output != "absolute"
+    prior, image_edges = cfg.output != "absolute", cfg.prior_edges == "image"
     train_set = DepthSamples(split_sequences(root, "train"), (cfg.ratio_min, cfg.ratio_max), cfg.native_prob,
-                             cfg.max_frames, cfg.seed, with_prior=prior)
+                             cfg.max_frames, cfg.seed, with_prior=prior, image_edges=image_edges)
     val_set = DepthSamples(split_sequences(root, "val"), max_frames=max(8, (cfg.max_frames or 64) // 4),
-                           seed=cfg.seed + 1, random_input=False, with_prior=prior)
+                           seed=cfg.seed + 1, random_input=False, with_prior=prior, image_edges=image_edges)
     gen = torch.Generator().manual_seed(cfg.seed)
     train_loader = DataLoader(train_set, cfg.batch_size, shuffle=True, generator=gen, drop_last=len(train_set) > cfg.batch_size)
     val_loader = DataLoader(val_set, cfg.batch_size)
