@@ -71,6 +71,23 @@ def test_the_image_picks_the_side_of_a_depth_edge_between_rings(boundary):
         interpolated_fill(sparse, image=img[:-1])
 
 
+def test_the_image_side_holds_for_inputs_denser_than_the_interpolator_takes():
+    """OpenCV's edge-aware interpolator asserts on 32767 matches or more; a denser input (a random
+    30 % of a 448 x 256 map in training, a dense scan) guides with an evenly strided subset."""
+    h, w, boundary = 256, 448, 131
+    gt = np.where(np.arange(h)[:, None] < boundary, 5.0, 20.0).repeat(w, 1).astype(np.float32)
+    img = np.zeros((h, w, 3), np.uint8)
+    img[:boundary], img[boundary:] = (200, 40, 40), (60, 60, 200)
+    sparse = np.zeros_like(gt)
+    sparse[::2] = gt[::2]  # every second row: 57,344 returns
+    sparse[120:140] = 0.0  # a gap around the depth edge
+    sparse[128] = gt[128]  # one ring inside it
+    gap = slice(129, 140)
+    err_image = np.abs(interpolated_fill(sparse, image=img) - gt)[gap].mean()
+    err_nearest = np.abs(interpolated_fill(sparse) - gt)[gap].mean()
+    assert err_image < 0.5 * err_nearest
+
+
 def test_interpolation_degenerate_inputs():
     assert not interpolated_fill(np.zeros((10, 12), np.float32)).any()
     line = np.zeros((10, 12), np.float32)

@@ -36,7 +36,8 @@ def main() -> None:
         "nearest": lambda img, sp: nearest_fill(sp),
         "ipbasic": lambda img, sp: ipbasic(sp),
         "ipbasic_without_final_fill": lambda img, sp: ipbasic(sp, IPBasicConfig(fill_remaining=False)),
-        "interp": lambda img, sp: interpolated_fill(sp),  # the residual generators' classical prior alone
+        "interp": lambda img, sp: interpolated_fill(sp),  # the classical prior, nearest return at depth edges
+        "interp_image": lambda img, sp: interpolated_fill(sp, image=img),  # the image's side (the generator's prior)
         "generator": lambda img, sp: predict(model, img, sp)[0],
     }
     err = {m: 0.0 for m in methods}

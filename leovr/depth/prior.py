@@ -33,6 +33,7 @@ EDGE_AWARE_K = 64
 EDGE_AWARE_LAMBDA = 999.0
 EDGE_AWARE_SIGMA = 0.05
 MIN_EDGE_AWARE_RETURNS = 16  # fewer returns than this: the nearest return (the fit needs neighbours)
+MAX_EDGE_AWARE_RETURNS = 32000  # OpenCV's interpolator takes fewer than 32767 matches: denser inputs are strided
 
 
 def _uint8_image(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -51,6 +52,9 @@ def edge_aware_log_depth(sparse: np.ndarray, image: np.ndarray) -> np.ndarray:
     import cv2
 
     v, u = np.nonzero(sparse > 0)
+    if len(u) > MAX_EDGE_AWARE_RETURNS:  # an evenly strided subset guides the side choice just as well
+        keep = np.linspace(0, len(u) - 1, MAX_EDGE_AWARE_RETURNS).astype(np.int64)
+        v, u = v[keep], u[keep]
     pts = np.ascontiguousarray(np.stack([u, v], 1), dtype=np.float32)
     # the value rides on the horizontal displacement of a "match" (x5: the scale the settings were chosen at)
     shift = np.zeros_like(pts)
