@@ -16,7 +16,11 @@ steps are those of one process) and validates on
 its share of the validation frames; the sums are added over processes so that every process takes the
 same early-stopping decision. Process 0 writes the files.
 
-Outputs in OUT: `generator.pt` (best validation; `leovr refine/complete --checkpoint` take it),
+After training, the best epoch's weights get a blend (GeneratorConfig.blend): the weight of their log
+depth against their prior's, the one of 1, 0.75, ..., 0 with the lowest MAE at the validation frames'
+hidden returns. Where the network does not beat its prior on the user's data, the prior carries more.
+
+Outputs in OUT: `generator.pt` (best validation, with its blend; `leovr refine/complete --checkpoint` take it),
 `checkpoint_last.pt` (resume), `log.jsonl`, `run.json`. Only the cheap input is read: never held-out
 evaluation points, ground-truth depth or poses.
 """
@@ -25,7 +29,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -40,7 +44,7 @@ from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.inference import _pad32, load_generator, rescale_sparse
 from leovr.depth.layers import gaussian_nll
-from leovr.depth.network import DepthGenerator, prior_for
+from leovr.depth.network import DepthGenerator, blend_log_depth, prior_for
 from leovr.depth.prior import interpolated_at
 from leovr.depth.train import edge_aware_smoothness, save_checkpoint
 from leovr.errors import DataError
@@ -150,6 +154,13 @@ def set_teachers(model: DepthGenerator, frames: list[AdaptFrame]) -> None:
         fr.teacher = whole_log_depth(model, [fr])[0]
 
 
+def _at_hidden(model: DepthGenerator, parts: dict[str, torch.Tensor], b: int,
+               s: SplitSample) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    """Batch item b's network outputs (1 x 1 x 1 x N each) and final depth (N) at split s's hidden returns."""
+    at = {k: F.grid_sample(v[b:b + 1], s.grid[None, None], mode="bilinear", align_corners=False) for k, v in parts.items()}
+    return at, model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
+
+
 def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]], weight_smooth: float,
                weight_nll: float, weight_anchor: float = 0.0, log_loss: bool = False) -> tuple[torch.Tensor, float, int]:
     """Mean loss of a batch of (frame, split) of one size; also the summed absolute error (metres)
@@ -162,9 +173,7 @@ def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]
     for b, (_, s) in enumerate(batch):
         if not len(s.target):
             continue
-        at = {k: F.grid_sample(v[b:b + 1], s.grid[None, None], mode="bilinear", align_corners=False)  # 1x1x1xN
-              for k, v in parts.items()}
-        depth = model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
+        at, depth = _at_hidden(model, parts, b, s)
         err = (depth - s.target).abs()
         loss = (_log(depth) - torch.log(s.target)).abs().mean() if log_loss else err.mean()
         if weight_nll > 0:
@@ -205,6 +214,37 @@ def validate(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0, wor
     return total / max(n, 1)
 
 
+BLENDS = (1.0, 0.75, 0.5, 0.25, 0.0)  # network weights tried by choose_blend (first = preferred on a tie)
+
+
+@torch.no_grad()
+def choose_blend(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0,
+                 world: int = 1) -> tuple[float, dict[float, float]]:
+    """The weight of the network's log depth against its prior's (GeneratorConfig.blend) with the lowest
+    MAE at the validation frames' hidden returns, and the MAE of each weight in BLENDS. The masked
+    task ranks them as the held-out beams do: on the KITTI clip's development frames it picks the prior
+    alone for VLP-16-like input and 0.75 for Mid-40-like, the best weights there (docs/benchmarks.md)."""
+    model.eval()
+    chosen = model.cfg
+    model.cfg = replace(chosen, blend=1.0)
+    sums, n = [0.0] * len(BLENDS), 0
+    try:
+        for b in batches([(fr, s) for fr in frames[rank::world] for s in fr.splits], 4):
+            parts = _forward(model, torch.stack([fr.image for fr, _ in b]), torch.stack([s.sparse for _, s in b]),
+                             torch.stack([s.prior for _, s in b]))
+            for k, (_, s) in enumerate(b):
+                if len(s.target):
+                    net = _at_hidden(model, parts, k, s)[1]
+                    for j, w in enumerate(BLENDS):
+                        sums[j] += float((blend_log_depth(net, s.prior_at, w) - s.target).abs().sum())
+                    n += len(s.target)
+    finally:
+        model.cfg = chosen
+    *sums, n = all_sum([*sums, n], world)
+    mae = {w: e / max(n, 1) for w, e in zip(BLENDS, sums)}
+    return (min(BLENDS, key=lambda w: (mae[w], BLENDS.index(w))) if n else 1.0), mae
+
+
 def share(batch: list, rank: int, world: int) -> tuple[list, float]:
     """This process's part of a batch and its loss weight. DistributedDataParallel averages the
     gradients over the processes, so weighting each part's mean loss by its share of the batch times
@@ -241,6 +281,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     model = load_generator(init)
     if not model.uses_prior:
         raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
+    model.cfg = replace(model.cfg, blend=1.0)  # train the network itself; its blend is chosen after training
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
     error = None
@@ -322,6 +363,16 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
                                    "settings": settings, "sequences": [str(s.path) for s in seqs],
                                    "network": model.cfg.__dict__})
     record.update({"frames_train": len(train), "frames_val": len(val), "minutes": round(minutes, 2)})
+    if val:  # the best epoch's weights, then how far to trust them over their prior (GeneratorConfig.blend)
+        barrier(world)
+        kept = torch.load(out / "generator.pt", map_location="cpu", weights_only=False)
+        model.load_state_dict(kept["model"])
+        blend, by_blend = choose_blend(model, val, rank, world)
+        model.cfg = replace(model.cfg, blend=blend)
+        record.update({"blend": blend, "val_mae_m_by_blend": {str(w): e for w, e in by_blend.items()}})
+        if lead:
+            save_best(model, out, cfg, init, seqs, kept["epoch"], kept["val_mae_m"],
+                      blend_val_mae_m=by_blend[blend])
     if lead:
         write_text(out / "summary.json", json.dumps(record, indent=2) + "\n")
     barrier(world)
@@ -329,8 +380,9 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
 
 
 def save_best(model: DepthGenerator, out: Path, cfg: AdaptConfig, init: Path, seqs: list[Sequence], epoch: int,
-              val_mae: float) -> None:
+              val_mae: float, **extra: float) -> None:
     """The adapted generator in the trainer's checkpoint format (load_generator reads it)."""
     save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": model.cfg.__dict__,
                                            "config": cfg.model_dump(), "epoch": epoch, "val_mae_m": val_mae,
-                                           "adapted_from": str(init), "sequences": [str(s.path) for s in seqs]})
+                                           "adapted_from": str(init), "sequences": [str(s.path) for s in seqs],
+                                           **extra})

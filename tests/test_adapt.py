@@ -6,6 +6,7 @@ import json
 from dataclasses import replace
 
 import numpy as np
+import pytest
 import torch
 from typer.testing import CliRunner
 
@@ -154,3 +155,31 @@ def test_adapt_on_two_processes_stops_together_on_a_bad_output_folder(tmp_path):
     assert p.returncode != 0
     # each process prints the one-line error (torchrun then adds its own launcher report)
     assert (p.stdout + p.stderr).count(f"error: {blocker}: output path is a file") == 2
+
+
+def test_adapt_blend_falls_back_to_the_prior_where_the_network_is_worse(tmp_path):
+    """choose_blend weighs the network's log depth against its prior's at the validation frames' hidden
+    returns: a network that returns its prior ties (and keeps weight 1); one that puts everything 65 %
+    too far loses to its prior, and the chosen blend is what inference then returns."""
+    from selfsup.adapt import choose_blend, input_frames
+    from leovr.config import AdaptConfig
+    from leovr.depth.inference import predict
+    from leovr.depth.prior import interpolated_fill
+
+    drive = write_kitti_raw(tmp_path / "raw", frames=2)
+    frames = input_frames([open_sequence(drive)], AdaptConfig(input="vlp16", generator_focal_px=None, splits_per_frame=2),
+                          progress=False)
+    torch.manual_seed(0)
+    net = DepthGenerator(GeneratorConfig(output="residual", channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))).eval()
+    w, mae = choose_blend(net, frames)
+    assert w == 1.0 and max(mae.values()) - min(mae.values()) < 1e-4  # zero residual: every blend is the prior
+    with torch.no_grad():
+        net.depth_head.bias.fill_(0.5)
+    w, mae = choose_blend(net, frames)
+    assert w == 0.0 and mae[0.0] < mae[0.5] < mae[1.0] and net.cfg.blend == 1.0
+    f = open_sequence(drive)[0]
+    sparse = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+    net.cfg = replace(net.cfg, blend=0.0)
+    np.testing.assert_allclose(predict(net, f.image, sparse, image_edges=False)[0], interpolated_fill(sparse), rtol=1e-4)
+    with pytest.raises(ValueError, match="blend"):
+        GeneratorConfig(blend=1.5)

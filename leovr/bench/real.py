@@ -85,7 +85,7 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     work = Path(out).with_name(Path(out).stem + "_work")
     prepared_work(work, settings)
     protocols = {"inductive": (split, list(range(split, n))), "transductive": (None, list(range(n)))}
-    results, minutes, notes = {}, {}, set()
+    results, minutes, blends, notes = {}, {}, {}, set()
     for inp in cfg.inputs:
         base = RefineConfig(input=inp, end=n, window=cfg.window, checkpoint=cfg.checkpoint)
         shipped: dict[int, FrameScore] = {}
@@ -99,6 +99,8 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
 
             record = adapt([seq], acfg, work / f"{inp}_{protocol}_adapt", resume=True, progress=progress)
             minutes[f"{protocol}_{inp}"] = record["minutes"]
+            blends[f"{protocol}_{inp}"] = {"blend": record.get("blend", 1.0),
+                                           "val_mae_m_by_blend": record.get("val_mae_m_by_blend")}
             adapted: dict[int, FrameScore] = {}
             ck = work / f"{inp}_{protocol}_adapt" / "generator.pt"
             run_refine(seq, base.model_copy(update={"checkpoint": str(ck)}), work / f"{inp}_{protocol}_refine",
@@ -123,6 +125,7 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
         "ground_truth": "; ".join(ground_truth_note(k, completion_config(RefineConfig())) for k in sorted(notes)),
         "adapt_epochs": epochs,
         "adapt_minutes": minutes,
+        "adapt_blend": blends,  # the adapted network's weight against its prior, chosen on validation frames
         "results": results,
         "summary": summary,
     }
