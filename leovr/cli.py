@@ -360,7 +360,10 @@ def adapt(
     r = run_adapt([open_sequence(s) for s in sequences], cfg, out, resume=resume)
     if distributed()[0] == 0:  # one line from `torchrun --nproc-per-node N leovr adapt ...`
         typer.echo(f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
-                   f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns -> {out / 'generator.pt'}")
+                   f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns"
+                   + (f"; network weight against its prior {r['blend']:g} "
+                      f"({r['val_mae_m_by_blend'][str(r['blend'])]:.3f} m)" if "blend" in r else "")
+                   + f" -> {out / 'generator.pt'}")
 
 
 @app.command()
