@@ -2,8 +2,9 @@
 """Does `leovr adapt`'s masked task (no ground truth) rank network / prior blends as the held-out beams do?
 
 On the KITTI raw clip's development frames 0-37 only (never the inductive test frames 38-47): the MAE of
-X
-masked splits (what `selfsup.adapt.choose_blend` sees) and once at the held-out beams (every 2nd frame).
+exp(w log network + (1 - w) log prior) for w in 1, 0.75, ..., 0 (selfsup.adapt.BLENDS), once at the
+hidden returns of adapt's masked splits (`selfsup.adapt.choose_blend` on every development frame) and once
+at the held-out beams (every 2nd frame).
 
     .venv/bin/python tools/blend_dev.py vlp16|mid40 [CHECKPOINT]
 """
