@@ -24,9 +24,12 @@ def load_generator(path: str | Path) -> DepthGenerator:
         raise DataError(path, f"unreadable checkpoint: {exc}") from exc
     if not isinstance(state, dict) or "model" not in state or "network" not in state:
         raise DataError(path, "not a leovr depth-generator checkpoint (needs 'model' and 'network')")
-    net = dict(state["network"])
-    net["channels"], net["blocks"] = tuple(net["channels"]), tuple(net["blocks"])
-    model = DepthGenerator(GeneratorConfig(**net))
+    try:
+        net = dict(state["network"])
+        net["channels"], net["blocks"] = tuple(net["channels"]), tuple(net["blocks"])
+        model = DepthGenerator(GeneratorConfig(**net))
+    except (TypeError, ValueError, KeyError) as exc:  # unknown or missing fields, values out of range
+        raise DataError(path, f"invalid network description in the checkpoint: {exc}") from exc
     try:
         model.load_state_dict(state["model"])
     except RuntimeError as exc:
