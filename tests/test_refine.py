@@ -183,3 +183,20 @@ def test_a_corrupt_frame_met_by_the_generator_thread_names_the_file_and_keeps_fi
     state = json.loads((out / "progress.json").read_text())
     assert sorted(int(k) for k in state["poses"]) == [0, 1]  # frames 0 and 1 left the 4-frame window before frame 6
     assert sorted(p.name for p in (out / "depth").glob("*.png")) == ["000000.png", "000001.png"]
+
+
+def test_a_sequential_run_counts_the_generator_in_each_frames_wall_time(refined, tmp_path):
+    """With one torch thread (a batch task with one CPU) the generator runs in line; the frame's wall time
+    must then hold it, with the front end and the graph (it was once subtracted with the baselines)."""
+    import torch
+
+    seq_dir, _, _ = refined
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        run_refine(open_sequence(seq_dir), RefineConfig(input="full", end=4), tmp_path / "seq1", progress=False)
+    finally:
+        torch.set_num_threads(before)
+    times = np.array(list(json.loads((tmp_path / "seq1" / "progress.json").read_text())["times"].values()))
+    # in line, a frame's clock holds the next frame's generator: compare the run's sums
+    assert times[:, 4].sum() >= 0.95 * times[:, :4].sum()
