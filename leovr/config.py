@@ -25,7 +25,9 @@ class FrameSelection(_Model):
 
     checkpoint: str | None = None  # generator weights; None = the shipped checkpoint
     generator_focal_px: float | None = 260.0  # run the generator at this focal length (its training camera); None = native
-    generator_runtime: Literal["torch", "onnxruntime"] = "onnxruntime"  # same outputs; ONNX Runtime is faster on CPU
+    # onnxruntime_int8: the network in 8-bit integers from the checkpoint's calibration table (leovr.depth.quantize;
+    # a checkpoint without one runs in floating point, with a warning); onnxruntime: floating point, torch's outputs
+    generator_runtime: Literal["torch", "onnxruntime", "onnxruntime_int8"] = "onnxruntime_int8"
     # the classical prior at depth edges (generator and `interp`): the side the image puts a pixel on, or the nearest return
     prior_edges: Literal["image", "nearest"] = "image"
     input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)

@@ -20,7 +20,9 @@ After training, the best epoch's weights get a blend (GeneratorConfig.blend): th
 depth against their prior's, the one of 1, 0.75, ..., 0 with the lowest MAE at the validation frames'
 hidden returns. Where the network does not beat its prior on the user's data, the prior carries more.
 
-Outputs in OUT: `generator.pt` (best validation, with its blend; `leovr refine/complete --checkpoint` take it),
+The int8 runtime's calibration table (leovr.depth.quantize) is measured last, on every frame's whole input.
+
+Outputs in OUT: `generator.pt` (best validation, with its blend and int8 table; `leovr refine/complete --checkpoint` take it),
 `checkpoint_last.pt` (resume), `log.jsonl`, `run.json`. Only the cheap input is read: never held-out
 evaluation points, ground-truth depth or poses.
 """
@@ -46,6 +48,7 @@ from leovr.depth.inference import _pad32, load_generator, rescale_sparse
 from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator, blend_log_depth, prior_for
 from leovr.depth.prior import interpolated_at
+from leovr.depth.runtime import calibrate_generator
 from leovr.depth.train import edge_aware_smoothness, save_checkpoint
 from leovr.errors import DataError
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
@@ -373,10 +376,23 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         if lead:
             save_best(model, out, cfg, init, seqs, kept["epoch"], kept["val_mae_m"],
                       blend_val_mae_m=by_blend[blend])
-    if lead:
+    if lead:  # the int8 runtime's calibration table, measured on the user's own frames (their cheap input)
+        kept = torch.load(out / "generator.pt", map_location="cpu", weights_only=False)
+        model.load_state_dict(kept["model"])
+        kept["int8_ranges"] = calibrate_generator(model, network_feeds(frames))
+        save_checkpoint(out / "generator.pt", kept)
         write_text(out / "summary.json", json.dumps(record, indent=2) + "\n")
     barrier(world)
     return record
+
+
+def network_feeds(frames: list[AdaptFrame]) -> list[dict[str, np.ndarray]]:
+    """Each frame's whole input as the network sees it at inference (padded to 32): int8 calibration."""
+    feeds = []
+    for fr in frames:
+        image, sparse, prior = _pad32(fr.image[None], fr.sparse[None], fr.prior[None])
+        feeds.append({"image": image.numpy(), "sparse": sparse.numpy(), "prior": prior.numpy()})
+    return feeds
 
 
 def save_best(model: DepthGenerator, out: Path, cfg: AdaptConfig, init: Path, seqs: list[Sequence], epoch: int,

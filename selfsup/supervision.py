@@ -104,6 +104,8 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
                             loop_min_gap=cfg.loop_min_gap, generator_focal_px=cfg.train_focal_px,
                             depth_source="ipbasic" if checkpoint is None else "generator",
                             depth_factors=checkpoint is not None, checkpoint=None if checkpoint is None else str(checkpoint),
+                            # the trainer's own checkpoints carry no int8 calibration table: floating point
+                            generator_runtime="onnxruntime",
                             # the trainer's graph passes as measured by `bench selfsup`: each frame's own scan only
                             # (the earlier scans of a cone LiDAR in the depth input are not measured in training yet)
                             accumulate_frames=0)

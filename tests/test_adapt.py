@@ -87,6 +87,9 @@ def test_adapt_reads_only_the_cheap_input(tmp_path):
         for k in a["model"]:
             assert torch.equal(a["model"][k], b["model"][k]), (name, k)
     assert any(not torch.equal(a["model"][k], start[k]) for k in start)  # it did train
+    # the int8 runtime's table, measured on the adapted weights over the same cheap input
+    ranges = [torch.load(outs[n] / "generator.pt", weights_only=False)["int8_ranges"] for n in ("raw", "cheap")]
+    assert ranges[0] == ranges[1] and len(ranges[0]["data"]) > 10
     log = [json.loads(line) for line in (outs["raw"] / "log.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in log] == [0, 1]
     # resume continues to a second epoch; other settings are refused

@@ -41,3 +41,46 @@ def test_absolute_networks_and_the_torch_setting_stay_on_torch():
     assert for_inference(absolute, "onnxruntime") is absolute
     shipped = load_generator(shipped_checkpoint())
     assert for_inference(shipped, "torch") is shipped
+
+
+@pytest.mark.parametrize("size", [(448, 256, 260.0), (300, 180, 400.0)])  # calibrated size; another size, padded
+def test_int8_runtime_keeps_the_depth_of_the_floating_point_network(tmp_path: Path, size):
+    """The shipped checkpoint's int8 table (measured at 448 x 256 on training frames) quantises the network
+    at any input size; its depth stays within a few per cent of floating point and as near the truth."""
+    w, h, f = size
+    simulate(SimulateConfig(scenario="dynamic", lidar="vlp16", frames=1, seed=3011, width=w, height=h, focal=f),
+             tmp_path / "seq", progress=False)
+    frame = open_sequence(tmp_path / "seq")[0]
+    sample = prepare_sample(frame, CompleteConfig(method="generator", input="full"))
+    model = load_generator(shipped_checkpoint())
+    assert model.int8_ranges is not None
+    fp32, int8 = for_inference(model, "onnxruntime"), for_inference(model, "onnxruntime_int8")
+    assert fp32.int8_ranges is None and int8.int8_ranges is model.int8_ranges
+    d_f, s_f = predict_at_focal(fp32, frame.image, sample.sparse, f, 260.0)
+    d_q, s_q = predict_at_focal(int8, frame.image, sample.sparse, f, 260.0)
+    rel = np.abs(d_q - d_f) / d_f
+    assert 1e-4 < np.median(rel) < 0.03  # quantised (not the float graph) but close
+    gt = sample.gt > 0
+    mae_f, mae_q = (np.abs(d - sample.gt)[gt].mean() for d in (d_f, d_q))
+    assert mae_q < 1.05 * mae_f
+    assert np.isfinite(s_q).all() and np.abs(s_q - s_f).mean() < 0.1
+
+
+def test_int8_without_a_calibration_table_warns_and_runs_in_floating_point(tmp_path: Path):
+    model = load_generator(shipped_checkpoint())
+    model.int8_ranges = None  # as a checkpoint trained before the int8 runtime
+    with pytest.warns(UserWarning, match="no int8 calibration table"):
+        gen = for_inference(model, "onnxruntime_int8")
+    assert isinstance(gen, OnnxGenerator) and gen.int8_ranges is None
+
+
+def test_a_broken_int8_table_names_the_checkpoint(tmp_path: Path):
+    import torch
+
+    from leovr.errors import DataError
+
+    state = torch.load(shipped_checkpoint(), map_location="cpu", weights_only=False)
+    state["int8_ranges"] = [1, 2, 3]
+    torch.save(state, tmp_path / "g.pt")
+    with pytest.raises(DataError, match=r"g\.pt: its int8 calibration table"):
+        load_generator(tmp_path / "g.pt")

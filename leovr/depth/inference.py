@@ -38,6 +38,10 @@ def load_generator(path: str | Path) -> DepthGenerator:
     if bad:
         raise DataError(path, f"{len(bad)} weight tensors hold NaN or infinite values (first: {bad[0]}); "
                               "the training that wrote it diverged")
+    ranges = state.get("int8_ranges")
+    if ranges is not None and not (isinstance(ranges, dict) and isinstance(ranges.get("data"), dict)):
+        raise DataError(path, "its int8 calibration table ('int8_ranges') is not one; re-run tools/calibrate_int8.py")
+    model.int8_ranges = ranges  # the activations' ranges for `generator_runtime: onnxruntime_int8` (or None)
     return model.eval()
 
 

@@ -12,15 +12,17 @@ import io
 import warnings
 from typing import Literal
 
+import numpy as np
 import torch
 from torch import nn
 
 from leovr.depth.network import DepthGenerator, prior_for
+from leovr.depth.quantize import export_fp32
 
-Runtime = Literal["torch", "onnxruntime"]
+Runtime = Literal["torch", "onnxruntime", "onnxruntime_int8"]
 
 
-class _Parts(nn.Module):
+class PartsModule(nn.Module):
     """`DepthGenerator.parts` as a module with tuple outputs (ONNX export needs fixed outputs)."""
 
     def __init__(self, model: DepthGenerator, keys: tuple[str, ...]) -> None:
@@ -32,11 +34,17 @@ class _Parts(nn.Module):
         return tuple(parts[k] for k in self.keys)
 
 
+def part_keys(model: DepthGenerator) -> tuple[str, ...]:
+    """The outputs of a residual-mode network's `parts` that inference combines with the prior."""
+    return ("log_sigma", "log_residual") + (("prior_log_sigma",) if model.fusion_head is not None else ())
+
+
 class OnnxGenerator:
     """Stands in for a `DepthGenerator` at inference (`parts`, `combine`, call, `uses_prior`, `cfg`):
-    `parts` runs on ONNX Runtime with as many threads as torch has (`torch.get_num_threads()`)."""
+    `parts` runs on ONNX Runtime with as many threads as torch has (`torch.get_num_threads()`), in 8-bit
+    integers when `int8_ranges` (the checkpoint's calibration table, leovr.depth.quantize) are given."""
 
-    def __init__(self, model: DepthGenerator) -> None:
+    def __init__(self, model: DepthGenerator, int8_ranges: dict | None = None) -> None:
         if not model.uses_prior:
             raise ValueError("only residual-mode generators run on ONNX Runtime")
         import onnx  # noqa: F401  (the exporter needs it; fail here, not at the first frame)
@@ -44,7 +52,8 @@ class OnnxGenerator:
 
         self.model = model.eval()
         self.cfg = model.cfg
-        self.keys = ("log_sigma", "log_residual") + (("prior_log_sigma",) if model.fusion_head is not None else ())
+        self.keys = part_keys(model)
+        self.int8_ranges = int8_ranges
         self._sessions: dict[tuple[int, int], object] = {}
 
     @property
@@ -55,19 +64,20 @@ class OnnxGenerator:
         import onnxruntime as ort
 
         if (h, w) not in self._sessions:
-            buf = io.BytesIO()
-            args = (torch.zeros(1, 3, h, w), torch.zeros(1, 1, h, w), torch.ones(1, 1, h, w))
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation and tracer notes
-                torch.onnx.export(_Parts(self.model, self.keys), args, buf, dynamo=False, opset_version=17,
-                                  input_names=["image", "sparse", "prior"], output_names=list(self.keys),
-                                  dynamic_axes={n: {0: "batch"} for n in ("image", "sparse", "prior", *self.keys)})
+            if self.int8_ranges is not None:
+                from leovr.depth.quantize import quantized_model
+
+                graph = quantized_model(PartsModule(self.model, self.keys), self.keys, self.int8_ranges, h, w)
+            else:
+                buf = io.BytesIO()
+                export_fp32(PartsModule(self.model, self.keys), self.keys, h, w, buf)
+                graph = buf.getvalue()
             opts = ort.SessionOptions()
             opts.intra_op_num_threads = max(1, torch.get_num_threads())
             opts.inter_op_num_threads = 1
             # no busy-waiting between frames: spinning workers would take the cores the front end and graph use
             opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-            self._sessions[(h, w)] = ort.InferenceSession(buf.getvalue(), opts, providers=["CPUExecutionProvider"])
+            self._sessions[(h, w)] = ort.InferenceSession(graph, opts, providers=["CPUExecutionProvider"])
         return self._sessions[(h, w)]
 
     def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
@@ -93,13 +103,60 @@ class OnnxGenerator:
         return self.combine(parts, prior, sparse), parts["log_sigma"]
 
 
+class InputRecorder:
+    """Stands in for a residual-mode generator at inference (torch) and keeps every network input it
+    is given (padded image, sparse depth and prior): the frames an int8 calibration measures."""
+
+    def __init__(self, model: DepthGenerator) -> None:
+        self.model, self.cfg = model.eval(), model.cfg
+        self.feeds: list[dict[str, np.ndarray]] = []
+
+    @property
+    def uses_prior(self) -> bool:
+        return True
+
+    def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor) -> dict[str, torch.Tensor]:
+        self.feeds.append({"image": image.detach().float().numpy().copy(), "sparse": sparse.detach().float().numpy().copy(),
+                           "prior": prior.detach().float().numpy().copy()})
+        return self.model.parts(image, sparse, prior)
+
+    def combine(self, parts: dict[str, torch.Tensor], prior: torch.Tensor | None, sparse: torch.Tensor) -> torch.Tensor:
+        return self.model.combine(parts, prior, sparse)
+
+    def __call__(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        parts = self.parts(image, sparse, prior)
+        return self.combine(parts, prior, sparse), parts["log_sigma"]
+
+
+def calibrate_generator(model: DepthGenerator, feeds: list[dict[str, np.ndarray]]) -> dict:
+    """The int8 calibration table of `model` from network inputs (`InputRecorder.feeds`); inputs of
+    another size than the most common one are left out (one export measures them)."""
+    from collections import Counter
+
+    from leovr.depth.quantize import calibrate_ranges
+
+    if not feeds:
+        raise ValueError("int8 calibration needs at least one frame")
+    size = Counter(f["image"].shape[-2:] for f in feeds).most_common(1)[0][0]
+    same = [f for f in feeds if f["image"].shape[-2:] == size]
+    return calibrate_ranges(PartsModule(model.eval(), part_keys(model)), part_keys(model), same)
+
+
 def for_inference(model: DepthGenerator, runtime: Runtime = "onnxruntime") -> DepthGenerator | OnnxGenerator:
     """The model to run frames through: ONNX Runtime when asked and possible (a residual-mode network),
-    else the torch model (with a warning when ONNX Runtime was asked for but is not installed)."""
+    else the torch model (with a warning when ONNX Runtime was asked for but is not installed).
+    `onnxruntime_int8` needs the checkpoint's calibration table (`model.int8_ranges`, set by
+    `load_generator`); without one it warns and runs in floating point."""
     if runtime == "torch" or not model.uses_prior:
         return model.eval()
+    ranges = None
+    if runtime == "onnxruntime_int8":
+        ranges = getattr(model, "int8_ranges", None)
+        if ranges is None:
+            warnings.warn("the checkpoint has no int8 calibration table (tools/calibrate_int8.py writes one); "
+                          "the generator runs in floating point", stacklevel=2)
     try:
-        return OnnxGenerator(model)
+        return OnnxGenerator(model, ranges)
     except ImportError as exc:
         warnings.warn(f"ONNX Runtime is not available ({exc}); the generator runs on torch", stacklevel=2)
         return model.eval()
