@@ -247,6 +247,7 @@ class BenchSpeedConfig(_Model):
     seed: int = 3200  # a drive used for nothing else
     kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
     kitti_input: str = "vlp16"
+    generator_runtime: Literal["torch", "onnxruntime", "onnxruntime_int8"] = "onnxruntime_int8"  # refine's, as a user runs it
     quick_frames: int = Field(12, ge=4)  # --quick: this many rendered and KITTI frames
     target_ms_448: float = 100.0  # end to end, median per frame
     target_ms_kitti: float = 250.0
