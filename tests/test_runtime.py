@@ -17,13 +17,19 @@ from leovr.pipeline.completion import prepare_sample
 from leovr.sim.simulate import simulate
 
 
+def rendered_frame(tmp_path: Path, scenario: str, lidar: str, seed: int, size: tuple[int, int, float]):
+    """One rendered frame of `size` (width, height, focal) and its own-scan sample."""
+    w, h, f = size
+    simulate(SimulateConfig(scenario=scenario, lidar=lidar, frames=1, seed=seed, width=w, height=h, focal=f),
+             tmp_path / "seq", progress=False)
+    frame = open_sequence(tmp_path / "seq")[0]
+    return frame, prepare_sample(frame, CompleteConfig(method="generator", input="full"))
+
+
 @pytest.mark.parametrize("size", [(448, 256, 260.0), (300, 180, 400.0)])  # native; resampled and padded
 def test_onnx_runtime_matches_torch_on_a_rendered_frame(tmp_path: Path, size):
     w, h, f = size
-    simulate(SimulateConfig(scenario="city_loop", lidar="mid40", frames=1, seed=3007, width=w, height=h, focal=f),
-             tmp_path / "seq", progress=False)
-    frame = open_sequence(tmp_path / "seq")[0]
-    sample = prepare_sample(frame, CompleteConfig(method="generator", input="full"))
+    frame, sample = rendered_frame(tmp_path, "city_loop", "mid40", 3007, size)
     model = load_generator(shipped_checkpoint())
     onnx = for_inference(model, "onnxruntime")
     assert isinstance(onnx, OnnxGenerator)
@@ -47,11 +53,8 @@ def test_absolute_networks_and_the_torch_setting_stay_on_torch():
 def test_int8_runtime_keeps_the_depth_of_the_floating_point_network(tmp_path: Path, size):
     """The shipped checkpoint's int8 table (measured at 448 x 256 on training frames) quantises the network
     at any input size; its depth stays within a few per cent of floating point and as near the truth."""
-    w, h, f = size
-    simulate(SimulateConfig(scenario="dynamic", lidar="vlp16", frames=1, seed=3011, width=w, height=h, focal=f),
-             tmp_path / "seq", progress=False)
-    frame = open_sequence(tmp_path / "seq")[0]
-    sample = prepare_sample(frame, CompleteConfig(method="generator", input="full"))
+    f = size[2]
+    frame, sample = rendered_frame(tmp_path, "dynamic", "vlp16", 3011, size)
     model = load_generator(shipped_checkpoint())
     assert model.int8_ranges is not None
     fp32, int8 = for_inference(model, "onnxruntime"), for_inference(model, "onnxruntime_int8")
