@@ -87,3 +87,16 @@ def test_a_broken_int8_table_names_the_checkpoint(tmp_path: Path):
     torch.save(state, tmp_path / "g.pt")
     with pytest.raises(DataError, match=r"g\.pt: its int8 calibration table"):
         load_generator(tmp_path / "g.pt")
+
+
+def test_an_exported_model_is_reused_only_for_the_same_weights_and_table():
+    import torch
+
+    model = load_generator(shipped_checkpoint())
+    a, b = for_inference(model, "onnxruntime_int8"), for_inference(load_generator(shipped_checkpoint()), "onnxruntime_int8")
+    assert a._digest() == b._digest()  # a second build of the same checkpoint skips the ~2 s export
+    assert for_inference(model, "onnxruntime")._digest() != a._digest()  # no table: the floating-point graph
+    other = load_generator(shipped_checkpoint())
+    with torch.no_grad():
+        next(other.parameters()).add_(1e-3)
+    assert for_inference(other, "onnxruntime_int8")._digest() != a._digest()

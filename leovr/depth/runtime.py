@@ -8,7 +8,9 @@ input with a data-dependent loop that a trace cannot hold, so it stays on torch.
 
 from __future__ import annotations
 
+import hashlib
 import io
+import json
 import warnings
 from typing import Literal
 
@@ -20,6 +22,11 @@ from leovr.depth.network import DepthGenerator, prior_for
 from leovr.depth.quantize import export_fp32
 
 Runtime = Literal["torch", "onnxruntime", "onnxruntime_int8"]
+
+# exported (and quantised) models of this process, by weights, int8 table and input size: a benchmark or test
+# that builds the same generator again skips the export (about 2 s in int8)
+MAX_CACHED_GRAPHS = 8
+_GRAPHS: dict[tuple[str, int, int], bytes] = {}
 
 
 class PartsModule(nn.Module):
@@ -55,6 +62,7 @@ class OnnxGenerator:
         self.keys = part_keys(model)
         self.int8_ranges = int8_ranges
         self._sessions: dict[tuple[int, int], object] = {}
+        self._key: str | None = None
 
     @property
     def uses_prior(self) -> bool:
@@ -64,14 +72,13 @@ class OnnxGenerator:
         import onnxruntime as ort
 
         if (h, w) not in self._sessions:
-            if self.int8_ranges is not None:
-                from leovr.depth.quantize import quantized_model
-
-                graph = quantized_model(PartsModule(self.model, self.keys), self.keys, self.int8_ranges, h, w)
-            else:
-                buf = io.BytesIO()
-                export_fp32(PartsModule(self.model, self.keys), self.keys, h, w, buf)
-                graph = buf.getvalue()
+            key = (self._digest(), h, w)
+            graph = _GRAPHS.get(key)
+            if graph is None:
+                graph = self._export(h, w)
+                _GRAPHS[key] = graph
+                while len(_GRAPHS) > MAX_CACHED_GRAPHS:
+                    _GRAPHS.pop(next(iter(_GRAPHS)))
             opts = ort.SessionOptions()
             opts.intra_op_num_threads = max(1, torch.get_num_threads())
             opts.inter_op_num_threads = 1
@@ -79,6 +86,27 @@ class OnnxGenerator:
             opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
             self._sessions[(h, w)] = ort.InferenceSession(graph, opts, providers=["CPUExecutionProvider"])
         return self._sessions[(h, w)]
+
+    def _export(self, h: int, w: int) -> bytes:
+        """The ONNX model for H x W inputs: exported, and quantised when the runtime is int8 (~2 s)."""
+        if self.int8_ranges is not None:
+            from leovr.depth.quantize import quantized_model
+
+            return quantized_model(PartsModule(self.model, self.keys), self.keys, self.int8_ranges, h, w)
+        buf = io.BytesIO()
+        export_fp32(PartsModule(self.model, self.keys), self.keys, h, w, buf)
+        return buf.getvalue()
+
+    def _digest(self) -> str:
+        """What the exported model depends on: the weights, the network description and the int8 table."""
+        if self._key is None:
+            h = hashlib.sha1(repr(sorted(self.cfg.__dict__.items())).encode())
+            for name, t in self.model.state_dict().items():
+                h.update(name.encode())
+                h.update(t.detach().contiguous().cpu().numpy().tobytes())
+            h.update(json.dumps(self.int8_ranges, sort_keys=True).encode())
+            self._key = h.hexdigest()
+        return self._key
 
     def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         h, w = image.shape[-2:]
