@@ -14,6 +14,7 @@ from leovr.eval.depth_metrics import LEOVR_BINS
 from leovr.lidar.cheap_sensor import parse_input
 
 Scenario = Literal["city_loop", "straight", "dynamic", "traffic"]  # leovr.sim.world.SCENARIOS
+GeneratorRuntime = Literal["torch", "onnxruntime", "onnxruntime_int8"]  # leovr.depth.runtime.for_inference
 
 
 class _Model(BaseModel):
@@ -27,7 +28,7 @@ class FrameSelection(_Model):
     generator_focal_px: float | None = 260.0  # run the generator at this focal length (its training camera); None = native
     # onnxruntime_int8: the network in 8-bit integers from the checkpoint's calibration table (leovr.depth.quantize;
     # a checkpoint without one runs in floating point, with a warning); onnxruntime: floating point, torch's outputs
-    generator_runtime: Literal["torch", "onnxruntime", "onnxruntime_int8"] = "onnxruntime_int8"
+    generator_runtime: GeneratorRuntime = "onnxruntime_int8"
     # the classical prior at depth edges (generator and `interp`): the side the image puts a pixel on, or the nearest return
     prior_edges: Literal["image", "nearest"] = "image"
     input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
@@ -247,7 +248,7 @@ class BenchSpeedConfig(_Model):
     seed: int = 3200  # a drive used for nothing else
     kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
     kitti_input: str = "vlp16"
-    generator_runtime: Literal["torch", "onnxruntime", "onnxruntime_int8"] = "onnxruntime_int8"  # refine's, as a user runs it
+    generator_runtime: GeneratorRuntime = "onnxruntime_int8"  # refine's, as a user runs it
     quick_frames: int = Field(12, ge=4)  # --quick: this many rendered and KITTI frames
     target_ms_448: float = 100.0  # end to end, median per frame
     target_ms_kitti: float = 250.0

@@ -43,11 +43,12 @@ def main() -> None:
         raise SystemExit(f"{train}: no training sequences (run tools/make_dataset.py --recipe {args.recipe})")
     pick = names[:: max(1, len(names) // args.sequences)][: args.sequences]
     recorder = InputRecorder(load_generator(path))
+    own_scan = CompleteConfig(input="full")
     t0 = time.time()
     for name in pick:
         seq = open_sequence(train / name)
         for i in range(0, len(seq), args.step):
-            s = prepare_sample(seq[i], CompleteConfig(input="full"))
+            s = prepare_sample(seq[i], own_scan)
             predict_at_focal(recorder, s.frame.image, s.sparse, float(s.frame.K[0, 0]), args.focal, True)
     ranges = calibrate_generator(recorder.model, recorder.feeds)
     state = torch.load(path, map_location="cpu", weights_only=False)

@@ -37,8 +37,8 @@ def export_fp32(parts: nn.Module, keys: tuple[str, ...], h: int, w: int, target:
     args = (torch.zeros(1, 3, h, w), torch.zeros(1, 1, h, w), torch.ones(1, 1, h, w))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation and tracer notes
-        torch.onnx.export(parts, args, target if isinstance(target, io.BytesIO) else str(target), dynamo=False, opset_version=17, input_names=list(INPUTS),
-                          output_names=list(keys),
+        torch.onnx.export(parts, args, target if isinstance(target, io.BytesIO) else str(target), dynamo=False,
+                          opset_version=17, input_names=list(INPUTS), output_names=list(keys),
                           dynamic_axes={n: {0: "batch"} for n in (*INPUTS, *keys)})
 
 

@@ -1,4 +1,5 @@
-"""The depth generator on ONNX Runtime: same weights, same outputs, about 1.6x faster on this CPU.
+"""The depth generator on ONNX Runtime: same weights, same outputs, about 1.6x faster on this CPU; or in
+8-bit integers from the checkpoint's calibration table (leovr.depth.quantize), faster again.
 
 `torch.onnx.export` traces the network's `parts` (everything up to the combination with the prior) once
 per input size, in memory; ONNX Runtime runs it, and torch combines the parts with the prior as before.
@@ -12,16 +13,15 @@ import hashlib
 import io
 import json
 import warnings
-from typing import Literal
 
 import numpy as np
 import torch
 from torch import nn
 
+from leovr.config import GeneratorRuntime as Runtime
 from leovr.depth.network import DepthGenerator, prior_for
-from leovr.depth.quantize import export_fp32
+from leovr.depth.quantize import INPUTS, export_fp32
 
-Runtime = Literal["torch", "onnxruntime", "onnxruntime_int8"]
 
 # exported (and quantised) models of this process, by weights, int8 table and input size: a benchmark or test
 # that builds the same generator again skips the export (about 2 s in int8)
@@ -46,7 +46,32 @@ def part_keys(model: DepthGenerator) -> tuple[str, ...]:
     return ("log_sigma", "log_residual") + (("prior_log_sigma",) if model.fusion_head is not None else ())
 
 
-class OnnxGenerator:
+class _StandIn:
+    """What inference asks of a residual-mode generator (`parts`, `combine`, call, `uses_prior`, `cfg`),
+    with `parts` left to the subclass: the wrapped torch model combines the parts with the prior."""
+
+    model: DepthGenerator
+    cfg: object
+
+    @property
+    def uses_prior(self) -> bool:
+        return True
+
+    def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def combine(self, parts: dict[str, torch.Tensor], prior: torch.Tensor | None, sparse: torch.Tensor) -> torch.Tensor:
+        return self.model.combine(parts, prior, sparse)
+
+    def __call__(self, image: torch.Tensor, sparse: torch.Tensor,
+                 prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        if prior is None:
+            prior = prior_for(sparse)
+        parts = self.parts(image, sparse, prior)
+        return self.combine(parts, prior, sparse), parts["log_sigma"]
+
+
+class OnnxGenerator(_StandIn):
     """Stands in for a `DepthGenerator` at inference (`parts`, `combine`, call, `uses_prior`, `cfg`):
     `parts` runs on ONNX Runtime with as many threads as torch has (`torch.get_num_threads()`), in 8-bit
     integers when `int8_ranges` (the checkpoint's calibration table, leovr.depth.quantize) are given."""
@@ -63,10 +88,6 @@ class OnnxGenerator:
         self.int8_ranges = int8_ranges
         self._sessions: dict[tuple[int, int], object] = {}
         self._key: str | None = None
-
-    @property
-    def uses_prior(self) -> bool:
-        return True
 
     def _session(self, h: int, w: int):
         import onnxruntime as ort
@@ -120,18 +141,8 @@ class OnnxGenerator:
         out = self._session(h, w).run(list(self.keys), feed)
         return {k: torch.from_numpy(v) for k, v in zip(self.keys, out)}
 
-    def combine(self, parts: dict[str, torch.Tensor], prior: torch.Tensor | None, sparse: torch.Tensor) -> torch.Tensor:
-        return self.model.combine(parts, prior, sparse)
 
-    def __call__(self, image: torch.Tensor, sparse: torch.Tensor,
-                 prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        if prior is None:
-            prior = prior_for(sparse)
-        parts = self.parts(image, sparse, prior)
-        return self.combine(parts, prior, sparse), parts["log_sigma"]
-
-
-class InputRecorder:
+class InputRecorder(_StandIn):
     """Stands in for a residual-mode generator at inference (torch) and keeps every network input it
     is given (padded image, sparse depth and prior): the frames an int8 calibration measures."""
 
@@ -139,21 +150,9 @@ class InputRecorder:
         self.model, self.cfg = model.eval(), model.cfg
         self.feeds: list[dict[str, np.ndarray]] = []
 
-    @property
-    def uses_prior(self) -> bool:
-        return True
-
     def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor) -> dict[str, torch.Tensor]:
-        self.feeds.append({"image": image.detach().float().numpy().copy(), "sparse": sparse.detach().float().numpy().copy(),
-                           "prior": prior.detach().float().numpy().copy()})
+        self.feeds.append({k: v.detach().float().numpy().copy() for k, v in zip(INPUTS, (image, sparse, prior))})
         return self.model.parts(image, sparse, prior)
-
-    def combine(self, parts: dict[str, torch.Tensor], prior: torch.Tensor | None, sparse: torch.Tensor) -> torch.Tensor:
-        return self.model.combine(parts, prior, sparse)
-
-    def __call__(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        parts = self.parts(image, sparse, prior)
-        return self.combine(parts, prior, sparse), parts["log_sigma"]
 
 
 def calibrate_generator(model: DepthGenerator, feeds: list[dict[str, np.ndarray]]) -> dict:
@@ -166,8 +165,8 @@ def calibrate_generator(model: DepthGenerator, feeds: list[dict[str, np.ndarray]
     if not feeds:
         raise ValueError("int8 calibration needs at least one frame")
     size = Counter(f["image"].shape[-2:] for f in feeds).most_common(1)[0][0]
-    same = [f for f in feeds if f["image"].shape[-2:] == size]
-    return calibrate_ranges(PartsModule(model.eval(), part_keys(model)), part_keys(model), same)
+    keys = part_keys(model)
+    return calibrate_ranges(PartsModule(model.eval(), keys), keys, [f for f in feeds if f["image"].shape[-2:] == size])
 
 
 def for_inference(model: DepthGenerator, runtime: Runtime = "onnxruntime") -> DepthGenerator | OnnxGenerator:
