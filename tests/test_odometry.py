@@ -25,6 +25,22 @@ def test_correction_grid_interpolates_nodes_and_constants():
     u, v = np.random.default_rng(0).uniform(0, 159, 50), np.random.default_rng(1).uniform(0, 119, 50)
     assert np.allclose(g.dense_weights(u, v) @ c, g.offsets(c, u, v))
     assert np.allclose(g.dense_weights(u, v).sum(1), 1.0)
+    # the separable upsampling is the bilinear interpolation at every pixel
+    c = np.random.default_rng(2).normal(size=g.size)
+    gv, gu = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]]
+    np.testing.assert_allclose(g.upsample(c), g.offsets(c, gu.ravel(), gv.ravel()).reshape(SHAPE), atol=1e-12)
+
+
+def test_correction_grid_cell_means_average_the_pixels_nearest_each_node_ignoring_nans():
+    g = CorrectionGrid(4, 5, *SHAPE)
+    gv, gu = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]]
+    # each pixel holds the index of its nearest node, (row, col) = (round(v * 3 / 119), round(u * 4 / 159))
+    nearest = np.rint(gv * 3 / 119) * 5 + np.rint(gu * 4 / 159)
+    np.testing.assert_array_equal(g.cell_means(nearest), np.arange(g.size))
+    noisy = nearest + np.where((gu + gv) % 2, 1.0, -1.0)  # +-1 in a checkerboard: the means stay
+    noisy[gv < 10] = np.nan  # the top row of nodes keeps rows 10-19; NaNs are left out
+    np.testing.assert_allclose(g.cell_means(noisy), np.arange(g.size), atol=0.05)
+    assert np.isnan(g.cell_means(np.full(SHAPE, np.nan))).all()
 
 
 def test_lidar_association_nearest_within_radius_and_rejects_discontinuities():

@@ -28,7 +28,7 @@ def nearest_fill(sparse: np.ndarray) -> np.ndarray:
     valid = sparse > 0
     if not valid.any():
         return np.zeros_like(sparse, dtype=np.float32)
-    _, (iy, ix) = distance_transform_edt(~valid, return_indices=True)
+    iy, ix = distance_transform_edt(~valid, return_distances=False, return_indices=True)
     return sparse[iy, ix].astype(np.float32)
 
 
