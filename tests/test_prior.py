@@ -9,7 +9,7 @@ import torch
 from leovr.depth.classical import nearest_fill
 from leovr.depth.inference import predict, predict_at_focal
 from leovr.depth.network import DepthGenerator, GeneratorConfig
-from leovr.depth.prior import interpolated_fill
+from leovr.depth.prior import delaunay_triangles, interpolated_fill, triangle_map
 
 
 def ground_plane(h: int = 120, w: int = 200, f: float = 150.0, cam_height: float = 1.6) -> np.ndarray:
@@ -126,3 +126,55 @@ def test_fusion_keeps_measured_pixels_close_to_the_measurement():
     m = sparse > 0
     np.testing.assert_allclose(depth[m], 10.0 * (lam_measured + (1 - lam_measured) * 1.5), rtol=1e-4)
     np.testing.assert_allclose(depth[~m], 10.0 * (lam_far + (1 - lam_far) * 1.5), rtol=1e-4)
+
+
+def _random_pixels(n: int, shape: tuple[int, int], seed: int) -> tuple[np.ndarray, np.ndarray]:
+    flat = np.random.default_rng(seed).choice(shape[0] * shape[1], n, replace=False)
+    return flat % shape[1], flat // shape[1]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_delaunay_triangles_tile_the_hull_with_empty_circumcircles(seed):
+    import cv2
+
+    shape = (60, 90)
+    u, v = _random_pixels(150, shape, seed)
+    tri = delaunay_triangles(u, v, shape)
+    p = np.stack([u, v], 1).astype(np.float64)
+    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
+    area = 0.5 * np.abs((b - a)[:, 0] * (c - a)[:, 1] - (c - a)[:, 0] * (b - a)[:, 1])
+    hull = cv2.contourArea(cv2.convexHull(p.astype(np.float32)))
+    assert area.sum() == pytest.approx(hull, rel=1e-9)  # the triangles tile the convex hull, none missing
+    # Delaunay: no point lies strictly inside any triangle's circumcircle
+    d = 2 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
+    sq = [(q ** 2).sum(1) for q in (a, b, c)]
+    centre = np.stack([(sq[0] * (b[:, 1] - c[:, 1]) + sq[1] * (c[:, 1] - a[:, 1]) + sq[2] * (a[:, 1] - b[:, 1])) / d,
+                       (sq[0] * (c[:, 0] - b[:, 0]) + sq[1] * (a[:, 0] - c[:, 0]) + sq[2] * (b[:, 0] - a[:, 0])) / d], 1)
+    radius = np.linalg.norm(a - centre, axis=1)
+    dist = np.linalg.norm(p[None] - centre[:, None], axis=2)
+    assert (dist >= radius[:, None] - 1e-6).all()
+    assert len(delaunay_triangles(u[:2], v[:2], shape)) == 0
+
+
+def test_triangle_map_covers_each_pixel_inside_or_on_a_triangle_and_nothing_else():
+    shape = (60, 90)
+    u, v = _random_pixels(80, shape, 2)
+    corners = np.stack([u, v], 1)[delaunay_triangles(u, v, shape)]
+    covered = triangle_map(corners, shape)
+    gv, gu = np.mgrid[0 : shape[0], 0 : shape[1]]
+    pix = np.stack([gu.ravel(), gv.ravel()], 1).astype(np.float64)
+    a, b, c = (corners[:, k].astype(np.float64) for k in range(3))
+
+    def side(p, q):  # pixels x triangles: which side of the directed side p -> q each pixel lies on
+        return ((q[None, :, 0] - p[None, :, 0]) * (pix[:, None, 1] - p[None, :, 1])
+                - (q[None, :, 1] - p[None, :, 1]) * (pix[:, None, 0] - p[None, :, 0]))
+
+    s1, s2, s3 = side(a, b), side(b, c), side(c, a)
+    inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | ((s1 <= 0) & (s2 <= 0) & (s3 <= 0))  # pixels x triangles, sides included
+    flat = covered.ravel()
+    assert ((flat >= 0) == inside.any(1)).all()  # covered exactly where some triangle holds the pixel
+    hit = np.nonzero(flat >= 0)[0]
+    assert inside[hit, flat[hit]].all()  # and by one that holds it
+    # a pixel on a side two triangles share goes to the later one
+    shared = np.nonzero(inside.sum(1) >= 2)[0]
+    assert len(shared) and (flat[shared] == np.array([np.nonzero(row)[0].max() for row in inside[shared]])).all()
