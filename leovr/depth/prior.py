@@ -70,7 +70,7 @@ def edge_aware_log_depth(sparse: np.ndarray, image: np.ndarray) -> np.ndarray:
 def delaunay_triangles(u: np.ndarray, v: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """The Delaunay triangles of distinct pixels (u, v) in an H x W map, as T x 3 indices into them.
 
-    OpenCV's Subdiv2D (4x faster than Qhull here). It starts from a triangle around its bounding box and
+    OpenCV's Subdiv2D (2.5-4x faster than Qhull on LiDAR returns). It starts from a triangle around its bounding box and
     drops every triangle that keeps a corner of it; ten image sizes out, no hull triangle is lost to it."""
     import cv2
 
@@ -78,7 +78,9 @@ def delaunay_triangles(u: np.ndarray, v: np.ndarray, shape: tuple[int, int]) -> 
         return np.zeros((0, 3), np.int64)
     h, w = shape
     subdiv = cv2.Subdiv2D((-10 * w, -10 * h, 21 * w, 21 * h))
-    subdiv.insert(np.stack([u, v], 1).astype(np.float32))
+    # inserted in a fixed random order: in scan order (row by row) the insertion takes 1.2-1.4x as long
+    order = np.random.default_rng(0).permutation(len(u))
+    subdiv.insert(np.stack([u[order], v[order]], 1).astype(np.float32))
     corners = np.rint(np.asarray(subdiv.getTriangleList(), np.float64).reshape(-1, 3, 2)).astype(np.int64)  # () if none
     inside = ((corners[..., 0] >= 0) & (corners[..., 0] < w) & (corners[..., 1] >= 0) & (corners[..., 1] < h)).all(1)
     corners = corners[inside]
