@@ -248,7 +248,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0)
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
-    # (ONNX Runtime, Qhull and gtsam's solver leave the interpreter lock); its inputs are known once the front
+    # (ONNX Runtime and OpenCV leave the interpreter lock); its inputs are known once the front
     # end has processed frame k (the deskew motion), so the results are those of a sequential run
     # (one core's worth of threads, as in a batch task with one CPU: sequential, in this thread)
     ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-generator") if torch_threads() > 1 else None
