@@ -228,7 +228,9 @@ class BenchLoopConfig(_Model):
     """`leovr bench loop`: loop closure on simulated city loops and the shared real clips."""
 
     lidars: list[Literal["mid40", "vlp16"]] = ["mid40", "vlp16"]
-    seeds: list[int] = [3100, 3101]  # reported: never used for training or for tuning the loop validation
+    # reported: never used for training or tuning (3100-3101 until session 39: their false loop prompted the
+    # session-40 review of the validation's limits, so they are no longer reported)
+    seeds: list[int] = [3300, 3301]
     tuning_seeds: list[int] = [3000, 3001]  # the validation thresholds were tuned on these: reported apart
     frames: int = Field(130, ge=10)  # at 80 km/h a lap of the city loop is about 110 frames
     quick_frames: int = Field(120, ge=10)  # --quick: one LiDAR, one seed
