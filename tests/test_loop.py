@@ -77,6 +77,25 @@ def test_validation_recovers_the_relative_pose_and_rejects_unrelated_frames():
     assert not bad.accepted
 
 
+def test_validation_refuses_a_loop_whose_two_pnp_poses_disagree_by_more_than_20_cm():
+    # frame i's depths s times too far: the forward PnP (frame j's points) stays exact, the reverse one
+    # (frame i's points) puts camera j at s times its 6 m offset, so the two disagree by (s - 1) x 6 m
+    rng = np.random.default_rng(3)
+    n = 120
+    pts_i = np.c_[rng.uniform(-6, 6, n), rng.uniform(-2, 2, n), rng.uniform(10, 30, n)]
+    T_j_i = make_T(Rotation.from_rotvec([0, 0.05, 0]).as_matrix(), [0.3, 0, -6.0])
+    pts_j = pts_i @ T_j_i[:3, :3].T + T_j_i[:3, 3]
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    fi = Features(((pts_i @ K.T)[:, :2] / pts_i[:, 2:]).astype(np.float32), desc)
+    fj = Features(((pts_j @ K.T)[:, :2] / pts_j[:, 2:]).astype(np.float32), desc)
+    near = validate_loop(fi, pts_i * 1.02, fj, pts_j, K)
+    assert near.accepted and near.disagree_m == pytest.approx(0.12, abs=0.01)
+    assert np.allclose(near.T_j_i, T_j_i, atol=1e-5)
+    far = validate_loop(fi, pts_i * 1.04, fj, pts_j, K)
+    assert not far.accepted and far.disagree_m == pytest.approx(0.24, abs=0.01)
+    assert validate_loop(fi, pts_i * 1.04, fj, pts_j, K, max_disagree_m=0.5).accepted  # the limit before session 40
+
+
 def test_pose_graph_pulls_a_drifted_loop_closed():
     # a square drive of 40 poses; odometry with a small yaw drift; the last pose revisits the first
     gt = [make_T(Rotation.from_euler("y", 90 * (k // 10), degrees=True).as_matrix()) for k in range(40)]
