@@ -61,33 +61,34 @@ def test_detector_needs_a_consistent_revisit():
     assert all(5 <= j <= 12 for j, _ in hits)
 
 
+def _two_views(rng, T_j_i: np.ndarray, z_min: float, n: int = 120):
+    """n random points ahead of camera i (depth z_min-30 m) seen by both cameras, one shared descriptor
+    each: frame i's and j's features and camera-frame points."""
+    pts_i = np.c_[rng.uniform(-6, 6, n), rng.uniform(-2, 2, n), rng.uniform(z_min, 30, n)]
+    pts_j = pts_i @ T_j_i[:3, :3].T + T_j_i[:3, 3]
+    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    fi = Features(((pts_i @ K.T)[:, :2] / pts_i[:, 2:]).astype(np.float32), desc)
+    fj = Features(((pts_j @ K.T)[:, :2] / pts_j[:, 2:]).astype(np.float32), desc)
+    return fi, pts_i, fj, pts_j
+
+
 def test_validation_recovers_the_relative_pose_and_rejects_unrelated_frames():
     rng = np.random.default_rng(2)
     n = 120
-    pts_i = np.c_[rng.uniform(-6, 6, n), rng.uniform(-2, 2, n), rng.uniform(5, 30, n)]
     T_j_i = make_T(Rotation.from_rotvec([0, 0.1, 0]).as_matrix(), [0.5, 0, -2.0])
-    pts_j = pts_i @ T_j_i[:3, :3].T + T_j_i[:3, 3]
-    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
-    uv_i = (pts_i @ K.T)[:, :2] / pts_i[:, 2:]
-    uv_j = (pts_j @ K.T)[:, :2] / pts_j[:, 2:]
-    check = validate_loop(Features(uv_i.astype(np.float32), desc), pts_i, Features(uv_j.astype(np.float32), desc), pts_j, K)
+    fi, pts_i, fj, pts_j = _two_views(rng, T_j_i, 5.0, n)
+    check = validate_loop(fi, pts_i, fj, pts_j, K)
     assert check.accepted and check.inliers == n and np.allclose(check.T_j_i, T_j_i, atol=1e-6)
     other = rng.integers(0, 256, (n, 32), dtype=np.uint8)
-    bad = validate_loop(Features(uv_i.astype(np.float32), desc), pts_i, Features(uv_j.astype(np.float32), other), pts_j, K)
+    bad = validate_loop(fi, pts_i, Features(fj.uv, other), pts_j, K)
     assert not bad.accepted
 
 
 def test_validation_refuses_a_loop_whose_two_pnp_poses_disagree_by_more_than_20_cm():
     # frame i's depths s times too far: the forward PnP (frame j's points) stays exact, the reverse one
     # (frame i's points) puts camera j at s times its 6 m offset, so the two disagree by (s - 1) x 6 m
-    rng = np.random.default_rng(3)
-    n = 120
-    pts_i = np.c_[rng.uniform(-6, 6, n), rng.uniform(-2, 2, n), rng.uniform(10, 30, n)]
     T_j_i = make_T(Rotation.from_rotvec([0, 0.05, 0]).as_matrix(), [0.3, 0, -6.0])
-    pts_j = pts_i @ T_j_i[:3, :3].T + T_j_i[:3, 3]
-    desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
-    fi = Features(((pts_i @ K.T)[:, :2] / pts_i[:, 2:]).astype(np.float32), desc)
-    fj = Features(((pts_j @ K.T)[:, :2] / pts_j[:, 2:]).astype(np.float32), desc)
+    fi, pts_i, fj, pts_j = _two_views(np.random.default_rng(3), T_j_i, 10.0)
     near = validate_loop(fi, pts_i * 1.02, fj, pts_j, K)
     assert near.accepted and near.disagree_m == pytest.approx(0.12, abs=0.01)
     assert np.allclose(near.T_j_i, T_j_i, atol=1e-5)

@@ -17,10 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.bench.loop import TRUE_LOOP_DEG, TRUE_LOOP_M, _angle
+from leovr.bench.loop import loop_error
 from leovr.config import BenchLoopConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
-from leovr.geometry import invert_T
 from leovr.pipeline.refine import run_refine
 from leovr.sim.simulate import simulate
 
@@ -44,12 +43,10 @@ def main() -> None:
                 seq = open_sequence(seq_dir)
                 run_refine(seq, RefineConfig(input="full", loop_closure=True, loop_min_gap=cfg.loop_min_gap), run, progress=False)
                 for r in json.loads((run / "loops.json").read_text())["loops"]:
-                    if r["T_j_i"] is not None:
-                        T_gt = invert_T(seq[r["candidate"]].T_world_cam) @ seq[r["frame"]].T_world_cam
-                        dT = invert_T(T_gt) @ np.array(r["T_j_i"])
-                        r["error_m"], r["error_deg"] = float(np.linalg.norm(dT[:3, 3])), _angle(dT[:3, :3])
-                        r["true"] = r["error_m"] < TRUE_LOOP_M and r["error_deg"] < TRUE_LOOP_DEG
-                    r.pop("T_j_i")
+                    T_j_i = r.pop("T_j_i")
+                    if T_j_i is not None:
+                        r["error_m"], r["error_deg"], r["true"] = loop_error(
+                            np.array(T_j_i), seq[r["frame"]].T_world_cam, seq[r["candidate"]].T_world_cam)
                     fh.write(json.dumps({"lap": f"{lidar}_s{seed}", **r}) + "\n")
                 fh.flush()
                 print(lidar, seed, "done", flush=True)

@@ -34,6 +34,14 @@ def _angle(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
 
 
+def loop_error(T_j_i: np.ndarray, T_world_i: np.ndarray, T_world_j: np.ndarray) -> tuple[float, float, bool]:
+    """A loop's measured relative pose (camera i seen from camera j) against the ground-truth poses:
+    translation error (m), rotation error (degrees), and whether that makes it a true loop."""
+    dT = invert_T(invert_T(T_world_j) @ T_world_i) @ np.asarray(T_j_i)
+    err_m, err_deg = float(np.linalg.norm(dT[:3, 3])), _angle(dT[:3, :3])
+    return err_m, err_deg, err_m < TRUE_LOOP_M and err_deg < TRUE_LOOP_DEG
+
+
 def loop_truth(run: Path, gt: list[np.ndarray] | None, min_gap: int) -> dict:
     """Count true / false / missed loops of a run from its loops.json and ground-truth poses."""
     doc = json.loads((run / "loops.json").read_text())
@@ -45,11 +53,7 @@ def loop_truth(run: Path, gt: list[np.ndarray] | None, min_gap: int) -> dict:
     true, errors = 0, []
     for r in accepted:
         i, j = r["frame"], r["candidate"]
-        T_gt = invert_T(gt[j]) @ gt[i]
-        T_est = np.array(r["T_j_i"])
-        dT = invert_T(T_gt) @ T_est
-        err_m, err_deg = float(np.linalg.norm(dT[:3, 3])), _angle(dT[:3, :3])
-        ok = err_m < TRUE_LOOP_M and err_deg < TRUE_LOOP_DEG
+        err_m, err_deg, ok = loop_error(np.array(r["T_j_i"]), gt[i], gt[j])
         true += int(ok)
         # each accepted loop's measured relative pose against the truth: how far off a false one is
         errors.append({"frame": i, "candidate": j, "error_m": round(err_m, 3), "error_deg": round(err_deg, 3), "true": ok})
