@@ -88,6 +88,27 @@ def test_the_image_side_holds_for_inputs_denser_than_the_interpolator_takes():
     assert err_image < 0.5 * err_nearest
 
 
+def test_a_steep_surface_between_far_rings_takes_the_image_guided_fit_not_a_corner(monkeypatch):
+    """The road between rings whose depths differ by 2-2.3x: each triangle counts as a depth edge, but the
+    edge-aware fit runs between its corners (no image edge), so the pixels take the fit's own depth."""
+    from leovr.depth import prior
+
+    gt = ground_plane()
+    rows = [64, 70, 80, 100]  # 44, 19, 9.8 and 4.9 m: consecutive ratios 2.3, 2.0, 2.0
+    sparse = np.zeros_like(gt)
+    sparse[rows, 1::2] = gt[rows, 1::2]
+    rng = np.random.default_rng(3)
+    img = np.clip(120 + rng.normal(0, 6, gt.shape + (3,)), 0, 255).astype(np.uint8)  # road texture, no edge
+    gap = slice(rows[0] + 1, rows[-1])
+    fit = interpolated_fill(sparse, image=img)
+    monkeypatch.setattr(prior, "EDGE_GUIDE_MAX_RATIO", 1.0)  # the corner rule alone
+    corner = interpolated_fill(sparse, image=img)
+    err_fit, err_corner = (np.abs(m - gt)[gap].mean() for m in (fit, corner))
+    assert err_fit < 0.5 * err_corner
+    assert len(np.unique(np.round(corner[gap], 3))) <= len(rows)  # corners only
+    assert (fit[gap] < sparse[rows[0], 1] + 1e-3).all() and (fit[gap] > sparse[rows[-1], 1] - 1e-3).all()
+
+
 def test_interpolation_degenerate_inputs():
     assert not interpolated_fill(np.zeros((10, 12), np.float32)).any()
     line = np.zeros((10, 12), np.float32)
