@@ -123,7 +123,10 @@ class RefineConfig(FrameSelection):
     input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R simulate a cheaper sensor (evaluation); none: camera only
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
     depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
-    depth_factors: bool = True  # False: point factors only (no depth-consistency / LiDAR-depth factors)
+    # the correction field's depth-consistency and LiDAR-depth factors; False: point factors only. auto: off
+    # with a spinning LiDAR (on every development drive and the real clip's development frames they added
+    # depth error with VLP-16 input, ATE level: docs/benchmarks.md), on with a cone LiDAR or without LiDAR
+    depth_factors: bool | Literal["auto"] = "auto"
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
     # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's
     # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,

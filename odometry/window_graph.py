@@ -112,6 +112,9 @@ class WindowGraph:
         self.icp_poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.last: int | None = None
         self.road_up: list[np.ndarray] = []  # camera only: the road's normal in the world, the first ones seen
+        # the correction field's depth factors; `auto` is on until the caller knows the sensor (refine: a
+        # spinning LiDAR turns them off)
+        self.depth_factors: bool = self.cfg.depth_factors is not False
 
     # ----------------------------------------------------------------- factors of one new frame
     def _frame_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
@@ -136,7 +139,7 @@ class WindowGraph:
         sig = self.grid.cell_means(f.rel_sigma)
         sig = np.clip(np.nan_to_num(sig, nan=cfg.prior_sigma_max), cfg.prior_sigma_min, cfg.prior_sigma_max)
         graph.add(gtsam.PriorFactorVector(C(f.index), np.zeros(self.grid.size), gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        if cfg.depth_factors and f.lidar_uvz is not None and len(f.lidar_uvz) and cfg.lidar_depth_samples > 0:
+        if self.depth_factors and f.lidar_uvz is not None and len(f.lidar_uvz) and cfg.lidar_depth_samples > 0:
             uvz = f.lidar_uvz
             if len(uvz) > cfg.lidar_depth_samples:
                 uvz = uvz[self.rng.choice(len(uvz), cfg.lidar_depth_samples, replace=False)]
@@ -152,7 +155,7 @@ class WindowGraph:
             graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, cfg.pixel_sigma))
             if o.lidar_cam is not None:
                 graph.add(lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), cfg.bearing_sigma_rad, cfg.range_sigma_m))
-        if cfg.depth_factors and f.trusted is not None and self.last is not None and f.trusted.any():
+        if self.depth_factors and f.trusted is not None and self.last is not None and f.trusted.any():
             v, u = np.nonzero(f.trusted)
             dc = DepthConsistency(fd, self.depths[self.last], self.K, cfg.consistency_sigma_log)
             pair = _Pair(f.index, self.last, dc, (u.astype(float), v.astype(float)))

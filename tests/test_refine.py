@@ -51,6 +51,24 @@ def test_refine_tracks_the_camera_and_does_not_degrade_depth(refined):
     assert m["depth"]["generator"]["mae_m"] < m["depth"]["generator_frame"]["mae_m"]  # the earlier scans help
 
 
+def test_depth_factors_auto_leave_a_spinning_lidars_depth_to_the_generator(refined, tmp_path):
+    """`depth_factors: auto` (default): with a Mid-40 cone the correction field moves the depth; with a
+    spinning VLP-16 the graph has no depth factors, so the refined maps are the generator's."""
+    from leovr.data.io import read_depth_png
+
+    def changed(out) -> float:
+        return max(float(np.abs(read_depth_png(p) - read_depth_png(out / "depth_generator" / p.name)).max())
+                   for p in sorted((out / "depth").glob("*.png")))
+
+    assert changed(refined[1]) > 0.1
+    seq_dir = tmp_path / "vlp16"
+    simulate(SimulateConfig(scenario="straight", lidar="vlp16", frames=4, seed=3002), seq_dir, progress=False)
+    run_refine(open_sequence(seq_dir), RefineConfig(input="full"), tmp_path / "auto", progress=False)
+    assert changed(tmp_path / "auto") == 0.0
+    run_refine(open_sequence(seq_dir), RefineConfig(input="full", depth_factors=True), tmp_path / "on", progress=False)
+    assert changed(tmp_path / "on") > 0.1
+
+
 def test_the_kiss_icp_baseline_is_kiss_icp_alone_deskewing_the_raw_scans_itself(refined):
     from leovr.data.kitti_common import read_kitti_poses
     from leovr.pipeline.kiss_baseline import kiss_icp_trajectory

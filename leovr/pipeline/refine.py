@@ -277,10 +277,15 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph)
             t2 = time.perf_counter()
-            if history.frames and not history.sensor_known and sample.kept_points is not None and len(sample.kept_points) >= 100:
-                history.sensor_known = True  # judged on the first scan with returns: a spinning sensor keeps its own scan
-                if is_spinning(sample.kept_points[:, :3]):
+            if not history.sensor_known and sample.kept_points is not None and len(sample.kept_points) >= 100:
+                # judged on the first scan with returns: a spinning sensor keeps its own scan, and with
+                # `depth_factors: auto` the graph leaves the depth to the generator
+                history.sensor_known = True
+                spinning = is_spinning(sample.kept_points[:, :3])
+                if spinning:
                     history.frames = 0
+                if cfg.depth_factors == "auto":
+                    graph.depth_factors = not spinning
             history.add(i, sample.kept_points)
             if n + 1 < len(indices):
                 earlier = None
