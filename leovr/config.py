@@ -125,7 +125,8 @@ class RefineConfig(FrameSelection):
     depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
     # the correction field's depth-consistency and LiDAR-depth factors; False: point factors only. auto: off
     # with a spinning LiDAR (on every development drive and the real clip's development frames they added
-    # depth error with VLP-16 input, ATE level: docs/benchmarks.md), on with a cone LiDAR or without LiDAR
+    # depth error with VLP-16 input, ATE level: docs/benchmarks.md), on with a cone LiDAR or without LiDAR;
+    # the sensor is judged on the first scan with 100 returns or more (frames before it keep the factors)
     depth_factors: bool | Literal["auto"] = "auto"
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
     # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's

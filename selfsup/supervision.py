@@ -103,6 +103,7 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
         rcfg = RefineConfig(input=cfg.input, end=n_frames, seed=cfg.seed, loop_closure=cfg.loop_closure,
                             loop_min_gap=cfg.loop_min_gap, generator_focal_px=cfg.train_focal_px,
                             depth_source="ipbasic" if checkpoint is None else "generator",
+                            # forced on with a generator (not `auto`): L_r needs a correction field that can move
                             depth_factors=checkpoint is not None, checkpoint=None if checkpoint is None else str(checkpoint),
                             # the trainer's own checkpoints carry no int8 calibration table: floating point
                             generator_runtime="onnxruntime",

@@ -54,8 +54,8 @@ def _uint8_image(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def edge_aware_log_depth(sparse: np.ndarray, image: np.ndarray) -> np.ndarray:
     """Log depth interpolated from the returns of `sparse` along geodesic paths over the image's edges
-    (H x W float32); used only to pick a side at depth edges, never as depth itself (its locally affine
-    fit can overshoot)."""
+    (H x W float32). It picks the side at depth edges; as depth it is used only inside moderate edges and
+    only where it lies strictly between the triangle's corners (its locally affine fit can overshoot)."""
     import cv2
 
     v, u = np.nonzero(sparse > 0)
@@ -135,7 +135,9 @@ def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     """The prior of `sparse` at the pixels (rows, cols) only (float32 metres; 0 where the map is empty).
     Triangles whose corner depths differ by a factor of `edge_ratio` or more span a depth edge: their
     pixels take one corner's depth instead of a blend of foreground and background, the one the image
-    puts them with (`image`: H x W (x 3), uint8 or floats in [0, 1]), else the nearest return."""
+    puts them with (`image`: H x W (x 3), uint8 or floats in [0, 1]), else the nearest return. With the
+    image, a triangle whose corners differ by less than EDGE_GUIDE_MAX_RATIO gives its pixels the image
+    guide's own depth where that lies strictly between the corners (a steep surface, not an edge)."""
     sparse = np.asarray(sparse, np.float32)
     valid = sparse > 0
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
