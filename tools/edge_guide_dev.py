@@ -27,7 +27,6 @@ import numpy as np
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.depth import prior as P
-from leovr.depth.classical import nearest_fill
 from leovr.depth.dataset import split_entries
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
@@ -39,26 +38,8 @@ from leovr.sim.dataset import default_root
 def edge_rules(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray, image: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
     """Each rule's depth at (rows, cols), the indices of the edge-triangle pixels, and their corner ratio."""
     valid = sparse > 0
-    v, u = np.nonzero(valid)
-    tri = P.delaunay_triangles(u, v, sparse.shape)
-    z = sparse[v, u][tri].astype(np.float64)
-    p = np.stack([u, v], 1).astype(np.float64)[tri]
-    d0, d1, inv = p[:, 0] - p[:, 2], p[:, 1] - p[:, 2], 1.0 / z
-    f0, f1 = inv[:, 0] - inv[:, 2], inv[:, 1] - inv[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        det = d0[:, 0] * d1[:, 1] - d1[:, 0] * d0[:, 1]
-        g = np.stack([f0 * d1[:, 1] - f1 * d0[:, 1], d0[:, 0] * f1 - d1[:, 0] * f0], 1) / det[:, None]
-    c = inv[:, 2] - (g * p[:, 2]).sum(1)
-    smooth = (z.max(1) < P.EDGE_RATIO * z.min(1)) & np.isfinite(g).all(1) & np.isfinite(c)
-    order = np.argsort(smooth, kind="stable")
-    simplex = P.triangle_map(p[order], sparse.shape)[rows, cols]
-    simplex[simplex >= 0] = order[simplex[simplex >= 0]]
-    hit = simplex >= 0
-    hit[hit] = smooth[simplex[hit]]
-    out = nearest_fill(sparse)[rows, cols].astype(np.float64)
-    i, s = np.nonzero(hit)[0], simplex[hit]
-    out[i] = 1.0 / np.maximum(g[s, 0] * cols[i] + g[s, 1] * rows[i] + c[s], 1e-6)
-    edge = np.nonzero((simplex >= 0) & ~hit)[0]
+    tri = P.triangle_lookup(sparse, rows, cols)
+    out, edge, z, g, c, simplex = tri.depth.astype(np.float64), tri.edge, tri.z, tri.g, tri.c, tri.simplex
     guide = P.edge_aware_log_depth(sparse, image)[rows[edge], cols[edge]]
     edge, guide = edge[np.isfinite(guide)], guide[np.isfinite(guide)]
     zc = z[simplex[edge]]

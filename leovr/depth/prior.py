@@ -20,6 +20,8 @@ fit follows and a corner does not. Without the image, the nearest return.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from leovr.depth.classical import nearest_fill
@@ -130,6 +132,51 @@ def triangle_map(corners: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return out.reshape(shape)
 
 
+@dataclass
+class TriangleLookup:
+    """The pixels (rows, cols) in the Delaunay triangles of a sparse map's returns."""
+
+    depth: np.ndarray  # per pixel: inverse-depth interpolation in smooth triangles, else the nearest return
+    simplex: np.ndarray  # per pixel: its triangle (-1 outside the hull)
+    edge: np.ndarray  # indices of the pixels in triangles that span a depth edge
+    z: np.ndarray  # T x 3 corner depths (float64)
+    g: np.ndarray  # T x 2 and T: each triangle's inverse depth is g . (u, v) + c (exact for a plane)
+    c: np.ndarray
+
+
+def triangle_lookup(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                    edge_ratio: float = EDGE_RATIO) -> TriangleLookup:
+    """Triangulate the returns of `sparse` (float32, 0 = none, at least one return) and look up the pixels
+    (int64 rows, cols): a triangle whose corner depths differ by a factor of `edge_ratio` or more spans a
+    depth edge and is not interpolated."""
+    out = nearest_fill(sparse)[rows, cols]
+    v, u = np.nonzero(sparse > 0)
+    simplices = delaunay_triangles(u, v, sparse.shape)
+    if not len(simplices):
+        none = np.zeros((0, 3))
+        return TriangleLookup(out, np.full(len(rows), -1), np.zeros(0, np.int64), none, none[:, :2], none[:, 0])
+    z = sparse[v, u][simplices].astype(np.float64)  # T x 3 corner depths
+    inv = 1.0 / z
+    p = np.stack([u, v], 1).astype(np.float64)[simplices]  # T x 3 x 2
+    d0, d1 = p[:, 0] - p[:, 2], p[:, 1] - p[:, 2]
+    f0, f1 = inv[:, 0] - inv[:, 2], inv[:, 1] - inv[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = d0[:, 0] * d1[:, 1] - d1[:, 0] * d0[:, 1]
+        g = np.stack([f0 * d1[:, 1] - f1 * d0[:, 1], d0[:, 0] * f1 - d1[:, 0] * f0], 1) / det[:, None]
+    c = inv[:, 2] - (g * p[:, 2]).sum(1)
+    smooth = (z.max(1) < edge_ratio * z.min(1)) & np.isfinite(g).all(1) & np.isfinite(c)
+    # triangles spanning an edge are drawn first: a pixel on a side they share with a smooth one interpolates
+    order = np.argsort(smooth, kind="stable")
+    simplex = triangle_map(p[order], sparse.shape)[rows, cols]
+    simplex[simplex >= 0] = order[simplex[simplex >= 0]]
+    hit = simplex >= 0
+    hit[hit] = smooth[simplex[hit]]
+    idx = np.nonzero(hit)[0]
+    s = simplex[idx]
+    out[idx] = 1.0 / np.maximum(g[s, 0] * cols[idx] + g[s, 1] * rows[idx] + c[s], 1e-6)
+    return TriangleLookup(out, simplex, np.nonzero((simplex >= 0) & ~hit)[0], z, g, c)
+
+
 def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                     edge_ratio: float = EDGE_RATIO, image: np.ndarray | None = None) -> np.ndarray:
     """The prior of `sparse` at the pixels (rows, cols) only (float32 metres; 0 where the map is empty).
@@ -143,47 +190,22 @@ def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     if not valid.any():
         return np.zeros(len(rows), np.float32)
-    out = nearest_fill(sparse)[rows, cols]
-    v, u = np.nonzero(valid)
-    simplices = delaunay_triangles(u, v, sparse.shape)
-    if len(simplices):
-        # per triangle, inverse depth as an affine function of the pixel, g . p + c (exact for a plane),
-        # and whether the triangle spans a depth edge; then one lookup per pixel
-        z = sparse[v, u][simplices].astype(np.float64)  # T x 3 corner depths
-        inv = 1.0 / z
-        p = np.stack([u, v], 1).astype(np.float64)[simplices]  # T x 3 x 2
-        d0, d1 = p[:, 0] - p[:, 2], p[:, 1] - p[:, 2]
-        f0, f1 = inv[:, 0] - inv[:, 2], inv[:, 1] - inv[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            det = d0[:, 0] * d1[:, 1] - d1[:, 0] * d0[:, 1]
-            g = np.stack([f0 * d1[:, 1] - f1 * d0[:, 1], d0[:, 0] * f1 - d1[:, 0] * f0], 1) / det[:, None]
-        c = inv[:, 2] - (g * p[:, 2]).sum(1)
-        smooth = (z.max(1) < edge_ratio * z.min(1)) & np.isfinite(g).all(1) & np.isfinite(c)
-        # triangles spanning an edge are drawn first: a pixel on a side they share with a smooth one interpolates
-        order = np.argsort(smooth, kind="stable")
-        simplex = triangle_map(p[order], sparse.shape)[rows, cols]
-        simplex[simplex >= 0] = order[simplex[simplex >= 0]]
-        hit = simplex >= 0
-        hit[hit] = smooth[simplex[hit]]
-        idx = np.nonzero(hit)[0]
-        s = simplex[idx]
-        val = g[s, 0] * cols[idx] + g[s, 1] * rows[idx] + c[s]
-        out[idx] = 1.0 / np.maximum(val, 1e-6)
-        edge = np.nonzero((simplex >= 0) & ~hit)[0]
-        if image is not None and len(edge) and len(u) >= MIN_EDGE_AWARE_RETURNS:
-            guide = edge_aware_log_depth(sparse, image)[rows[edge], cols[edge]]
-            edge = edge[np.isfinite(guide)]  # a degenerate fit keeps the nearest return
-            guide = guide[np.isfinite(guide)]
-            zc = z[simplex[edge]]
-            cost = np.abs(np.log(zc) - guide[:, None])
-            best = zc[np.arange(len(edge)), cost.argmin(1)]
-            # the nearest return stays where it is at least as near the guide as the best corner
-            switch = cost.min(1) < np.abs(np.log(out[edge]) - guide)
-            out[edge[switch]] = best[switch]
-            # a moderate edge whose fit runs between its corners: a steep surface, the fit's own depth
-            lo, hi = np.log(zc.min(1)), np.log(zc.max(1))
-            between = (guide > lo) & (guide < hi) & (hi - lo < np.log(EDGE_GUIDE_MAX_RATIO))
-            out[edge[between]] = np.exp(guide[between])
+    tri = triangle_lookup(sparse, rows, cols, edge_ratio)
+    out, edge = tri.depth, tri.edge
+    if image is not None and len(edge) and valid.sum() >= MIN_EDGE_AWARE_RETURNS:
+        guide = edge_aware_log_depth(sparse, image)[rows[edge], cols[edge]]
+        edge = edge[np.isfinite(guide)]  # a degenerate fit keeps the nearest return
+        guide = guide[np.isfinite(guide)]
+        zc = tri.z[tri.simplex[edge]]
+        cost = np.abs(np.log(zc) - guide[:, None])
+        best = zc[np.arange(len(edge)), cost.argmin(1)]
+        # the nearest return stays where it is at least as near the guide as the best corner
+        switch = cost.min(1) < np.abs(np.log(out[edge]) - guide)
+        out[edge[switch]] = best[switch]
+        # a moderate edge whose fit runs between its corners: a steep surface, the fit's own depth
+        lo, hi = np.log(zc.min(1)), np.log(zc.max(1))
+        between = (guide > lo) & (guide < hi) & (hi - lo < np.log(EDGE_GUIDE_MAX_RATIO))
+        out[edge[between]] = np.exp(guide[between])
     measured = valid[rows, cols]
     out[measured] = sparse[rows[measured], cols[measured]]
     return out
