@@ -44,10 +44,9 @@ from leovr.config import AdaptConfig
 from leovr.data.io import write_text
 from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
-from leovr.depth.inference import _pad32, load_generator, rescale_sparse
+from leovr.depth.inference import _pad32, load_generator, rescale_sparse, sampled_prior
 from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator, blend_log_depth, prior_for
-from leovr.depth.prior import interpolated_at
 from leovr.depth.runtime import calibrate_generator
 from leovr.depth.train import edge_aware_smoothness, save_checkpoint
 from leovr.errors import DataError
@@ -88,20 +87,29 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
     small = image if (hs, ws) == shape else cv2.resize(image, (ws, hs), interpolation=cv2.INTER_AREA)
     img = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1).float() / 255.0
     whole = sparse_depth(points, K, T_cam_lidar, shape).astype(np.float32)
-    whole_small = torch.from_numpy(whole if (hs, ws) == shape else rescale_sparse(whole, scale, (hs, ws)))[None]
+    image_full = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
+    factor = 1.0 if (hs, ws) == shape else scale
+
+    def priors(sparse: np.ndarray) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+        """The network's input map, its prior and the full-resolution prior, built as at inference
+        (leovr.depth.inference.predict_parts_full): once at full resolution, the input's resampled from it;
+        the priors take the side of depth edges from the image (leovr.depth.prior)."""
+        small = sparse if (hs, ws) == shape else rescale_sparse(sparse, scale, (hs, ws))
+        full_prior = prior_for(torch.from_numpy(sparse)[None, None], image_full)[0, 0].numpy()
+        return torch.from_numpy(small)[None], sampled_prior(full_prior, small, factor), full_prior
+
+    whole_small, whole_prior, _ = priors(whole)
     splits = []
     for _ in range(n):
         sp = masked_split(points, K, T_cam_lidar, shape, rng, span_rings=span_rings, every=whole)
         rows, cols = np.nonzero(sp.target > 0)
-        small_sparse = sp.sparse if (hs, ws) == shape else rescale_sparse(sp.sparse, scale, (hs, ws))
-        s = torch.from_numpy(small_sparse)[None]
+        s, small_prior, full_prior = priors(sp.sparse.astype(np.float32))
         grid = np.stack([(cols + 0.5) / w * 2 - 1, (rows + 0.5) / h * 2 - 1], 1).astype(np.float32)
-        # the priors take the side of depth edges from the image, as at inference (leovr.depth.prior)
-        splits.append(SplitSample(s, prior_for(s[None], img[None])[0], torch.from_numpy(grid),
+        splits.append(SplitSample(s, torch.from_numpy(small_prior)[None], torch.from_numpy(grid),
                                   torch.from_numpy(sp.target[rows, cols]),
-                                  torch.from_numpy(interpolated_at(sp.sparse, rows, cols, image=image)),
+                                  torch.from_numpy(np.ascontiguousarray(full_prior[rows, cols])),
                                   torch.from_numpy(sp.sparse[rows, cols])))
-    return AdaptFrame(img, splits, whole_small, prior_for(whole_small[None], img[None])[0])
+    return AdaptFrame(img, splits, whole_small, torch.from_numpy(whole_prior)[None])
 
 
 def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) -> list[AdaptFrame]:

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from leovr.depth.classical import nearest_fill
-from leovr.depth.inference import predict, predict_at_focal
+from leovr.depth.inference import predict, predict_at_focal, rescale_sparse, sampled_prior
 from leovr.depth.network import DepthGenerator, GeneratorConfig
 from leovr.depth.prior import delaunay_triangles, interpolated_fill, triangle_map
 
@@ -130,6 +130,35 @@ def test_untrained_residual_generator_returns_its_prior(mode):
     full, _ = predict_at_focal(model, img, sparse, focal_px=300.0, model_focal_px=150.0)
     np.testing.assert_allclose(full, interpolated_fill(sparse, image=img), rtol=1e-5)
     assert depth.shape == log_sigma.shape == sparse.shape
+
+
+def test_a_resampled_frame_reads_its_input_prior_from_the_full_resolution_prior():
+    """The network's input prior on a frame run at another focal length is the full-resolution prior at the
+    pixel each small pixel came from, with the small map's own returns kept; at scale 1 it is the prior."""
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 255, (90, 150, 3), dtype=np.uint8)
+    gt = ground_plane(90, 150)
+    sparse = np.where((rng.random(gt.shape) < 0.08) & (gt > 0), gt, 0).astype(np.float32)
+    full = interpolated_fill(sparse, image=img)
+    np.testing.assert_array_equal(sampled_prior(full, sparse, 1.0), full)
+    small = rescale_sparse(sparse, 0.5, (45, 75))
+    got = sampled_prior(full, small, 0.5)
+    assert got.shape == (45, 75)
+    measured = small > 0
+    np.testing.assert_array_equal(got[measured], small[measured])
+    r, c = np.nonzero(~measured)
+    np.testing.assert_array_equal(got[r, c], full[np.minimum(2 * r, 89), np.minimum(2 * c, 149)])
+    # and it is what the network reads: a recorder in place of the network sees the same map
+    seen = {}
+
+    class Recorder(DepthGenerator):
+        def parts(self, image, sparse_in, prior):
+            seen["prior"] = prior.clone()
+            return super().parts(image, sparse_in, prior)
+
+    model = Recorder(GeneratorConfig(output="residual", channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))).eval()
+    predict_at_focal(model, img, sparse, focal_px=300.0, model_focal_px=150.0)
+    np.testing.assert_allclose(seen["prior"][0, 0, :45, :75].numpy(), got, rtol=1e-6)
 
 
 def test_fusion_keeps_measured_pixels_close_to_the_measurement():
