@@ -20,6 +20,7 @@ fit follows and a corner does not. Without the image, the nearest return.
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,6 +178,26 @@ def triangle_lookup(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     return TriangleLookup(out, simplex, np.nonzero((simplex >= 0) & ~hit)[0], z, g, c)
 
 
+_POOL: list = []  # one helper thread, made on first use
+
+
+def _beside(fn, *args) -> Future:
+    """`fn(*args)` in a helper thread when OpenCV may use more than one thread (cv2.setNumThreads: a batch
+    task with one CPU sets 1), else here; the Future gives its result or raises its error."""
+    import cv2
+
+    if cv2.getNumThreads() > 1:
+        if not _POOL:
+            _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-prior"))
+        return _POOL[0].submit(fn, *args)
+    fut: Future = Future()
+    try:
+        fut.set_result(fn(*args))
+    except Exception as exc:  # noqa: BLE001 (raised by result(), as from the thread)
+        fut.set_exception(exc)
+    return fut
+
+
 def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                     edge_ratio: float = EDGE_RATIO, image: np.ndarray | None = None) -> np.ndarray:
     """The prior of `sparse` at the pixels (rows, cols) only (float32 metres; 0 where the map is empty).
@@ -190,10 +211,13 @@ def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     if not valid.any():
         return np.zeros(len(rows), np.float32)
+    guided = image is not None and valid.sum() >= MIN_EDGE_AWARE_RETURNS
+    # the image guide (OpenCV, which leaves the interpreter lock) runs beside the triangle lookup (numpy)
+    fit = _beside(edge_aware_log_depth, sparse, image) if guided else None
     tri = triangle_lookup(sparse, rows, cols, edge_ratio)
     out, edge = tri.depth, tri.edge
-    if image is not None and len(edge) and valid.sum() >= MIN_EDGE_AWARE_RETURNS:
-        guide = edge_aware_log_depth(sparse, image)[rows[edge], cols[edge]]
+    if fit is not None and len(edge):
+        guide = fit.result()[rows[edge], cols[edge]]
         edge = edge[np.isfinite(guide)]  # a degenerate fit keeps the nearest return
         guide = guide[np.isfinite(guide)]
         zc = tri.z[tri.simplex[edge]]
