@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,13 +34,31 @@ class EvalSample:
 
     frame: Frame
     sparse: np.ndarray
-    gt: np.ndarray
-    gt_kind: str  # "dense" or "heldout"
+    gt: np.ndarray | None
+    gt_kind: str  # "dense", "heldout", "none", or "deferred" (held-out truth not built yet: with_truth)
     kept_points: np.ndarray | None = None  # the cheap input's points, LiDAR frame
+    heldout_points: np.ndarray | None = None  # the held-out returns, LiDAR frame (kind "deferred")
 
 
-def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
-    """Split the frame's scan into the cheap input and the held-out rest; build the ground truth."""
+def heldout_truth(frame: Frame, heldout: np.ndarray, cfg: CompleteConfig) -> np.ndarray:
+    """The held-out returns as a depth map, each dropped where a nearer return lies within the parallax
+    window (the LiDAR sees background beside an edge that the camera cannot: shared data README)."""
+    held = sparse_depth(heldout, frame.K, frame.T_cam_lidar, frame.shape)
+    every = sparse_depth(frame.points, frame.K, frame.T_cam_lidar, frame.shape)
+    return parallax_filter(held, every, cfg.parallax_window, cfg.parallax_rel)
+
+
+def with_truth(sample: EvalSample, cfg: CompleteConfig) -> EvalSample:
+    """The sample with its held-out truth built (a "deferred" one), else as it is."""
+    if sample.gt_kind != "deferred":
+        return sample
+    return replace(sample, gt=heldout_truth(sample.frame, sample.heldout_points, cfg), gt_kind="heldout",
+                   heldout_points=None)
+
+
+def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True) -> EvalSample:
+    """Split the frame's scan into the cheap input and the held-out rest; build the ground truth (with
+    `truth=False` a held-out truth is left "deferred": `with_truth` builds it, e.g. off a run's critical path)."""
     if frame.points is None:
         raise DataError(f"frame {frame.index}", "has no LiDAR scan; depth completion needs a range sensor input")
     split = simulate_cheap_sensor(
@@ -51,10 +69,9 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig) -> EvalSample:
         return EvalSample(frame, sparse, frame.depth, "dense", split.kept)
     if not len(split.heldout):  # the whole scan is the input: nothing held out to score against
         return EvalSample(frame, sparse, np.zeros(frame.shape, np.float32), "none", split.kept)
-    held = sparse_depth(split.heldout, frame.K, frame.T_cam_lidar, frame.shape)
-    every = sparse_depth(frame.points, frame.K, frame.T_cam_lidar, frame.shape)
-    gt = parallax_filter(held, every, cfg.parallax_window, cfg.parallax_rel)
-    return EvalSample(frame, sparse, gt, "heldout", split.kept)
+    if not truth:
+        return EvalSample(frame, sparse, None, "deferred", split.kept, split.heldout)
+    return EvalSample(frame, sparse, heldout_truth(frame, split.heldout, cfg), "heldout", split.kept)
 
 
 def warn_empty_input(seq: Sequence, frames: list[int]) -> None:

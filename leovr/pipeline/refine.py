@@ -27,6 +27,7 @@ from leovr.config import CompleteConfig, FrameSelection, RefineConfig
 from leovr.data.io import atomic_write, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
+from leovr.data.records import Frame
 from leovr.data.run_info import png_name, read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.classical import complete_depth
@@ -46,6 +47,7 @@ from leovr.pipeline.completion import (
     ground_truth_note,
     prepare_sample,
     warn_empty_input,
+    with_truth,
 )
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
 from leovr.threads import single_threaded_blas
@@ -83,13 +85,15 @@ def torch_threads() -> int:
 
 
 def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.ndarray | None = None,
-                 frame_dt: float = 0.1, camera_only: bool = False) -> EvalSample:
+                 frame_dt: float = 0.1, camera_only: bool = False, truth: bool = True,
+                 frame: Frame | None = None) -> EvalSample:
     """The frame with its cheap LiDAR input (deskewed when a motion is given) and ground truth; without
-    LiDAR (or `camera_only`, `--input none`) an empty input, and the whole scan, if any, held out."""
-    f = deskew_frame(seq[i], motion_cam, frame_dt)
+    LiDAR (or `camera_only`, `--input none`) an empty input, and the whole scan, if any, held out.
+    `truth=False`: a held-out truth is left for `with_truth` (prepare_sample). `frame`: seq[i], read already."""
+    f = deskew_frame(seq[i] if frame is None else frame, motion_cam, frame_dt)
     has_points = f.points is not None and len(f.points) > 0
     if has_points and not camera_only:
-        return prepare_sample(f, ccfg)
+        return prepare_sample(f, ccfg, truth)
     empty = np.zeros(f.shape, np.float32)
     if f.depth is not None:
         return EvalSample(f, empty, f.depth, "dense", None)
@@ -239,7 +243,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     def prepare(i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> tuple[EvalSample, np.ndarray, np.ndarray, float]:
         """Frame i's input and generator depth; runs beside the graph update of the previous frame.
         `earlier`: returns of the frames before, in frame i's predicted camera (the generator's input only)."""
-        sample = frame_sample(seq, i, ccfg, motion, frame_dt, camera_only)
+        frame = reads.pop(i).result() if i in reads else None
+        # the held-out truth is scoring, not refinement: built in the main thread's scoring step below
+        sample = frame_sample(seq, i, ccfg, motion, frame_dt, camera_only, truth=False, frame=frame)
         t0 = time.perf_counter()
         if earlier is not None:
             earlier = history.keep_consistent(earlier, sample.kept_points)
@@ -252,6 +258,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     # end has processed frame k (the deskew motion), so the results are those of a sequential run
     # (one core's worth of threads, as in a batch task with one CPU: sequential, in this thread)
     ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-generator") if torch_threads() > 1 else None
+    # and its files are read (image decoding leaves the interpreter lock) while this frame's front end runs
+    reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-read") if ahead is not None else None
+    reads: dict[int, Future] = {}
 
     def submit(i: int, motion: np.ndarray | None, earlier: np.ndarray | None = None) -> Future:
         if ahead is not None:
@@ -271,6 +280,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 nxt = submit(i, front.velocity if cfg.deskew and front.prev is not None else None)
             sample, depth, log_sigma, gen_ms = nxt.result()
             nxt = None
+            if reader is not None and n + 1 < len(indices):
+                reads[indices[n + 1]] = reader.submit(seq.__getitem__, indices[n + 1])
             if has_lidar and i not in done and not (sample.sparse > 0).any():
                 empty.append(i)
             t1 = time.perf_counter()
@@ -295,7 +306,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None, earlier)
             pending[i] = depth, front.depth_scale
             t_base = time.perf_counter()  # the scoring and the baselines below are not part of a frame's time
-            fs = FrameScore.of(sample) if score and i not in done else None
+            fs = FrameScore.of(with_truth(sample, ccfg)) if score and i not in done else None
             if fs is not None:
                 scored[i] = fs
             if fs is not None and history.frames:
@@ -327,6 +338,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             nxt.cancel()
         if ahead is not None:
             ahead.shutdown(wait=True)
+        if reader is not None:
+            reader.shutdown(wait=True, cancel_futures=True)
     finish(graph.flush())
     single_frame_generator(seq, scored, generator, progress)
     if empty:
