@@ -10,6 +10,8 @@ prefer the truth: the table gives, per bin of the generator's relative error, in
 
     .venv/bin/leovr refine ../shared/data/kitti_raw --input mid40 --end 38 --out runs/dev_mid40_0_38
     .venv/bin/python tools/photo_signal_dev.py runs/dev_mid40_0_38 --offsets 3 --scale 0.36
+    .venv/bin/leovr refine ../shared/data/kitti_raw --input full --end 38 --out runs/dev_full_0_38
+    .venv/bin/python tools/photo_signal_dev.py runs/dev_mid40_0_38 --poses runs/dev_full_0_38
 """
 
 from __future__ import annotations
@@ -35,12 +37,13 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("run", type=Path, help="a `leovr refine` output folder (poses_kitti.txt, depth_generator/)")
     ap.add_argument("--input", default="mid40")
+    ap.add_argument("--poses", type=Path, default=None, help="take the poses from this run instead (e.g. one on the full scan)")
     ap.add_argument("--offsets", type=int, nargs="+", default=[3])
     ap.add_argument("--scale", type=float, default=0.36, help="image scale (0.36: the generator's 260 px focal length)")
     a = ap.parse_args()
     seq = open_sequence(kitti_raw_dir())
     ccfg = completion_config(RefineConfig(input=a.input))
-    P = np.loadtxt(a.run / "poses_kitti.txt").reshape(-1, 3, 4)
+    P = np.loadtxt((a.poses or a.run) / "poses_kitti.txt").reshape(-1, 3, 4)
     T = np.tile(np.eye(4), (len(P), 1, 1))
     T[:, :3] = P
     last = 30
