@@ -2,7 +2,8 @@
 
 Starting from the shipped generator (or `--init`), each training frame's own LiDAR input is split
 into a thinner input and hidden returns (selfsup.masked_lidar); the network runs on the thinner input
-at its training focal length, exactly as at inference its residual, fusion weight and sigma are
+at its training focal length, exactly as at inference (its input prior read from the full-resolution
+prior: leovr.depth.inference.sampled_prior) its residual, fusion weight and sigma are
 resized to the full frame and combined with the full-resolution prior, and the loss is read at the
 hidden returns: L1 on depth, the Gaussian NLL of the uncertainty head (all-day eq. 2, on detached
 depth, so the graph's prior is trained on the user's data too), and a small edge-aware smoothness.
