@@ -228,3 +228,28 @@ def test_triangle_map_covers_each_pixel_inside_or_on_a_triangle_and_nothing_else
     # a pixel on a side two triangles share goes to the later one
     shared = np.nonzero(inside.sum(1) >= 2)[0]
     assert len(shared) and (flat[shared] == np.array([np.nonzero(row)[0].max() for row in inside[shared]])).all()
+
+
+def _prior_mean_in_child(q, sparse, image):  # module level: the forked child runs it
+    q.put(float(interpolated_fill(sparse, image=image).mean()))
+
+
+def test_the_prior_runs_in_a_forked_child_after_its_parent_used_it():
+    """The image guide runs in a helper thread; a data loader's forked worker inherits the parent's pool
+    without its thread and must not wait on it forever."""
+    import multiprocessing as mp
+
+    rng = np.random.default_rng(4)
+    img = rng.integers(0, 255, (60, 80, 3), dtype=np.uint8)
+    sparse = np.where(rng.random((60, 80)) < 0.1, rng.uniform(3, 30, (60, 80)), 0).astype(np.float32)
+    expected = float(interpolated_fill(sparse, image=img).mean())  # the parent uses the helper thread
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+    child = ctx.Process(target=_prior_mean_in_child, args=(q, sparse, img))
+    child.start()
+    child.join(30)
+    alive = child.is_alive()
+    if alive:
+        child.kill()
+    assert not alive, "the forked child hung on the parent's helper thread"
+    assert q.get(timeout=5) == pytest.approx(expected)

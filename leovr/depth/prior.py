@@ -20,6 +20,7 @@ fit follows and a corner does not. Without the image, the nearest return.
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -178,18 +179,22 @@ def triangle_lookup(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     return TriangleLookup(out, simplex, np.nonzero((simplex >= 0) & ~hit)[0], z, g, c)
 
 
-_POOL: list = []  # one helper thread, made on first use
+_POOL: dict[int, ThreadPoolExecutor] = {}  # one helper thread per process, made on first use
 
 
 def _beside(fn, *args) -> Future:
     """`fn(*args)` in a helper thread when OpenCV may use more than one thread (cv2.setNumThreads: a batch
-    task with one CPU sets 1), else here; the Future gives its result or raises its error."""
+    task with one CPU sets 1), else here; the Future gives its result or raises its error. The pool is
+    keyed by process: a forked child (a data loader's worker) inherits the parent's pool without its
+    thread, and a task given to it would never run."""
     import cv2
 
     if cv2.getNumThreads() > 1:
-        if not _POOL:
-            _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-prior"))
-        return _POOL[0].submit(fn, *args)
+        pid = os.getpid()
+        if pid not in _POOL:
+            _POOL.clear()
+            _POOL[pid] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-prior")
+        return _POOL[pid].submit(fn, *args)
     fut: Future = Future()
     try:
         fut.set_result(fn(*args))
