@@ -3,7 +3,7 @@
 Starting from the shipped generator (or `--init`), each training frame's own LiDAR input is split
 into a thinner input and hidden returns (selfsup.masked_lidar); the network runs on the thinner input
 at its training focal length, exactly as at inference (its input prior read from the full-resolution
-prior: leovr.depth.inference.sampled_prior) its residual, fusion weight and sigma are
+prior: leovr.depth.inference.network_priors) its residual, fusion weight and sigma are
 resized to the full frame and combined with the full-resolution prior, and the loss is read at the
 hidden returns: L1 on depth, the Gaussian NLL of the uncertainty head (all-day eq. 2, on detached
 depth, so the graph's prior is trained on the user's data too), and a small edge-aware smoothness.
@@ -45,9 +45,9 @@ from leovr.config import AdaptConfig
 from leovr.data.io import write_text
 from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
-from leovr.depth.inference import _pad32, load_generator, rescale_sparse, sampled_prior
+from leovr.depth.inference import _pad32, load_generator, network_priors, rescale_sparse
 from leovr.depth.layers import gaussian_nll
-from leovr.depth.network import DepthGenerator, blend_log_depth, prior_for
+from leovr.depth.network import DepthGenerator, blend_log_depth
 from leovr.depth.runtime import calibrate_generator
 from leovr.depth.train import edge_aware_smoothness, save_checkpoint
 from leovr.errors import DataError
@@ -89,15 +89,15 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
     img = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1).float() / 255.0
     whole = sparse_depth(points, K, T_cam_lidar, shape).astype(np.float32)
     image_full = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
-    factor = 1.0 if (hs, ws) == shape else scale
 
-    def priors(sparse: np.ndarray) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+    def priors(sparse: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         """The network's input map, its prior and the full-resolution prior, built as at inference
-        (leovr.depth.inference.predict_parts_full): once at full resolution, the input's resampled from it;
-        the priors take the side of depth edges from the image (leovr.depth.prior)."""
-        small = sparse if (hs, ws) == shape else rescale_sparse(sparse, scale, (hs, ws))
-        full_prior = prior_for(torch.from_numpy(sparse)[None, None], image_full)[0, 0].numpy()
-        return torch.from_numpy(small)[None], sampled_prior(full_prior, small, factor), full_prior
+        (leovr.depth.inference.network_priors; the side of depth edges taken from the image)."""
+        same = (hs, ws) == shape
+        small = sparse if same else rescale_sparse(sparse, scale, (hs, ws))
+        small_prior, full_prior = network_priors(torch.from_numpy(sparse)[None, None], image_full, small,
+                                                 1.0 if same else scale)
+        return torch.from_numpy(small)[None], small_prior[0], full_prior[0, 0].numpy()
 
     whole_small, whole_prior, _ = priors(whole)
     splits = []
@@ -106,11 +106,11 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
         rows, cols = np.nonzero(sp.target > 0)
         s, small_prior, full_prior = priors(sp.sparse.astype(np.float32))
         grid = np.stack([(cols + 0.5) / w * 2 - 1, (rows + 0.5) / h * 2 - 1], 1).astype(np.float32)
-        splits.append(SplitSample(s, torch.from_numpy(small_prior)[None], torch.from_numpy(grid),
+        splits.append(SplitSample(s, small_prior, torch.from_numpy(grid),
                                   torch.from_numpy(sp.target[rows, cols]),
                                   torch.from_numpy(np.ascontiguousarray(full_prior[rows, cols])),
                                   torch.from_numpy(sp.sparse[rows, cols])))
-    return AdaptFrame(img, splits, whole_small, torch.from_numpy(whole_prior)[None])
+    return AdaptFrame(img, splits, whole_small, whole_prior)
 
 
 def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) -> list[AdaptFrame]:

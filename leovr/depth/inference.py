@@ -145,6 +145,16 @@ def sampled_prior(prior_full: np.ndarray, small_sparse: np.ndarray, scale: float
     return out
 
 
+def network_priors(sparse: torch.Tensor, image: torch.Tensor | None, small_sparse: np.ndarray,
+                   scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The priors of a frame run at another focal length: the network's input prior (1 x 1 x hs x ws,
+    `sampled_prior`) and the full-resolution one it is read from and combined with (1 x 1 x H x W), both
+    from one `prior_for` of the full-resolution `sparse` (1 x 1 x H x W) and `image` (or None)."""
+    full = prior_for(sparse, image)
+    small = sampled_prior(full[0, 0].numpy(), np.asarray(small_sparse, np.float32), scale)
+    return torch.from_numpy(small)[None, None], full
+
+
 @torch.no_grad()
 def predict_parts_full(model: DepthGenerator, small_image: np.ndarray, small_sparse: np.ndarray,
                        sparse: np.ndarray, scale: float, image: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -156,10 +166,9 @@ def predict_parts_full(model: DepthGenerator, small_image: np.ndarray, small_spa
     sp = torch.from_numpy(np.ascontiguousarray(small_sparse, np.float32))[None, None]
     sp_full = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[None, None]
     img_full = None if image is None else torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
-    prior_full = prior_for(sp_full, img_full)  # built once, at full resolution; the network reads it resampled
+    small_prior, prior_full = network_priors(sp_full, img_full, small_sparse, scale)
     h, w = sparse.shape
-    small_prior = torch.from_numpy(sampled_prior(prior_full[0, 0].numpy(), np.asarray(small_sparse, np.float32), scale))
-    image_p, sparse_p, prior_p = _pad32(img, sp, small_prior[None, None])
+    image_p, sparse_p, prior_p = _pad32(img, sp, small_prior)
     hs, ws = small_sparse.shape
     parts = {k: v[..., :hs, :ws] for k, v in model.parts(image_p, sparse_p, prior_p).items()}
     full = {k: F.interpolate(v, size=(h, w), mode="bilinear", align_corners=False) for k, v in parts.items()}
