@@ -11,8 +11,12 @@ with the network's upsampled residual). Arms, scored by the generator's MAE at t
 - `guide_small`: both priors, the full one with the image guide (EdgeAwareInterpolator) computed on the
   small frame and resized up, so the interpolator runs once.
 Data: the KITTI raw clip's frames [0, --end) (default 38; never the inductive test frames 38-47).
+`--prior-threads`: instead, the full-resolution prior alone (leovr.depth.prior.interpolated_fill with the
+image) timed with OpenCV limited to one thread (everything in this thread) and to two (the image guide in
+its helper thread beside the triangle lookup), and whether the two outputs are identical.
 
     .venv/bin/python tools/prior_reuse_dev.py --input vlp16 [--step 1]
+    .venv/bin/python tools/prior_reuse_dev.py --prior-threads --step 2
 """
 
 from __future__ import annotations
@@ -66,14 +70,38 @@ def run(model, image: np.ndarray, sparse: np.ndarray, scale: float, arm: str) ->
     return model.combine(full, torch.from_numpy(prior_full)[None, None], sp_full)[0, 0].numpy()
 
 
+def prior_threads(a: argparse.Namespace) -> None:
+    """Median ms of the full-resolution prior with OpenCV at one and at two threads; outputs identical?"""
+    seq = open_sequence(kitti_raw_dir())
+    ccfg = completion_config(RefineConfig(input=a.input))
+    ms: dict[int, list[float]] = {1: [], 2: []}
+    same = True
+    for i in range(0, a.end, a.step):
+        s = frame_sample(seq, i, ccfg)
+        maps = {}
+        for threads in (1, 2):
+            cv2.setNumThreads(threads)
+            t0 = time.perf_counter()
+            maps[threads] = P.interpolated_fill(s.sparse, image=s.frame.image)
+            ms[threads].append((time.perf_counter() - t0) * 1000)
+        same &= bool(np.array_equal(maps[1], maps[2]))
+    print(json.dumps({"input": a.input, "frames": f"0-{a.end - 1} step {a.step}",
+                      "median_ms": {f"opencv_threads_{k}": round(float(np.median(v)), 1) for k, v in ms.items()},
+                      "identical": same}))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--input", default="vlp16")
     ap.add_argument("--end", type=int, default=38)
     ap.add_argument("--step", type=int, default=1)
     ap.add_argument("--arms", nargs="*", default=["twice", "sampled", "guide_small"])
+    ap.add_argument("--prior-threads", action="store_true")
     a = ap.parse_args()
     assert a.end <= 38, "frames 38-47 are the inductive test frames"
+    if a.prior_threads:
+        prior_threads(a)
+        return
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
     seq = open_sequence(kitti_raw_dir())
