@@ -81,6 +81,19 @@ class LidarOdometry:
         return self._covariance
 
 
+def first_step(scan0: np.ndarray | None, scan1: np.ndarray | None, T_cam_lidar: np.ndarray) -> np.ndarray | None:
+    """The camera's motion from the first frame to the second (pose of camera 1 in camera 0) by KISS-ICP on
+    the two raw scans: the deskew motion of the first sweeps, before the front end has estimated any step
+    (without it they are deskewed as if standing, which at 80 km/h misplaces the first map by metres).
+    None when either scan has too few points."""
+    if scan0 is None or scan1 is None:
+        return None
+    odo = LidarOdometry(T_cam_lidar)
+    if odo.register(scan0) is None:
+        return None
+    return odo.register(scan1)
+
+
 def is_spinning(xyz: np.ndarray, sectors: int = 12) -> bool:
     """Whether a scan comes from a spinning LiDAR: returns in most of the azimuth sectors around the
     sensor (a Mid-40's 38-degree cone fills one or two of twelve; a VLP-16 or HDL-64 sweep nearly all,

@@ -6,6 +6,7 @@ geometric check is written with its statistics (inliers, reprojection error, for
 disagreement, accepted or not) and how far its measured relative pose is from the truth.
 
     .venv/bin/python tools/loop_tuning_dev.py [--seeds 3000 3001] [--lidars mid40 vlp16] [--out runs/loop_tuning.jsonl]
+        [--keep DIR]
 """
 
 from __future__ import annotations
@@ -30,14 +31,20 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=cfg.tuning_seeds)
     ap.add_argument("--lidars", nargs="*", default=cfg.lidars)
     ap.add_argument("--out", default="runs/loop_tuning.jsonl")
+    ap.add_argument("--keep", default=None, help="keep the rendered laps and their runs in this folder "
+                    "(seq_LIDAR_SEED, run_LIDAR_SEED), e.g. for tools/pose_graph_dev.py")
     a = ap.parse_args()
     if set(a.seeds) & set(cfg.seeds):
         raise SystemExit(f"seeds {sorted(set(a.seeds) & set(cfg.seeds))} are the benchmark's reported ones: not for tuning")
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp, open(a.out, "a") as fh:
+    with tempfile.TemporaryDirectory() as scratch, open(a.out, "a") as fh:
+        tmp = a.keep or scratch
         for lidar in a.lidars:
             for seed in a.seeds:
                 seq_dir, run = Path(tmp) / f"seq_{lidar}_{seed}", Path(tmp) / f"run_{lidar}_{seed}"
+                if (run / "loops.json").exists():  # kept from an earlier call
+                    print(lidar, seed, "kept", flush=True)
+                    continue
                 simulate(SimulateConfig(scenario="city_loop", lidar=lidar, frames=cfg.frames, seed=seed,
                                         speed_kmh=cfg.speed_kmh), seq_dir, progress=False)
                 seq = open_sequence(seq_dir)

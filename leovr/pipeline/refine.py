@@ -50,6 +50,7 @@ from leovr.pipeline.completion import (
     with_truth,
 )
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
+from odometry.sweep_motion import SweepMotion
 from leovr.threads import single_threaded_blas
 
 
@@ -172,7 +173,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     `collect` receives each frame's FrameScore (benchmarks that score subsets of frames).
     `score=False` skips everything that reads ground truth (the self-supervised trainer's pose pass)."""
     from odometry.frontend import FrontEnd
-    from odometry.initial_pose import is_spinning
+    from odometry.initial_pose import first_step, is_spinning
     from odometry.mono_vo import MonoVO
     from odometry.window_graph import WindowGraph
 
@@ -240,10 +241,43 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 out[j] = np.array(state.poses[j]).reshape(4, 4)
         return out
 
+    following = dict(zip(indices[:-1], indices[1:]))
+    sweep_images = SweepMotion()
+
+    def sweep(i: int, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
+        """The camera motion over frame i's sweep, to deskew it: the last step (`motion`, None before the
+        second frame), or with `deskew_motion: images` the motion read from this image and the next one."""
+        j = following.get(i)
+        if cfg.deskew_motion != "images" or frame.point_times is None or j != i + 1:
+            return motion
+        if j not in reads:  # read now; the main thread then takes it from here
+            reads[j] = Future()
+            reads[j].set_result(seq[j])
+        return sweep_images(i, frame.image, j, reads[j].result().image, frame.K, motion)
+
+    start: list[np.ndarray | None] = [None]  # the first step's motion, for the first two sweeps
+
+    def start_motion(i: int, frame: Frame) -> np.ndarray | None:
+        """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
+        j = following.get(i)
+        if frame.point_times is None or j != i + 1:
+            return None
+        if j not in reads:
+            reads[j] = Future()
+            reads[j].set_result(seq[j])
+        scans = [frame_sample(seq, k, ccfg, None, frame_dt, camera_only, truth=False, frame=f).kept_points
+                 for k, f in ((i, frame), (j, reads[j].result()))]
+        start[0] = first_step(*scans, frame.T_cam_lidar)
+        return start[0]
+
     def prepare(i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> tuple[EvalSample, np.ndarray, np.ndarray, float]:
         """Frame i's input and generator depth; runs beside the graph update of the previous frame.
-        `earlier`: returns of the frames before, in frame i's predicted camera (the generator's input only)."""
-        frame = reads.pop(i).result() if i in reads else None
+        `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
+        predicted camera (the generator's input only)."""
+        frame = reads.pop(i).result() if i in reads else seq[i]
+        if cfg.deskew and has_lidar and i == indices[0]:
+            motion = start_motion(i, frame)
+        motion = sweep(i, frame, motion) if cfg.deskew else None
         # the held-out truth is scoring, not refinement: built in the main thread's scoring step below
         sample = frame_sample(seq, i, ccfg, motion, frame_dt, camera_only, truth=False, frame=frame)
         t0 = time.perf_counter()
@@ -277,10 +311,10 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     try:
         for n, i in enumerate(tqdm(indices, desc=desc, unit="frame", disable=not progress)):
             if nxt is None:
-                nxt = submit(i, front.velocity if cfg.deskew and front.prev is not None else None)
+                nxt = submit(i, front.velocity if front.prev is not None else None)
             sample, depth, log_sigma, gen_ms = nxt.result()
             nxt = None
-            if reader is not None and n + 1 < len(indices):
+            if reader is not None and n + 1 < len(indices) and indices[n + 1] not in reads:
                 reads[indices[n + 1]] = reader.submit(seq.__getitem__, indices[n + 1])
             if has_lidar and i not in done and not (sample.sparse > 0).any():
                 empty.append(i)
@@ -303,7 +337,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 if history.frames and history.sensor_known:  # the next frame's pose predicted at constant velocity
                     poses = latest_poses([s.index for s in history.scans]) | {i: fi.T_init}
                     earlier = history.gather(poses, fi.T_init @ front.velocity)
-                nxt = submit(indices[n + 1], front.velocity if cfg.deskew else None, earlier)
+                # after the first frame no step is known yet: the first two scans' own motion
+                velocity = start[0] if n == 0 and start[0] is not None else front.velocity
+                nxt = submit(indices[n + 1], velocity, earlier)
             pending[i] = depth, front.depth_scale
             t_base = time.perf_counter()  # the scoring and the baselines below are not part of a frame's time
             fs = FrameScore.of(with_truth(sample, ccfg)) if score and i not in done else None
