@@ -129,9 +129,10 @@ class RefineConfig(FrameSelection):
     # the sensor is judged on the first scan with 100 returns or more (frames before it keep the factors)
     depth_factors: bool | Literal["auto"] = "auto"
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
-    # the sweep's motion: "images" reads its rotation and direction from the frame's and the next frame's
-    # images where more matches agree with it than with the last step (odometry.sweep_motion; the start and
-    # end of turns); "constant_velocity" always repeats the last estimated step
+    # the sweep's motion. "images": the first two sweeps take the first two scans' own motion (KISS-ICP), and
+    # every sweep the rotation and direction read from its frame's and the next frame's images where 1.5x
+    # as many matches agree with them as with the last step (odometry.sweep_motion: the start and end of
+    # turns). "constant_velocity": the last estimated step, the first two sweeps as if standing (before s43)
     deskew_motion: Literal["images", "constant_velocity"] = "images"
     # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's
     # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,

@@ -22,8 +22,9 @@ from odometry.mono_vo import relative_motion
 class SweepMotion:
     """`sweep_motion` over a sequence, each image's features detected once (kept for the next call)."""
 
-    def __init__(self, n_features: int = 2000, agree_px: float = 1.0, speed_steps: int = 1) -> None:
-        self.n_features, self.agree_px, self.speed_steps = n_features, agree_px, speed_steps
+    def __init__(self, n_features: int = 2000, agree_px: float = 1.0, speed_steps: int = 1,
+                 margin: float = 1.5) -> None:
+        self.n_features, self.agree_px, self.speed_steps, self.margin = n_features, agree_px, speed_steps, margin
         self._feats: dict[int, Features] = {}
         self._lengths: list[float] = []
 
@@ -36,11 +37,11 @@ class SweepMotion:
             self._lengths = (self._lengths + [float(np.linalg.norm(velocity[:3, 3]))])[-self.speed_steps:]
             velocity = velocity.copy()
             velocity[:3, 3] *= np.mean(self._lengths) / max(self._lengths[-1], 1e-9)
-        return sweep_motion(a, b, K, velocity, self.agree_px)
+        return sweep_motion(a, b, K, velocity, self.agree_px, self.margin)
 
 
 def sweep_motion(a: Features, b: Features, K: np.ndarray, velocity: np.ndarray | None,
-                 agree_px: float = 1.0) -> np.ndarray | None:
+                 agree_px: float = 1.0, margin: float = 1.0) -> np.ndarray | None:
     """Pose of the camera at the next image in the camera at this one (4 x 4), to deskew this frame's
     sweep, from the two images' features `a` and `b`: the images' motion (its length from `velocity`, the
     last estimated step in the same convention; rotation only when None) or `velocity` itself, whichever
@@ -58,9 +59,9 @@ def sweep_motion(a: Features, b: Features, K: np.ndarray, velocity: np.ndarray |
     direction = motion[:3, 3] if motion[:3, 3] @ step >= 0 else -motion[:3, 3]  # sign: movers can carry its vote
     seen[:3, 3] = float(np.linalg.norm(step)) * direction
     if np.linalg.norm(step) < 1e-6:  # standing: only the rotation can be told apart
-        return seen if _agree(seen, uv0, uv1, K, agree_px, rotation_only=True) > _agree(
+        return seen if _agree(seen, uv0, uv1, K, agree_px, rotation_only=True) > margin * _agree(
             velocity, uv0, uv1, K, agree_px, rotation_only=True) else velocity
-    return seen if _agree(seen, uv0, uv1, K, agree_px) > _agree(velocity, uv0, uv1, K, agree_px) else velocity
+    return seen if _agree(seen, uv0, uv1, K, agree_px) > margin * _agree(velocity, uv0, uv1, K, agree_px) else velocity
 
 
 def _agree(T: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float, rotation_only: bool = False) -> int:

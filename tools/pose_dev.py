@@ -48,8 +48,9 @@ def main() -> None:
             row["ratio"] = round(t["leovr"]["ate_m"] / max(t["kiss_icp"]["ate_m"], 1e-9), 2)
             ratios.append(row["ratio"])
         row["ms"] = {k: round(v["median"]) for k, v in m["timing"]["stats"].items()}
-        if "refined" in m.get("depth", {}):
-            row["refined_mae"] = round(m["depth"]["refined"]["mae_m"], 3)
+        for method in ("generator", "refined"):
+            if method in m.get("depth", {}):
+                row[f"{method}_mae"] = round(m["depth"][method]["mae_m"], 3)
         print(json.dumps(row), flush=True)
     if ratios:
         print(json.dumps({"mean_ratio": round(sum(ratios) / len(ratios), 3), "cfg": a.cfg}), flush=True)

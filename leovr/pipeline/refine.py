@@ -275,7 +275,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
         predicted camera (the generator's input only)."""
         frame = reads.pop(i).result() if i in reads else seq[i]
-        if cfg.deskew and has_lidar and i == indices[0]:
+        if cfg.deskew and cfg.deskew_motion == "images" and has_lidar and i == indices[0]:
             motion = start_motion(i, frame)
         motion = sweep(i, frame, motion) if cfg.deskew else None
         # the held-out truth is scoring, not refinement: built in the main thread's scoring step below

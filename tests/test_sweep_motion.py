@@ -1,0 +1,63 @@
+"""The sweep's motion for deskewing: read from the two images where the last step is wrong (a turn's
+start), the last step kept where it is right, and the first two scans' own motion before any step."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from leovr.config import SimulateConfig
+from leovr.data import open_sequence
+from leovr.geometry import invert_T
+from leovr.sim.simulate import simulate
+from odometry.features import detect
+from odometry.initial_pose import first_step
+from odometry.sweep_motion import SweepMotion, sweep_motion
+
+
+def _deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
+@pytest.fixture(scope="module")
+def turning(tmp_path_factory) -> object:
+    """A city loop at 80 km/h: it starts in a 90-degree turn, about 13 degrees of yaw a frame."""
+    out = tmp_path_factory.mktemp("turn") / "seq"
+    simulate(SimulateConfig(scenario="city_loop", lidar="vlp16", frames=4, seed=3001, speed_kmh=80.0), out, progress=False)
+    return open_sequence(out)
+
+
+def test_images_replace_a_last_step_that_missed_the_turn(turning):
+    f1, f2 = turning[1], turning[2]
+    truth = invert_T(f1.T_world_cam) @ f2.T_world_cam
+    assert _deg(truth[:3, :3]) > 10.0  # the scene turns
+    straight = np.eye(4)
+    straight[:3, 3] = [0.0, 0.0, np.linalg.norm(truth[:3, 3])]  # the step before a turn: straight on
+    out = sweep_motion(detect(f1.image, 2000), detect(f2.image, 2000), f1.K, straight)
+    assert out is not straight
+    assert _deg(invert_T(truth)[:3, :3] @ out[:3, :3]) < 1.5
+    assert np.linalg.norm(out[:3, 3] - truth[:3, 3]) < 0.15
+    # the right step is kept as it is
+    assert sweep_motion(detect(f1.image, 2000), detect(f2.image, 2000), f1.K, truth) is truth
+
+
+def test_sweep_motion_reuses_the_next_images_features(turning, monkeypatch):
+    calls = []
+    import odometry.sweep_motion as sm
+
+    real = sm.detect
+    monkeypatch.setattr(sm, "detect", lambda img, n: calls.append(1) or real(img, n))
+    motion = SweepMotion()
+    v = invert_T(turning[0].T_world_cam) @ turning[1].T_world_cam
+    for k in (1, 2):
+        motion(k, turning[k].image, k + 1, turning[k + 1].image, turning[k].K, v)
+    assert len(calls) == 3  # frames 1, 2 and 3, each once
+
+
+def test_first_step_from_the_first_two_raw_scans(turning):
+    f0, f1 = turning[0], turning[1]
+    truth = invert_T(f0.T_world_cam) @ f1.T_world_cam
+    T = first_step(f0.points, f1.points, f0.T_cam_lidar)
+    assert T is not None
+    assert abs(np.linalg.norm(T[:3, 3]) - np.linalg.norm(truth[:3, 3])) < 0.15 * np.linalg.norm(truth[:3, 3])
+    assert first_step(f0.points[:10], f1.points, f0.T_cam_lidar) is None  # too few points: no motion
