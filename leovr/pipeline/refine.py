@@ -50,7 +50,6 @@ from leovr.pipeline.completion import (
     with_truth,
 )
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
-from odometry.sweep_motion import SweepMotion
 from leovr.threads import single_threaded_blas
 
 
@@ -176,6 +175,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     from odometry.frontend import FrontEnd
     from odometry.initial_pose import first_step, is_spinning
     from odometry.mono_vo import MonoVO
+    from odometry.sweep_motion import SweepMotion
     from odometry.window_graph import WindowGraph
 
     out = Path(out)
@@ -245,29 +245,34 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     following = dict(zip(indices[:-1], indices[1:]))
     sweep_images = SweepMotion()
 
+    def next_frame(i: int, frame: Frame) -> Frame | None:
+        """Frame i + 1 when it is the next selected one and frame i's scan has point times (its sweep ends
+        there), else None; read once: the main thread then takes it from `reads`."""
+        j = i + 1
+        if frame.point_times is None or following.get(i) != j:
+            return None
+        if j not in reads:
+            reads[j] = Future()
+            reads[j].set_result(seq[j])
+        return reads[j].result()
+
     def sweep(i: int, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
         """The camera motion over frame i's sweep, to deskew it: the last step (`motion`, None before the
         second frame), or with `deskew_motion: images` the motion read from this image and the next one."""
-        j = following.get(i)
-        if cfg.deskew_motion != "images" or frame.point_times is None or j != i + 1:
+        nxt_frame = next_frame(i, frame) if cfg.deskew_motion == "images" else None
+        if nxt_frame is None:
             return motion
-        if j not in reads:  # read now; the main thread then takes it from here
-            reads[j] = Future()
-            reads[j].set_result(seq[j])
-        return sweep_images(i, frame.image, j, reads[j].result().image, frame.K, motion)
+        return sweep_images(i, frame.image, i + 1, nxt_frame.image, frame.K, motion)
 
     start: list[np.ndarray | None] = [None]  # the first step's motion, for the first two sweeps
 
     def start_motion(i: int, frame: Frame) -> np.ndarray | None:
         """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
-        j = following.get(i)
-        if frame.point_times is None or j != i + 1:
+        nxt_frame = next_frame(i, frame)
+        if nxt_frame is None:
             return None
-        if j not in reads:
-            reads[j] = Future()
-            reads[j].set_result(seq[j])
         scans = [frame_sample(seq, k, ccfg, None, frame_dt, camera_only, truth=False, frame=f).kept_points
-                 for k, f in ((i, frame), (j, reads[j].result()))]
+                 for k, f in ((i, frame), (i + 1, nxt_frame))]
         start[0] = first_step(*scans, frame.T_cam_lidar)
         return start[0]
 
