@@ -141,6 +141,11 @@ class RefineConfig(FrameSelection):
     # drop an earlier return once a later scan sees free space in front of it or a surface in front of it
     # (movers that left, surfaces hidden now; leovr.lidar.accumulate.RangeImage)
     accumulate_check: bool = True
+    # image corners outside the LiDAR's reach, triangulated over the frames up to 16 before and after (the
+    # frame's own returns set each pair's length; odometry.motion_stereo) correct the generator's depth around them.
+    # auto: on with a cone LiDAR (Mid-40: half the camera's view has no return), off with a spinning one and
+    # without LiDAR (nothing sets the scale); true / false force it (a LiDAR is needed either way)
+    motion_stereo: bool | Literal["auto"] = "auto"
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
     compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and KISS-ICP alone (`kiss_icp`, with LiDAR; always with ground-truth poses)

@@ -78,6 +78,17 @@ def classical_source(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
     return depth, np.log(0.2 * depth)
 
 
+def stereo_image(seq: Sequence, j: int) -> np.ndarray | None:
+    """Frame j's image for motion stereo, None when it cannot be read (the frame's own turn reports it)."""
+    from leovr.data.io import read_image
+
+    try:
+        path = seq.image_path(j)
+        return read_image(path, gray=True) if path is not None else seq[j].image
+    except DataError:
+        return None
+
+
 def torch_threads() -> int:
     import torch
 
@@ -175,6 +186,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     from odometry.frontend import FrontEnd
     from odometry.initial_pose import first_step, is_spinning
     from odometry.mono_vo import MonoVO
+    from odometry.motion_stereo import (GrayImages, MotionStereoSettings, corrected_depth, motion_stereo_depth,
+                                        neighbour_frames)
     from odometry.sweep_motion import SweepMotion
     from odometry.window_graph import WindowGraph
 
@@ -243,6 +256,22 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         return out
 
     following = dict(zip(indices[:-1], indices[1:]))
+    # motion stereo: image corners outside a cone LiDAR's reach, triangulated over neighbouring frames
+    stereo = MotionStereoSettings()
+    stereo_images = GrayImages(lambda j: stereo_image(seq, j), keep=2 * max(stereo.offsets) + 3)
+    sensor: dict[str, bool] = {}  # "spinning", once judged on the first scan with returns
+
+    def stereo_wanted(sample: EvalSample) -> bool:
+        if not has_lidar or cfg.motion_stereo is False:
+            return False
+        if cfg.motion_stereo is True:
+            return True
+        kept = sample.kept_points
+        spinning = sensor.get("spinning")
+        if spinning is None and kept is not None and len(kept) >= 100:
+            spinning = is_spinning(kept[:, :3])
+        return spinning is False
+
     sweep_images = SweepMotion()
 
     def next_frame(i: int, frame: Frame) -> Frame | None:
@@ -292,7 +321,15 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if earlier is not None:
             earlier = history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, sample.frame.K))
+        corners = None
+        if stereo_wanted(sample):
+            if i not in stereo_images.images:
+                stereo_images.put(i, frame.image)
+            corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.offsets), stereo_images,
+                                          sample.frame.K, sample.sparse, seen.sparse, stereo)
         depth, log_sigma = generator(seen)
+        if corners is not None:  # the generator's depth moved towards the corners around them
+            depth = corrected_depth(depth, corners, stereo.spread * float(sample.frame.K[0, 0]), stereo.support)
         return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0)
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
@@ -335,6 +372,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 # `depth_factors: auto` the graph leaves the depth to the generator
                 history.sensor_known = True
                 spinning = is_spinning(sample.kept_points[:, :3])
+                sensor["spinning"] = spinning
                 if spinning:
                     history.frames = 0
                 if cfg.depth_factors == "auto":

@@ -1,0 +1,271 @@
+"""Motion stereo: depth of image corners triangulated over the frames before and after, where a narrow
+LiDAR never looks, and the generator's depth corrected towards them.
+
+A cone LiDAR (Livox Mid-40, 38 degrees) covers half of an 81-degree camera; outside its cone the
+generator only has one image to guess from, and on the real KITTI clip it put 40-60 m hedges at 7-10 m.
+Over a recording the camera moves, so corners of frame i tracked into frames i +- offsets can be
+triangulated. Each pair's rotation and direction come from the essential matrix of the tracks (the
+graph's poses are not needed: on that clip a Mid-40 scan locks onto the car ahead and the graph's steps
+are a quarter of the true length); its length is set by the frame's own LiDAR returns at the tracked
+corners. A corner is kept when it has enough views and parallax, a small multi-view reprojection error
+and neighbours that agree with it, and only where no LiDAR return lies near (the returns are better
+there). The generator's depth then moves towards the corners around them (`corrected_depth`). Given to
+the network as extra input instead, the corners helped the real clip more but made the simulator's
+drives worse: a few wrong corners move whole regions there. Settings were chosen on development data
+only, the clip's frames 0-37 and the simulator's Mid-40 validation drives (tools/motion_stereo_dev.py,
+docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Callable
+
+import cv2
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True)
+class MotionStereoSettings:
+    offsets: tuple[int, ...] = (2, 4, 8, 12, 16)  # frames before and after frame i that its corners are tracked into
+    max_corners: int = 4000
+    corner_quality: float = 0.003
+    corner_distance_px: int = 4
+    lk_window_px: int = 11  # pyramidal Lucas-Kanade: window, pyramid levels, iterations (21 / 4 / 30: 2.5x the time, worse)
+    lk_levels: int = 3
+    lk_iterations: int = 20
+    track_check_px: float = 0.5  # forward-backward optical-flow agreement
+    min_views: int = 4  # frame i included
+    max_rms_px: float = 0.7  # multi-view reprojection error
+    min_parallax_px: float = 8.0  # the largest displacement against a point at infinity, over the views
+    lidar_gap_px: float = 8.0  # a corner joins the input only this far from any LiDAR return
+    scale_radius_px: float = 2.0  # a tracked corner takes the LiDAR depth of a return this near, for a pair's length
+    scale_min_points: int = 10  # a pair with fewer LiDAR-backed corners (parallax > 2 px) is dropped
+    min_depth_m: float = 1.5
+    max_depth_m: float = 150.0
+    # a corner is kept when at least this many other kept corners lie within neighbour_radius x focal length
+    # (pixels) and their median depth is within max_log_diff of its own (log): lone corners and outliers go
+    min_neighbours: int = 2
+    neighbour_radius: float = 0.05
+    max_log_diff: float = 0.15
+    # corrected_depth: the corners' log ratio to the generator spread with sigma = spread x focal length (px),
+    # fading where their summed weight is small against `support` corners' worth
+    spread: float = 0.06
+    support: float = 1.0
+
+
+class GrayImages:
+    """Grayscale images by frame index, read once through `load` and kept while they may still be needed.
+    `load` returns None for an image it cannot read: that neighbour is left out here, and the frame's own
+    turn in the run reports the file."""
+
+    def __init__(self, load: Callable[[int], np.ndarray | None], keep: int) -> None:
+        self.load, self.keep = load, keep
+        self.images: OrderedDict[int, np.ndarray | None] = OrderedDict()
+
+    def put(self, i: int, image: np.ndarray | None) -> None:
+        self.images[i] = image if image is None or image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+        self.images.move_to_end(i)
+        while len(self.images) > self.keep:
+            self.images.popitem(last=False)
+
+    def __getitem__(self, i: int) -> np.ndarray | None:
+        if i not in self.images:
+            self.put(i, self.load(i))
+        self.images.move_to_end(i)
+        return self.images[i]
+
+
+def track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray, s: MotionStereoSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Corners of g0 in g1 (pyramidal Lucas-Kanade) and which of them came back within s.track_check_px."""
+    lk = dict(winSize=(s.lk_window_px, s.lk_window_px), maxLevel=s.lk_levels,
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, s.lk_iterations, 0.01))
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(g0, g1, corners, None, **lk)
+    p0, st0, _ = cv2.calcOpticalFlowPyrLK(g1, g0, p1, None, **lk)
+    ok = (st1[:, 0] == 1) & (st0[:, 0] == 1) & (np.linalg.norm(p0 - corners, axis=1) < s.track_check_px)
+    return p1, ok
+
+
+def displacement_px(Rt: np.ndarray, X: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of points X (frame i) in the other view, and their distance from where a point at infinity
+    in the same direction lands (the parallax the depth is read from)."""
+    with np.errstate(all="ignore"):  # points at infinity (the linear solution's last coordinate near 0)
+        p = (X @ Rt[:, :3].T + Rt[:, 3]) @ K.T
+        q = (X @ Rt[:, :3].T) @ K.T
+        uv, uv_inf = p[:, :2] / p[:, 2:3], q[:, :2] / q[:, 2:3]
+    return uv, np.linalg.norm(uv - uv_inf, axis=1)
+
+
+def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
+                s: MotionStereoSettings) -> np.ndarray | None:
+    """Frame i -> j as [R | t] (3 x 4) from the tracks: rotation and direction from the essential matrix,
+    length from the LiDAR depths (`lidar`, 0 = none) at the corners; None when either cannot be had."""
+    if ok.sum() < 20:
+        return None
+    E, inl = cv2.findEssentialMat(c[ok], p[ok], K, cv2.USAC_ACCURATE, 0.999, 0.5)
+    if E is None or E.shape != (3, 3):
+        return None
+    _, R, t, _ = cv2.recoverPose(E, c[ok], p[ok], K, mask=inl.copy())
+    Rt = np.hstack([R, t / max(np.linalg.norm(t), 1e-12)])
+    Xh = cv2.triangulatePoints(K @ np.eye(3, 4), K @ Rt, c[ok].T.astype(np.float64), p[ok].T.astype(np.float64))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = Xh[2] / Xh[3]
+        X = (Xh[:3] / Xh[3]).T
+    _, par = displacement_px(Rt, X, K)
+    u, v = np.round(c[ok, 0]).astype(int), np.round(c[ok, 1]).astype(int)
+    inside = (u >= 0) & (u < lidar.shape[1]) & (v >= 0) & (v < lidar.shape[0])
+    d = np.zeros(len(z))
+    d[inside] = lidar[v[inside], u[inside]]
+    use = (d > 0) & (z > 0) & (par > 2.0) & np.isfinite(z)
+    if use.sum() < s.scale_min_points:
+        return None
+    Rt[:, 3] *= float(np.median(d[use] / z[use]))
+    return Rt
+
+
+def triangulate(c: np.ndarray, views: list[tuple[np.ndarray, np.ndarray, np.ndarray]], K: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points (frame i) from corners c seen in frame i and in `views` ([R | t], pixels, tracked), by the
+    linear multi-view method on normalised coordinates; with each point's reprojection RMS (px), largest
+    parallax (px) and number of views."""
+    Ki = np.linalg.inv(K)
+    Ps = np.stack([np.eye(3, 4)] + [v[0] for v in views])  # V x 3 x 4
+    px = np.stack([c] + [v[1] for v in views], 1).astype(np.float64)  # n x V x 2
+    ok = np.stack([np.ones(len(c), bool)] + [v[2] for v in views], 1)
+    xn = np.concatenate([px, np.ones(px.shape[:2] + (1,))], 2) @ Ki.T
+    rows = np.concatenate([xn[:, :, 0:1] * Ps[None, :, 2] - Ps[None, :, 0],
+                           xn[:, :, 1:2] * Ps[None, :, 2] - Ps[None, :, 1]], 1)
+    A = rows * np.concatenate([ok, ok], 1)[..., None]
+    X = np.linalg.svd(A)[2][:, -1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = X[:, :3] / X[:, 3:4]
+    err = np.zeros(ok.shape)
+    par = np.zeros(ok.shape)
+    front = np.ones(len(c), bool)
+    for k in range(len(Ps)):
+        uv, par[:, k] = displacement_px(Ps[k], X, K)
+        err[:, k] = np.linalg.norm(uv - px[:, k], axis=1)
+        with np.errstate(all="ignore"):
+            front &= ~ok[:, k] | ((X @ Ps[k, :, :3].T + Ps[k, :, 3])[:, 2] > 0)
+    nv = ok.sum(1)
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt((np.where(ok, np.nan_to_num(err, nan=np.inf), 0.0) ** 2).sum(1) / nv)
+    rms = np.where(front & np.isfinite(rms), rms, np.inf)
+    return X, rms, np.where(ok, np.nan_to_num(par), 0.0).max(1), nv
+
+
+def near_returns(sparse: np.ndarray, radius_px: float) -> np.ndarray:
+    """Each pixel's nearest LiDAR depth when a return lies within radius_px, else 0."""
+    dist, (iv, iu) = distance_transform_edt(sparse <= 0, return_indices=True)
+    return np.where(dist <= radius_px, sparse[iv, iu], 0.0)
+
+
+@dataclass
+class Corners:
+    """Triangulated corners of one frame: pixel, depth (m), reprojection RMS (px), parallax (px), views."""
+
+    u: np.ndarray
+    v: np.ndarray
+    z: np.ndarray
+    rms: np.ndarray
+    parallax: np.ndarray
+    views: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.z)
+
+    def take(self, sel: np.ndarray) -> "Corners":
+        return Corners(*(x[sel] for x in (self.u, self.v, self.z, self.rms, self.parallax, self.views)))
+
+
+def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
+                         s: MotionStereoSettings = MotionStereoSettings()) -> Corners:
+    """Frame i's corners tracked into its neighbours and triangulated; all of them, before the tests."""
+    none = Corners(*(np.zeros(0, t) for t in (int, int, float, float, float, int)))
+    g0 = images[i]
+    if not (own > 0).any() or not neighbours or g0 is None:
+        return none
+    found = cv2.goodFeaturesToTrack(g0, s.max_corners, s.corner_quality, s.corner_distance_px)
+    if found is None:
+        return none
+    c = found.reshape(-1, 2).astype(np.float32)
+    lidar = near_returns(own, s.scale_radius_px)
+    views = []
+    for j in neighbours:
+        g1 = images[j]
+        if g1 is None or g1.shape != g0.shape:
+            continue
+        p, ok = track(g0, g1, c, s)
+        Rt = pair_motion(c, p, ok, K, lidar, s)
+        if Rt is not None:
+            views.append((Rt, p, ok))
+    if not views:
+        return none
+    X, rms, par, nv = triangulate(c, views, K)
+    u, v = np.round(c[:, 0]).astype(int), np.round(c[:, 1]).astype(int)
+    inside = (u >= 0) & (u < own.shape[1]) & (v >= 0) & (v < own.shape[0])
+    return Corners(u, v, X[:, 2], rms, par, nv).take(inside)
+
+
+def agree_with_neighbours(c: Corners, radius_px: float, min_neighbours: int, max_log_diff: float) -> np.ndarray:
+    """Which corners have min_neighbours others within radius_px whose median log depth is near their own."""
+    if min_neighbours <= 0:
+        return np.ones(len(c), bool)
+    if len(c) <= min_neighbours:
+        return np.zeros(len(c), bool)
+    xy = np.column_stack([c.u, c.v]).astype(float)
+    _, idx = cKDTree(xy).query(xy, k=min(9, len(c)), distance_upper_bound=radius_px)
+    lz = np.append(np.log(c.z), np.nan)
+    nb = lz[idx[:, 1:]]  # idx == len(c): no neighbour
+    count = np.isfinite(nb).sum(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no neighbour at all
+        med = np.nanmedian(nb, axis=1)
+    return (count >= min_neighbours) & (np.abs(lz[:-1] - med) < max_log_diff)
+
+
+def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
+                        seen: np.ndarray | None = None, s: MotionStereoSettings = MotionStereoSettings()) -> np.ndarray:
+    """Frame i's triangulated corners that pass the tests, as a sparse depth map (0 = none), only where no
+    LiDAR return of `seen` (default: `own`, the frame's own returns, which set each pair's length) lies
+    within s.lidar_gap_px."""
+    out = np.zeros(own.shape, np.float32)
+    c = triangulated_corners(i, neighbours, images, K, own, s)
+    if not len(c):
+        return out
+    with np.errstate(invalid="ignore"):
+        keep = ((c.views >= s.min_views) & (c.rms < s.max_rms_px) & (c.parallax > s.min_parallax_px)
+                & (c.z > s.min_depth_m) & (c.z < s.max_depth_m))
+    c = c.take(keep)
+    c = c.take(agree_with_neighbours(c, s.neighbour_radius * float(K[0, 0]), s.min_neighbours, s.max_log_diff))
+    far = distance_transform_edt((own if seen is None else seen) <= 0)[c.v, c.u] > s.lidar_gap_px
+    out[c.v[far], c.u[far]] = c.z[far]
+    return out
+
+
+def neighbour_frames(i: int, selected: list[int], offsets: tuple[int, ...]) -> list[int]:
+    """The frames i - o and i + o of the run's selection, nearest first."""
+    have = set(selected)
+    return [j for o in offsets for j in (i - o, i + o) if j in have]
+
+
+def corrected_depth(depth: np.ndarray, corners: np.ndarray, sigma_px: float, support: float) -> np.ndarray:
+    """`depth` scaled near the triangulated corners by their log ratio to it, spread by normalised Gaussian
+    convolution (sigma_px); the correction fades out where the corners' summed weight is small against
+    `support` (so a lone corner moves its neighbourhood only, never a whole empty region)."""
+    v, u = np.nonzero((corners > 0) & (depth > 0))
+    if not len(v):
+        return depth
+    r = np.zeros(depth.shape, np.float32)
+    w = np.zeros(depth.shape, np.float32)
+    r[v, u] = np.log(corners[v, u] / depth[v, u])
+    w[v, u] = 1.0
+    k = int(4 * sigma_px) | 1
+    rb = cv2.GaussianBlur(r, (k, k), sigma_px, borderType=cv2.BORDER_CONSTANT)
+    wb = cv2.GaussianBlur(w, (k, k), sigma_px, borderType=cv2.BORDER_CONSTANT)
+    peak = 1.0 / (2 * np.pi * sigma_px ** 2)  # one corner's weight at its own pixel
+    return (depth * np.exp(rb / (wb + support * peak))).astype(depth.dtype)

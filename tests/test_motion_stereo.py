@@ -1,0 +1,119 @@
+"""Motion stereo: corners outside a cone LiDAR's reach get their depth from the frames before and after,
+with each pair's length set by the LiDAR; lone or contradicted corners and unreadable neighbours are left out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from leovr.config import SimulateConfig
+from leovr.data import open_sequence
+from leovr.lidar.projection import sparse_depth
+from leovr.sim.simulate import simulate
+from odometry.motion_stereo import (
+    Corners,
+    GrayImages,
+    MotionStereoSettings,
+    agree_with_neighbours,
+    corrected_depth,
+    motion_stereo_depth,
+    neighbour_frames,
+)
+from scipy.ndimage import distance_transform_edt
+
+SETTINGS = MotionStereoSettings(offsets=(1, 2, 3, 4))  # a 9-frame drive
+
+
+@pytest.fixture(scope="module")
+def drive():
+    """A straight Mid-40 drive at 30 km/h: buildings beside the road, outside the 38-degree cone."""
+    import tempfile
+    from pathlib import Path
+
+    out = Path(tempfile.mkdtemp()) / "seq"
+    simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=9, seed=21), out, progress=False)
+    seq = open_sequence(out)
+    return seq, {i: seq[i] for i in range(len(seq))}
+
+
+def _run(drive, own_scale: float = 1.0, load=None):
+    seq, frames = drive
+    f = frames[4]
+    own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape) * own_scale
+    images = GrayImages(load or (lambda j: frames[j].image), keep=16)
+    return f, own, motion_stereo_depth(4, neighbour_frames(4, list(range(9)), SETTINGS.offsets), images, f.K, own,
+                                       s=SETTINGS)
+
+
+def test_corners_outside_the_cone_take_their_true_depth(drive):
+    f, own, out = _run(drive)
+    v, u = np.nonzero(out > 0)
+    assert len(v) >= 20
+    assert (distance_transform_edt(own <= 0)[v, u] > SETTINGS.lidar_gap_px).all()  # never beside a return
+    rel = np.abs(out[v, u] - f.depth[v, u]) / f.depth[v, u]
+    assert np.median(rel) < 0.08 and np.mean(rel < 0.3) > 0.85
+
+
+def test_the_lidar_sets_the_length(drive):
+    _, _, out = _run(drive)
+    _, _, doubled = _run(drive, own_scale=2.0)
+    both = (out > 0) & (doubled > 0)
+    assert both.sum() >= 20
+    assert np.median(doubled[both] / out[both]) == pytest.approx(2.0, rel=0.02)
+
+
+def test_no_returns_or_no_readable_neighbour_gives_no_corners(drive):
+    _, own, _ = _run(drive, own_scale=0.0)
+    _, _, out = _run(drive, own_scale=0.0)
+    assert not (out > 0).any()
+    seq, frames = drive
+    _, _, out = _run(drive, load=lambda j: frames[j].image if j == 4 else None)  # every neighbour unreadable
+    assert not (out > 0).any()
+    _, _, some = _run(drive, load=lambda j: None if j in (3, 5) else frames[j].image)  # two left out, the rest used
+    assert (some > 0).sum() >= 10
+
+
+def test_lone_and_contradicted_corners_are_dropped():
+    u = np.array([100, 104, 108, 112, 300, 106])
+    v = np.array([50, 52, 50, 52, 200, 51])
+    z = np.array([20.0, 20.5, 19.8, 20.2, 20.0, 40.0])  # a lone corner at (300, 200); an outlier among the rest
+    c = Corners(u, v, z, np.zeros(6), np.full(6, 10.0), np.full(6, 4))
+    keep = agree_with_neighbours(c, radius_px=30.0, min_neighbours=2, max_log_diff=0.15)
+    assert keep.tolist() == [True, True, True, True, False, False]
+    assert agree_with_neighbours(c, 30.0, 0, 0.15).all()  # switched off
+
+
+def test_corrected_depth_moves_the_depth_around_corners_only():
+    depth = np.full((100, 200), 10.0, np.float32)
+    corners = np.zeros_like(depth)
+    corners[40:60:4, 20:40:4] = 40.0  # 25 corners at 4x the generator's depth
+    out = corrected_depth(depth, corners, sigma_px=6.0, support=1.0)
+    assert out[50, 30] > 30.0  # among them: near the corners' depth
+    assert out[50, 180] == pytest.approx(10.0, rel=1e-4)  # far from them: unchanged
+    lone = np.zeros_like(depth)
+    lone[50, 100] = 40.0
+    assert 15.0 < corrected_depth(depth, lone, 6.0, 1.0)[50, 100] < 25.0  # one corner: half way (in log)
+
+
+def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monkeypatch):
+    import odometry.motion_stereo as ms
+    from leovr.config import RefineConfig
+    from leovr.data.io import read_depth_png
+    from leovr.pipeline.refine import run_refine
+
+    seq, _ = drive
+    calls = []
+    real = ms.motion_stereo_depth
+    monkeypatch.setattr(ms, "motion_stereo_depth", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
+    run_refine(seq, RefineConfig(input="full"), tmp_path / "auto", progress=False)
+    assert calls == list(range(9))  # a Mid-40 cone: every frame (offsets 2, 4, 8 of the shipped ones: frames 2-6 have 4 views or more)
+    calls.clear()
+    run_refine(seq, RefineConfig(input="full", motion_stereo=False), tmp_path / "off", progress=False)
+    assert calls == []
+    moved = [np.abs(read_depth_png(tmp_path / "auto" / "depth_generator" / f"{i:06d}.png")
+                    - read_depth_png(tmp_path / "off" / "depth_generator" / f"{i:06d}.png")).max() for i in range(9)]
+    assert max(moved) > 1.0  # the corners corrected the generator's depth
+    spinning = tmp_path / "vlp16"
+    simulate(SimulateConfig(scenario="straight", lidar="vlp16", frames=3, seed=21), spinning, progress=False)
+    run_refine(open_sequence(spinning), RefineConfig(input="full"), tmp_path / "vlp16_out", progress=False)
+    assert calls == []  # a spinning LiDAR sees the whole image
