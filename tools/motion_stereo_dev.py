@@ -78,10 +78,11 @@ def score_sequence(seq, ccfg, frames: list[int], model, s: MotionStereoSettings,
             gated = np.where(sample.sparse > 0, sample.sparse, np.where((extra > 0) & (off > gate), extra, 0)).astype(np.float32)
             preds[f"stereo_gate{gate:g}"] = predict_at_focal(model, sample.frame.image, gated, focal, ccfg.generator_focal_px)[0][rows, cols]
         for name, p in preds.items():
-            for group, sel in (("all", np.ones(len(g), bool)), ("out", out), ("out_beyond_40m", out & (g > 40))):
-                e = acc.setdefault(group, {}).setdefault(name, [0.0, 0])
+            for group, sel in (("all", np.ones(len(g), bool)), ("out", out), ("out_beyond_40m", out & (g > 40)), ("beyond_60m", g > 60)):
+                e = acc.setdefault(group, {}).setdefault(name, [0.0, 0, 0.0])
                 e[0] += float(np.abs(p[sel] - g[sel]).sum())
                 e[1] += int(sel.sum())
+                e[2] += float(((p[sel] - g[sel]) ** 2).sum())
         print(f"frame {i}: {int((extra > 0).sum())} corners, {ms[-1]:.0f} ms, "
               + ", ".join(f"{k} {np.abs(p - g).mean():.3f}" for k, p in preds.items()), flush=True)
 
@@ -90,6 +91,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sim", action="store_true")
     ap.add_argument("--step", type=int, default=3)
+    ap.add_argument("--split", default="val", help="--sim: the split (val; train for more development drives)")
+    ap.add_argument("--max-sequences", type=int, default=None)
     ap.add_argument("--dev-end", type=int, default=38)
     ap.add_argument("--set", nargs="*", default=[])
     ap.add_argument("--oracle", action="store_true", help="also the corners at their true depth (diagnosis)")
@@ -105,7 +108,7 @@ def main() -> None:
     ms: list = []
     if ARGS.sim:
         ccfg = completion_config(RefineConfig(input="full"))
-        for e in split_entries(default_root() / "default", "val"):
+        for e in split_entries(default_root() / "default", ARGS.split)[: ARGS.max_sequences]:
             if e["lidar"] == "mid40":
                 seq = open_sequence(e["path"])
                 score_sequence(seq, ccfg, list(range(len(seq))), model, s, acc, tri, ms)
@@ -120,8 +123,9 @@ def main() -> None:
         "step": ARGS.step, "settings": dataclasses.asdict(s), "ms_per_frame_median": round(float(np.median(ms)), 1),
         "corners_with_truth": len(t), "corner_rel_error_median": round(float(np.median(rel)), 4) if len(t) else None,
         "corner_rel_error_p90": round(float(np.quantile(rel, 0.9)), 4) if len(t) else None,
-        "mae_m": {grp: {k: round(e / max(n, 1), 4) for k, (e, n) in d.items()} | {"pixels": d["nearest"][1]}
-                  for grp, d in acc.items()}}, indent=1))
+        "mae_m": {grp: {k: round(e / max(n, 1), 4) for k, (e, n, _) in d.items()} | {"pixels": d["nearest"][1]}
+                  for grp, d in acc.items()},
+        "rmse_m": {grp: {k: round((q / max(n, 1)) ** 0.5, 4) for k, (_, n, q) in d.items()} for grp, d in acc.items()}}, indent=1))
 
 
 if __name__ == "__main__":
