@@ -95,6 +95,23 @@ def test_corrected_depth_moves_the_depth_around_corners_only():
     assert 15.0 < corrected_depth(depth, lone, 6.0, 1.0)[50, 100] < 25.0  # one corner: half way (in log)
 
 
+def test_corrected_depth_keeps_a_corner_on_its_own_surface():
+    """A far corner that lands on a thin near object (a pole at 3 m in front of a 70 m facade) must not
+    carry its 23x ratio onto the facade around it (a real run once put 60-80 m pixels at hundreds of metres)."""
+    depth = np.full((100, 200), 70.0, np.float32)
+    depth[:, 98:103] = 3.0  # the generator's pole
+    corners = np.zeros_like(depth)
+    corners[30:70:8, 101] = 70.0  # corners of the facade's texture, a pixel inside the generator's pole edge
+    plain = corrected_depth(depth, corners, sigma_px=6.0, support=1.0)
+    assert plain.max() > 300.0  # without the range weight: the facade blown up
+    out = corrected_depth(depth, corners, 6.0, 1.0, range_log=0.2)
+    facade = np.ones(depth.shape, bool)
+    facade[:, 98:103] = False
+    assert out[facade].max() < 71.0 and out[facade].min() > 69.0  # the facade keeps its depth
+    edge = corrected_depth(depth, corners, 6.0, 1.0, range_log=0.2, edge_px=2)  # the corner joins the facade
+    assert np.allclose(edge, depth, rtol=1e-4)
+
+
 def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monkeypatch):
     import odometry.motion_stereo as ms
     from leovr.config import RefineConfig

@@ -71,7 +71,12 @@ def score_sequence(seq, ccfg, frames: list[int], model, s: MotionStereoSettings,
             preds["generator_true_corners"] = predict_at_focal(model, sample.frame.image, true_aug, focal, ccfg.generator_focal_px)[0][rows, cols]
         for sig in ARGS.sigmas:  # a fraction of the focal length
             for sup in ARGS.supports:
-                preds[f"corrected_s{sig:g}_w{sup:g}"] = corrected_depth(gen, extra, sig * focal, sup)[rows, cols]
+                for rng in ARGS.ranges:
+                    for edge in ARGS.edges:
+                        tag = f"corrected_s{sig:g}_w{sup:g}" + (f"_r{rng:g}" if np.isfinite(rng) else "") + (f"_e{edge}" if edge else "")
+                        full = corrected_depth(gen, extra, sig * focal, sup, rng, edge)
+                        preds[tag] = full[rows, cols]
+                        worst.setdefault(tag, []).append(float(full.max()))
         for gate in ARGS.gates:  # only corners that disagree with the generator by more than this (log)
             with np.errstate(divide="ignore", invalid="ignore"):
                 off = np.abs(np.log(extra / gen))
@@ -93,13 +98,17 @@ def main() -> None:
     ap.add_argument("--step", type=int, default=3)
     ap.add_argument("--split", default="val", help="--sim: the split (val; train for more development drives)")
     ap.add_argument("--max-sequences", type=int, default=None)
+    ap.add_argument("--scenario", default=None, help="--sim: only drives of this scenario (city_loop, straight, dynamic)")
     ap.add_argument("--dev-end", type=int, default=38)
     ap.add_argument("--set", nargs="*", default=[])
     ap.add_argument("--oracle", action="store_true", help="also the corners at their true depth (diagnosis)")
     ap.add_argument("--sigmas", type=float, nargs="*", default=[], help="corrected_depth's sigma, x focal length")
+    ap.add_argument("--ranges", type=float, nargs="*", default=[float("inf")], help="corrected_depth's range_log")
+    ap.add_argument("--edges", type=int, nargs="*", default=[0], help="corrected_depth's edge_px")
     ap.add_argument("--gates", type=float, nargs="*", default=[])
     ap.add_argument("--supports", type=float, nargs="*", default=[0.5])
-    global ARGS
+    global ARGS, worst
+    worst = {}
     ARGS = ap.parse_args()
     s = settings_from(ARGS.set)
     model = for_inference(load_generator(shipped_checkpoint()))
@@ -108,10 +117,11 @@ def main() -> None:
     ms: list = []
     if ARGS.sim:
         ccfg = completion_config(RefineConfig(input="full"))
-        for e in split_entries(default_root() / "default", ARGS.split)[: ARGS.max_sequences]:
-            if e["lidar"] == "mid40":
-                seq = open_sequence(e["path"])
-                score_sequence(seq, ccfg, list(range(len(seq))), model, s, acc, tri, ms)
+        entries = [e for e in split_entries(default_root() / "default", ARGS.split)
+                   if e["lidar"] == "mid40" and ARGS.scenario in (None, e["scenario"])]
+        for e in entries[: ARGS.max_sequences]:
+            seq = open_sequence(e["path"])
+            score_sequence(seq, ccfg, list(range(len(seq))), model, s, acc, tri, ms)
     else:
         seq = open_sequence(kitti_raw_dir())
         ccfg = completion_config(RefineConfig(input="mid40"))
@@ -119,12 +129,13 @@ def main() -> None:
     t = np.concatenate(tri) if tri else np.zeros((0, 2))
     rel = np.abs(t[:, 1] - t[:, 0]) / t[:, 0]
     print(json.dumps({
-        "data": "simulator Mid-40 validation drives" if ARGS.sim else f"KITTI raw frames 0-{ARGS.dev_end - 1}, Mid-40-like",
+        "data": f"simulator Mid-40 {ARGS.split} drives" if ARGS.sim else f"KITTI raw frames 0-{ARGS.dev_end - 1}, Mid-40-like",
         "step": ARGS.step, "settings": dataclasses.asdict(s), "ms_per_frame_median": round(float(np.median(ms)), 1),
         "corners_with_truth": len(t), "corner_rel_error_median": round(float(np.median(rel)), 4) if len(t) else None,
         "corner_rel_error_p90": round(float(np.quantile(rel, 0.9)), 4) if len(t) else None,
         "mae_m": {grp: {k: round(e / max(n, 1), 4) for k, (e, n, _) in d.items()} | {"pixels": d["nearest"][1]}
                   for grp, d in acc.items()},
+        "max_depth_m": {k: round(max(v), 1) for k, v in worst.items()},
         "rmse_m": {grp: {k: round((q / max(n, 1)) ** 0.5, 4) for k, (_, n, q) in d.items()} for grp, d in acc.items()}}, indent=1))
 
 

@@ -329,7 +329,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                                           sample.frame.K, sample.sparse, seen.sparse, stereo)
         depth, log_sigma = generator(seen)
         if corners is not None:  # the generator's depth moved towards the corners around them
-            depth = corrected_depth(depth, corners, stereo.spread * float(sample.frame.K[0, 0]), stereo.support)
+            depth = corrected_depth(depth, corners, stereo.spread * float(sample.frame.K[0, 0]), stereo.support,
+                                    stereo.range_log, stereo.edge_px)
         return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0)
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
