@@ -72,6 +72,29 @@ def test_depth_factors_auto_leave_a_spinning_lidars_depth_to_the_generator(refin
     assert changed(tmp_path / "on") > 0.1
 
 
+def test_refined_depth_is_scored_as_the_png_holds_it(tmp_path, monkeypatch):
+    """A correction that carries depth past the format's 255.99 m is scored as the written PNG holds it
+    (saturated), never as kilometres that no file contains."""
+    from leovr.data.io import format_max_depth, read_depth_png
+    from odometry.depth_field import CorrectionGrid
+
+    upsample = CorrectionGrid.upsample
+    monkeypatch.setattr(CorrectionGrid, "upsample", lambda self, c: upsample(self, c) + 3.0)  # every depth x20
+    seq_dir = tmp_path / "seq"
+    simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=3, seed=3003), seq_dir, progress=False)
+    m = run_refine(open_sequence(seq_dir), RefineConfig(input="full"), tmp_path / "out", progress=False)
+    seq = open_sequence(seq_dir)
+    err, n, saturated = 0.0, 0, 0
+    for i, p in enumerate(sorted((tmp_path / "out" / "depth").glob("*.png"))):
+        d, gt = read_depth_png(p), seq[i].depth
+        ok = (gt > 0) & (d > 0)
+        err += float(np.abs(d[ok] - gt[ok]).sum())
+        n += int(ok.sum())
+        saturated += int((d >= format_max_depth() - 0.01).sum())
+    assert saturated > 1000  # the test's premise: the written maps do saturate
+    assert m["depth"]["refined"]["mae_m"] == pytest.approx(err / n, rel=1e-3)
+
+
 def test_the_kiss_icp_baseline_is_kiss_icp_alone_deskewing_the_raw_scans_itself(refined):
     from leovr.data.kitti_common import read_kitti_poses
     from leovr.pipeline.kiss_baseline import kiss_icp_trajectory

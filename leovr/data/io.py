@@ -55,6 +55,11 @@ def read_depth_png(path: Path, scale: float = DEPTH_SCALE, shape: tuple[int, int
     return d.astype(np.float32) / scale
 
 
+def format_max_depth(scale: float = DEPTH_SCALE) -> float:
+    """The largest depth (m) a uint16 depth PNG holds at `scale` units per metre (255.99 m at 256)."""
+    return 65535.0 / scale
+
+
 def depth_to_uint16(depth: np.ndarray, scale: float = DEPTH_SCALE) -> np.ndarray:
     """Metres to uint16 units (metres x 256 by default, the KITTI depth-completion convention).
 

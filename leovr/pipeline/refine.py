@@ -24,7 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from leovr.config import CompleteConfig, FrameSelection, RefineConfig
-from leovr.data.io import atomic_write, write_depth_png, write_text
+from leovr.data.io import atomic_write, format_max_depth, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.records import Frame
@@ -227,7 +227,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             if r.index in done:
                 replayed[r.index] = r.T_world_cam
                 continue
-            refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
+            # saturated where the PNG saturates: what is scored is what the user's file holds (a far cell's
+            # offset can carry a few pixels past 256 m, and scoring them unsaturated counted kilometres)
+            refined = np.minimum(np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0), format_max_depth())
             if r.index in scored:
                 scored[r.index].add("generator", gen_depth)
                 scored[r.index].add("refined", refined)
