@@ -126,7 +126,8 @@ def report(m: dict, source: str, inp: str) -> str:
         f"Input: {source}; {m['frames']} frames; LiDAR input `{inp}`; {m['mode']}; window {m['window']}.",
         f"Ground truth: {m['ground_truth'] or 'none'}. `raw` is the LiDAR input scored where it has a return.",
         *(["`generator_frame` is the generator on each frame's own scan; `generator` had the returns of the earlier "
-           "frames added (a Mid-40 cone: `refine.accumulate_frames`), as the graph used it."] if "generator_frame" in depth else []),
+           "frames added (a Mid-40 cone: `refine.accumulate_frames`) and was moved towards image corners triangulated over "
+           "the frames around it (`refine.motion_stereo`, on for a cone by default), as the graph used it."] if "generator_frame" in depth else []),
         "",
         "| method | MAE (m) | RMSE (m) | AbsRel | delta<1.25 | " + " | ".join(f"MAE {b} m" for b in bins) + " |",
         "|---" * (5 + len(bins)) + "|",
