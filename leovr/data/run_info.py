@@ -21,6 +21,7 @@ from leovr.data.io import (
     DEPTH_SCALE,
     LEGACY_DEPTH_SCALE,
     check_output_dir,
+    format_max_depth,
     read_depth_png,
     read_json_object,
     write_text,
@@ -32,7 +33,7 @@ RUN_FILE = "run.json"
 
 def depth_png_record(scale: float = DEPTH_SCALE) -> dict:
     return {"scale": scale, "unit": f"uint16 = metres x {scale:g}, 0 = unknown",
-            "max_m": round(65535.0 / scale, 3)}
+            "max_m": round(format_max_depth(scale), 3)}
 
 
 def write_run_info(out: Path, command: str, **extra) -> None:

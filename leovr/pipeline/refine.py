@@ -147,7 +147,9 @@ class FrameScore:
         return cls(sample.gt_kind, pick, sample.gt[pick])
 
     def add(self, method: str, depth: np.ndarray) -> None:
-        self.pred[method] = depth[self.pick]
+        """Scored as its depth PNG holds it, saturated at the format's largest depth (a far cell's correction
+        can carry pixels past 256 m; scored unsaturated, they counted kilometres that no file held)."""
+        self.pred[method] = np.minimum(depth[self.pick], format_max_depth())
 
 
 @dataclass
@@ -227,9 +229,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             if r.index in done:
                 replayed[r.index] = r.T_world_cam
                 continue
-            # saturated where the PNG saturates: what is scored is what the user's file holds (a far cell's
-            # offset can carry a few pixels past 256 m, and scoring them unsaturated counted kilometres)
-            refined = np.minimum(np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0), format_max_depth())
+            refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
             if r.index in scored:
                 scored[r.index].add("generator", gen_depth)
                 scored[r.index].add("refined", refined)
