@@ -185,6 +185,38 @@ class Corners:
         return Corners(*(x[sel] for x in (self.u, self.v, self.z, self.rms, self.parallax, self.views)))
 
 
+def detect_corners(g0: np.ndarray, s: MotionStereoSettings) -> np.ndarray | None:
+    """N x 2 float32 corners of a grayscale image (Shi-Tomasi), None when it has none."""
+    found = cv2.goodFeaturesToTrack(g0, s.max_corners, s.corner_quality, s.corner_distance_px)
+    return None if found is None else found.reshape(-1, 2).astype(np.float32)
+
+
+def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
+                 s: MotionStereoSettings = MotionStereoSettings()) -> dict[int, np.ndarray]:
+    """Frame i's motion to each neighbour j as a 4 x 4 T_j_i (camera i's points into camera j): rotation and
+    direction from the essential matrix of the tracked corners, length from the frame's own LiDAR returns
+    (`pair_motion`). Neighbours where either fails are left out. For the window graph: on the simulator's
+    Mid-40 validation drives the essential matrix's rotation is 5x nearer the truth than the graph's own
+    (median 0.03 against 0.14-0.34 degrees; docs/benchmarks.md)."""
+    g0 = images[i]
+    if g0 is None or not neighbours or not (own > 0).any():
+        return {}
+    c = detect_corners(g0, s)
+    if c is None:
+        return {}
+    lidar = near_returns(own, s.scale_radius_px)
+    out = {}
+    for j in neighbours:
+        g1 = images[j]
+        if g1 is None or g1.shape != g0.shape:
+            continue
+        p, ok = track(g0, g1, c, s)
+        Rt = pair_motion(c, p, ok, K, lidar, s)
+        if Rt is not None:
+            out[j] = np.vstack([Rt, [0.0, 0.0, 0.0, 1.0]])
+    return out
+
+
 def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
                          s: MotionStereoSettings = MotionStereoSettings()) -> Corners:
     """Frame i's corners tracked into its neighbours and triangulated; all of them, before the tests."""
@@ -192,10 +224,9 @@ def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: n
     g0 = images[i]
     if not (own > 0).any() or not neighbours or g0 is None:
         return none
-    found = cv2.goodFeaturesToTrack(g0, s.max_corners, s.corner_quality, s.corner_distance_px)
-    if found is None:
+    c = detect_corners(g0, s)
+    if c is None:
         return none
-    c = found.reshape(-1, 2).astype(np.float32)
     lidar = near_returns(own, s.scale_radius_px)
     views = []
     for j in neighbours:

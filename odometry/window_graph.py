@@ -69,6 +69,9 @@ class FrameInput:
     # landmark id -> its prior's sigma per metre of depth where it differs from `landmark_prior_rel`
     landmark_prior_rel: dict[int, float] = field(default_factory=dict)
     road_normal_prev: np.ndarray | None = None  # camera only: the road's normal in the previous frame's camera
+    # earlier frame j -> T_j_i (4 x 4): this frame's motion to j read from the images (essential matrix, LiDAR
+    # length; odometry.motion_stereo.pair_motions), a between factor where j is still in the window
+    pair_motions: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
@@ -131,6 +134,7 @@ class WindowGraph:
             graph.add(gtsam.BetweenFactorPose3(X(self.last), X(f.index), gtsam.Pose3(rel), noise))
         if f.icp_pose is not None:
             self._icp_factors(f.index, *f.icp_pose, graph)
+        self._pair_factors(f, graph)
         if f.road_normal_prev is not None and self.last is not None and cfg.mono_road_attitude_sigma_rad > 0:
             self._road_attitude(self.last, f.road_normal_prev, graph)
         fd = FrameDepth(f.log_depth, self.grid)
@@ -172,6 +176,19 @@ class WindowGraph:
         up = np.mean(self.road_up, axis=0)
         noise = gtsam.noiseModel.Isotropic.Sigma(2, self.cfg.mono_road_attitude_sigma_rad)
         graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(up / np.linalg.norm(up)), noise, gtsam.Unit3(normal_cam)))
+
+    def _pair_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph) -> None:
+        """The images' motions from this frame to earlier frames of the window: rotation to
+        `pair_sigma_rad`, translation to `pair_sigma_rel` of its length, Huber-robust (a pair's essential
+        matrix is sometimes far off)."""
+        cfg = self.cfg
+        for j, T in f.pair_motions.items():
+            if j not in self.poses:
+                continue
+            length = float(np.linalg.norm(T[:3, 3]))
+            base = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, cfg.pair_sigma_rad), np.full(3, cfg.pair_sigma_rel * length + 0.01)])
+            noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345), base)
+            graph.add(gtsam.BetweenFactorPose3(X(j), X(f.index), gtsam.Pose3(T), noise))
 
     def _icp_factors(self, i: int, T: np.ndarray, cov: np.ndarray, graph: gtsam.NonlinearFactorGraph) -> None:
         """KISS-ICP as the pose prior. `window`: its motion from every frame still in the window to this

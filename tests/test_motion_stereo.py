@@ -134,3 +134,27 @@ def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monke
     simulate(SimulateConfig(scenario="straight", lidar="vlp16", frames=3, seed=21), spinning, progress=False)
     run_refine(open_sequence(spinning), RefineConfig(input="full"), tmp_path / "vlp16_out", progress=False)
     assert calls == []  # a spinning LiDAR sees the whole image
+
+
+def test_pair_motions_match_the_true_motion_and_take_their_length_from_the_lidar(drive):
+    """The images' motion from frame 4 to earlier frames (window graph factors): rotation and direction
+    from the tracks, length from the frame's returns; wrong returns give a wrong length."""
+    from odometry.motion_stereo import pair_motions
+
+    seq, frames = drive
+    f = frames[4]
+    own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+    images = GrayImages(lambda j: frames[j].image, keep=16)
+    found = pair_motions(4, [3, 2, 1], images, f.K, own, SETTINGS)
+    assert sorted(found) == [1, 2, 3]
+    for j, T in found.items():
+        true = np.linalg.inv(frames[j].T_world_cam) @ f.T_world_cam  # camera 4's points into camera j
+        d = np.linalg.inv(true) @ T
+        angle = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
+        length = np.linalg.norm(T[:3, 3]) / np.linalg.norm(true[:3, 3])
+        # one frame apart the parallax is small and the length up to ~20 % off (the graph's Huber factor
+        # takes it with the pairs two and three frames apart)
+        assert angle < 0.15 and abs(length - 1) < (0.25 if j == 3 else 0.08), (j, angle, length)
+    doubled = pair_motions(4, [2], images, f.K, own * 2.0, SETTINGS)
+    assert abs(np.linalg.norm(doubled[2][:3, 3]) / np.linalg.norm(found[2][:3, 3]) - 2.0) < 0.05
+    assert pair_motions(4, [2], images, f.K, np.zeros_like(own), SETTINGS) == {}  # no return: no length

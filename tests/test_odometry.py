@@ -222,3 +222,30 @@ def test_leaving_frames_condition_their_observations_instead_of_a_dense_marginal
     for est in (poses, dense_poses):
         err = [np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, truth)]
         assert max(err) < 0.02, err
+
+
+def test_pair_factors_make_the_graph_follow_the_images_motion():
+    """Frames with a wrong front-end motion and no other pose evidence: the images' motions to the
+    window's earlier frames (`FrameInput.pair_motions`) must carry the graph along the true trajectory;
+    without them it stays on the wrong one."""
+    from leovr.config import RefineConfig
+    from odometry.window_graph import FrameInput, WindowGraph
+
+    truth = [make_T(Rotation.from_rotvec([0, 0.02 * i, 0]).as_matrix(), [0.1 * i, 0, 1.0 * i]) for i in range(8)]
+
+    def run(pairs: bool) -> float:
+        graph = WindowGraph(RefineConfig(window=4, depth_factors=False), K, SHAPE)
+        done = []
+        for i, T in enumerate(truth):
+            wrong = make_T(t=[0, 0, 0.5 * i])  # the front end's guess: half speed, no turn
+            rel = None if i == 0 else np.linalg.inv(make_T(t=[0, 0, 0.5 * (i - 1)])) @ wrong
+            f = FrameInput(i, wrong if i else T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel)
+            if pairs:
+                f.pair_motions = {j: np.linalg.inv(truth[j]) @ T for j in (i - 1, i - 2, i - 3) if j >= 0}
+            done += graph.add_frame(f)
+        done += graph.flush()
+        est = {r.index: r.T_world_cam for r in done}
+        return max(np.linalg.norm(est[i][:3, 3] - truth[i][:3, 3]) for i in range(8))
+
+    assert run(pairs=True) < 0.05
+    assert run(pairs=False) > 1.0

@@ -189,7 +189,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     from odometry.initial_pose import first_step, is_spinning
     from odometry.mono_vo import MonoVO
     from odometry.motion_stereo import (GrayImages, MotionStereoSettings, corrected_depth, motion_stereo_depth,
-                                        neighbour_frames)
+                                        neighbour_frames, pair_motions)
     from odometry.sweep_motion import SweepMotion
     from odometry.window_graph import WindowGraph
 
@@ -260,7 +260,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     following = dict(zip(indices[:-1], indices[1:]))
     # motion stereo: image corners outside a cone LiDAR's reach, triangulated over neighbouring frames
     stereo = MotionStereoSettings()
-    stereo_images = GrayImages(lambda j: stereo_image(seq, j), keep=2 * max(stereo.offsets) + 3)
+    stereo_images = GrayImages(lambda j: stereo_image(seq, j), keep=2 * max(stereo.offsets + tuple(cfg.pair_offsets)) + 3)
+    selected = set(indices)
     sensor: dict[str, bool] = {}  # "spinning", once judged on the first scan with returns
 
     def stereo_wanted(sample: EvalSample) -> bool:
@@ -307,7 +308,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         start[0] = first_step(*scans, frame.T_cam_lidar)
         return start[0]
 
-    def prepare(i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> tuple[EvalSample, np.ndarray, np.ndarray, float]:
+    def prepare(i: int, motion: np.ndarray | None, earlier: np.ndarray | None
+                ) -> tuple[EvalSample, np.ndarray, np.ndarray, float, dict[int, np.ndarray]]:
         """Frame i's input and generator depth; runs beside the graph update of the previous frame.
         `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
         predicted camera (the generator's input only)."""
@@ -333,7 +335,13 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if corners is not None:  # the generator's depth moved towards the corners around them
             depth = corrected_depth(depth, corners, stereo.spread * float(sample.frame.K[0, 0]), stereo.support,
                                     stereo.range_log, stereo.edge_px)
-        return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0)
+        pairs = {}
+        if cfg.pair_factors and has_lidar:  # the images' motion to the window's earlier frames
+            if i not in stereo_images.images:
+                stereo_images.put(i, frame.image)
+            pairs = pair_motions(i, [i - o for o in cfg.pair_offsets if i - o in selected], stereo_images,
+                                 sample.frame.K, sample.sparse, stereo)
+        return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
     # (ONNX Runtime and OpenCV leave the interpreter lock); its inputs are known once the front
@@ -360,7 +368,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         for n, i in enumerate(tqdm(indices, desc=desc, unit="frame", disable=not progress)):
             if nxt is None:
                 nxt = submit(i, front.velocity if front.prev is not None else None)
-            sample, depth, log_sigma, gen_ms = nxt.result()
+            sample, depth, log_sigma, gen_ms, pairs = nxt.result()
             nxt = None
             if reader is not None and n + 1 < len(indices) and indices[n + 1] not in reads:
                 reads[indices[n + 1]] = reader.submit(seq.__getitem__, indices[n + 1])
@@ -369,6 +377,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             t1 = time.perf_counter()
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph)
+            fi.pair_motions = pairs
             t2 = time.perf_counter()
             if not history.sensor_known and sample.kept_points is not None and len(sample.kept_points) >= 100:
                 # judged on the first scan with returns: a spinning sensor keeps its own scan, and with
