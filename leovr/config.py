@@ -151,8 +151,9 @@ class RefineConfig(FrameSelection):
     # between factors: rotation sigma (rad) and translation sigma per metre of the pair's travel. Needs a LiDAR
     # (it sets the length). Chosen on development data (simulator validation drives, train drives 1003, 1005,
     # 1006, KITTI frames 0-37): Mid-40 ATE 4.43 -> 2.57 m summed over 12 drives, refined depth better on all
-    # of them; VLP-16 ATE better on all 6 validation drives (docs/benchmarks.md)
-    pair_factors: bool = True
+    # of them. auto: on with a cone LiDAR; off with a spinning one (VLP-16 ATE 0.68 -> 0.56 m over the 6
+    # validation drives and the depth unchanged, for 150 ms a KITTI frame; docs/benchmarks.md)
+    pair_factors: bool | Literal["auto"] = "auto"
     pair_offsets: list[int] = [1, 2, 3]
     pair_sigma_rad: float = Field(0.0007, gt=0)
     pair_sigma_rel: float = Field(0.02, gt=0)

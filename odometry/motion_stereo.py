@@ -106,7 +106,8 @@ def displacement_px(Rt: np.ndarray, X: np.ndarray, K: np.ndarray) -> tuple[np.nd
 def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
                 s: MotionStereoSettings) -> np.ndarray | None:
     """Frame i -> j as [R | t] (3 x 4) from the tracks: rotation and direction from the essential matrix,
-    length from the LiDAR depths (`lidar`, 0 = none) at the corners; None when either cannot be had."""
+    length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
+    when either cannot be had."""
     if ok.sum() < 20:
         return None
     E, inl = cv2.findEssentialMat(c[ok], p[ok], K, cv2.USAC_ACCURATE, 0.999, 0.5)
@@ -119,10 +120,7 @@ def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lid
         z = Xh[2] / Xh[3]
         X = (Xh[:3] / Xh[3]).T
     _, par = displacement_px(Rt, X, K)
-    u, v = np.round(c[ok, 0]).astype(int), np.round(c[ok, 1]).astype(int)
-    inside = (u >= 0) & (u < lidar.shape[1]) & (v >= 0) & (v < lidar.shape[0])
-    d = np.zeros(len(z))
-    d[inside] = lidar[v[inside], u[inside]]
+    d = lidar[ok]
     use = (d > 0) & (z > 0) & (par > 2.0) & np.isfinite(z)
     if use.sum() < s.scale_min_points:
         return None
@@ -161,10 +159,18 @@ def triangulate(c: np.ndarray, views: list[tuple[np.ndarray, np.ndarray, np.ndar
     return X, rms, np.where(ok, np.nan_to_num(par), 0.0).max(1), nv
 
 
-def near_returns(sparse: np.ndarray, radius_px: float) -> np.ndarray:
-    """Each pixel's nearest LiDAR depth when a return lies within radius_px, else 0."""
-    dist, (iv, iu) = distance_transform_edt(sparse <= 0, return_indices=True)
-    return np.where(dist <= radius_px, sparse[iv, iu], 0.0)
+def returns_at(sparse: np.ndarray, c: np.ndarray, radius_px: float) -> np.ndarray:
+    """The depth of the return nearest each pixel c (N x 2, rounded) when one lies within radius_px, else 0
+    (a k-d tree on the returns: a distance transform of the whole image cost 26 ms a KITTI frame)."""
+    rv, ru = np.nonzero(sparse > 0)
+    out = np.zeros(len(c))
+    if not len(rv) or not len(c):
+        return out
+    q = np.round(c).astype(np.float64)
+    dist, k = cKDTree(np.column_stack([ru, rv]).astype(np.float64)).query(q, distance_upper_bound=radius_px + 1e-9)
+    hit = np.isfinite(dist)
+    out[hit] = sparse[rv[k[hit]], ru[k[hit]]]
+    return out
 
 
 @dataclass
@@ -204,7 +210,7 @@ def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarra
     c = detect_corners(g0, s)
     if c is None:
         return {}
-    lidar = near_returns(own, s.scale_radius_px)
+    lidar = returns_at(own, c, s.scale_radius_px)
     out = {}
     for j in neighbours:
         g1 = images[j]
@@ -227,7 +233,7 @@ def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: n
     c = detect_corners(g0, s)
     if c is None:
         return none
-    lidar = near_returns(own, s.scale_radius_px)
+    lidar = returns_at(own, c, s.scale_radius_px)
     views = []
     for j in neighbours:
         g1 = images[j]

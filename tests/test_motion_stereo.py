@@ -158,3 +158,23 @@ def test_pair_motions_match_the_true_motion_and_take_their_length_from_the_lidar
     doubled = pair_motions(4, [2], images, f.K, own * 2.0, SETTINGS)
     assert abs(np.linalg.norm(doubled[2][:3, 3]) / np.linalg.norm(found[2][:3, 3]) - 2.0) < 0.05
     assert pair_motions(4, [2], images, f.K, np.zeros_like(own), SETTINGS) == {}  # no return: no length
+
+
+def test_returns_at_takes_the_nearest_return_within_the_radius():
+    from odometry.motion_stereo import returns_at
+
+    rng = np.random.default_rng(3)
+    sparse = np.zeros((40, 60), np.float32)
+    idx = rng.choice(sparse.size, 80, replace=False)
+    sparse.flat[idx] = rng.uniform(1, 50, 80)
+    c = rng.uniform(0, [59, 39], (300, 2)).astype(np.float32)
+    got = returns_at(sparse, c, 2.0)
+    rv, ru = np.nonzero(sparse > 0)
+    q = np.round(c)
+    d = np.hypot(q[:, :1] - ru[None], q[:, 1:] - rv[None])  # brute force
+    near = d.min(1) <= 2.0
+    assert (got > 0).sum() > 30 and ((got > 0) == near).all()
+    for n in np.nonzero(near)[0]:  # one of the nearest returns (equal distances: either)
+        tied = np.isclose(d[n], d[n].min())
+        assert np.isclose(sparse[rv[tied], ru[tied]], got[n]).any()
+    assert not returns_at(np.zeros_like(sparse), c, 2.0).any()

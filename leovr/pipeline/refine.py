@@ -264,10 +264,11 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     selected = set(indices)
     sensor: dict[str, bool] = {}  # "spinning", once judged on the first scan with returns
 
-    def stereo_wanted(sample: EvalSample) -> bool:
-        if not has_lidar or cfg.motion_stereo is False:
+    def cone_step(setting: bool | str, sample: EvalSample) -> bool:
+        """Whether a step that needs a LiDAR and is `auto` with a cone one (motion stereo, pair factors) runs."""
+        if not has_lidar or setting is False:
             return False
-        if cfg.motion_stereo is True:
+        if setting is True:
             return True
         kept = sample.kept_points
         spinning = sensor.get("spinning")
@@ -326,7 +327,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             earlier = history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, sample.frame.K))
         corners = None
-        if stereo_wanted(sample):
+        if cone_step(cfg.motion_stereo, sample):
             if i not in stereo_images.images:
                 stereo_images.put(i, frame.image)
             corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.offsets), stereo_images,
@@ -336,7 +337,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             depth = corrected_depth(depth, corners, stereo.spread * float(sample.frame.K[0, 0]), stereo.support,
                                     stereo.range_log, stereo.edge_px)
         pairs = {}
-        if cfg.pair_factors and has_lidar:  # the images' motion to the window's earlier frames
+        if cone_step(cfg.pair_factors, sample):  # the images' motion to the window's earlier frames
             if i not in stereo_images.images:
                 stereo_images.put(i, frame.image)
             pairs = pair_motions(i, [i - o for o in cfg.pair_offsets if i - o in selected], stereo_images,
