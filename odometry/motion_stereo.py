@@ -197,54 +197,67 @@ def detect_corners(g0: np.ndarray, s: MotionStereoSettings) -> np.ndarray | None
     return None if found is None else found.reshape(-1, 2).astype(np.float32)
 
 
+class FrameTracks:
+    """Frame i's corners, the LiDAR depth at each and their tracks into neighbours with each pair's motion,
+    computed once per neighbour: motion stereo and the pair motions both track into frame i - 2."""
+
+    def __init__(self, i: int, images: GrayImages, K: np.ndarray, own: np.ndarray,
+                 s: MotionStereoSettings = MotionStereoSettings()) -> None:
+        self.i, self.images, self.K, self.s = i, images, K, s
+        g0 = images[i]
+        self.g0 = g0
+        self.corners = None if g0 is None or not (own > 0).any() else detect_corners(g0, s)
+        self.lidar = None if self.corners is None else returns_at(own, self.corners, s.scale_radius_px)
+        self._pairs: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray] | None] = {}
+
+    def pair(self, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """([R | t] of frame i -> j, the corners' pixels in j, which tracked), or None when the image is
+        missing or the motion cannot be had (`pair_motion`)."""
+        if self.corners is None:
+            return None
+        if j not in self._pairs:
+            g1 = self.images[j]
+            found = None
+            if g1 is not None and g1.shape == self.g0.shape:
+                p, ok = track(self.g0, g1, self.corners, self.s)
+                Rt = pair_motion(self.corners, p, ok, self.K, self.lidar, self.s)
+                found = None if Rt is None else (Rt, p, ok)
+            self._pairs[j] = found
+        return self._pairs[j]
+
+
 def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                 s: MotionStereoSettings = MotionStereoSettings()) -> dict[int, np.ndarray]:
+                 s: MotionStereoSettings = MotionStereoSettings(), tracks: FrameTracks | None = None
+                 ) -> dict[int, np.ndarray]:
     """Frame i's motion to each neighbour j as a 4 x 4 T_j_i (camera i's points into camera j): rotation and
     direction from the essential matrix of the tracked corners, length from the frame's own LiDAR returns
     (`pair_motion`). Neighbours where either fails are left out. For the window graph: on the simulator's
     Mid-40 validation drives the essential matrix's rotation is 5x nearer the truth than the graph's own
-    (median 0.03 against 0.14-0.34 degrees; docs/benchmarks.md)."""
-    g0 = images[i]
-    if g0 is None or not neighbours or not (own > 0).any():
+    (median 0.03 against 0.14-0.34 degrees; docs/benchmarks.md). `tracks`: frame i's, to share with motion
+    stereo (built here when None)."""
+    if not neighbours:
         return {}
-    c = detect_corners(g0, s)
-    if c is None:
-        return {}
-    lidar = returns_at(own, c, s.scale_radius_px)
+    tracks = FrameTracks(i, images, K, own, s) if tracks is None else tracks
     out = {}
     for j in neighbours:
-        g1 = images[j]
-        if g1 is None or g1.shape != g0.shape:
-            continue
-        p, ok = track(g0, g1, c, s)
-        Rt = pair_motion(c, p, ok, K, lidar, s)
-        if Rt is not None:
-            out[j] = np.vstack([Rt, [0.0, 0.0, 0.0, 1.0]])
+        found = tracks.pair(j)
+        if found is not None:
+            out[j] = np.vstack([found[0], [0.0, 0.0, 0.0, 1.0]])
     return out
 
 
 def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                         s: MotionStereoSettings = MotionStereoSettings()) -> Corners:
+                         s: MotionStereoSettings = MotionStereoSettings(), tracks: FrameTracks | None = None
+                         ) -> Corners:
     """Frame i's corners tracked into its neighbours and triangulated; all of them, before the tests."""
     none = Corners(*(np.zeros(0, t) for t in (int, int, float, float, float, int)))
-    g0 = images[i]
-    if not (own > 0).any() or not neighbours or g0 is None:
+    if not neighbours:
         return none
-    c = detect_corners(g0, s)
-    if c is None:
-        return none
-    lidar = returns_at(own, c, s.scale_radius_px)
-    views = []
-    for j in neighbours:
-        g1 = images[j]
-        if g1 is None or g1.shape != g0.shape:
-            continue
-        p, ok = track(g0, g1, c, s)
-        Rt = pair_motion(c, p, ok, K, lidar, s)
-        if Rt is not None:
-            views.append((Rt, p, ok))
+    tracks = FrameTracks(i, images, K, own, s) if tracks is None else tracks
+    views = [found for found in map(tracks.pair, neighbours) if found is not None]
     if not views:
         return none
+    c = tracks.corners
     X, rms, par, nv = triangulate(c, views, K)
     u, v = np.round(c[:, 0]).astype(int), np.round(c[:, 1]).astype(int)
     inside = (u >= 0) & (u < own.shape[1]) & (v >= 0) & (v < own.shape[0])
@@ -269,12 +282,13 @@ def agree_with_neighbours(c: Corners, radius_px: float, min_neighbours: int, max
 
 
 def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                        seen: np.ndarray | None = None, s: MotionStereoSettings = MotionStereoSettings()) -> np.ndarray:
+                        seen: np.ndarray | None = None, s: MotionStereoSettings = MotionStereoSettings(),
+                        tracks: FrameTracks | None = None) -> np.ndarray:
     """Frame i's triangulated corners that pass the tests, as a sparse depth map (0 = none), only where no
     LiDAR return of `seen` (default: `own`, the frame's own returns, which set each pair's length) lies
-    within s.lidar_gap_px."""
+    within s.lidar_gap_px. `tracks`: frame i's, to share with the pair motions."""
     out = np.zeros(own.shape, np.float32)
-    c = triangulated_corners(i, neighbours, images, K, own, s)
+    c = triangulated_corners(i, neighbours, images, K, own, s, tracks)
     if not len(c):
         return out
     with np.errstate(invalid="ignore"):

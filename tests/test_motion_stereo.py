@@ -178,3 +178,28 @@ def test_returns_at_takes_the_nearest_return_within_the_radius():
         tied = np.isclose(d[n], d[n].min())
         assert np.isclose(sparse[rv[tied], ru[tied]], got[n]).any()
     assert not returns_at(np.zeros_like(sparse), c, 2.0).any()
+
+
+def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, monkeypatch):
+    """Motion stereo and the pair motions of one frame track its corners into each neighbour once, with the
+    same results as on their own."""
+    import odometry.motion_stereo as ms
+
+    seq, frames = drive
+    f = frames[4]
+    own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+    images = GrayImages(lambda j: frames[j].image, keep=16)
+    neighbours = neighbour_frames(4, list(range(9)), SETTINGS.offsets)
+    alone = motion_stereo_depth(4, neighbours, images, f.K, own, s=SETTINGS)
+    pairs_alone = ms.pair_motions(4, [3, 2, 1], images, f.K, own, SETTINGS)
+    tracked = []
+    real_track = ms.track
+    monkeypatch.setattr(ms, "track", lambda g0, g1, c, s: tracked.append(1) or real_track(g0, g1, c, s))
+    tracks = ms.FrameTracks(4, images, f.K, own, SETTINGS)
+    shared = motion_stereo_depth(4, neighbours, images, f.K, own, s=SETTINGS, tracks=tracks)
+    pairs = ms.pair_motions(4, [3, 2, 1], images, f.K, own, SETTINGS, tracks=tracks)
+    assert len(tracked) == len(neighbours)  # frames 3, 2 and 1 are motion stereo's neighbours too
+    np.testing.assert_array_equal(shared, alone)
+    assert sorted(pairs) == sorted(pairs_alone) == [1, 2, 3]
+    for j in pairs:
+        np.testing.assert_allclose(pairs[j], pairs_alone[j], atol=1e-9)

@@ -188,8 +188,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     from odometry.frontend import FrontEnd
     from odometry.initial_pose import first_step, is_spinning
     from odometry.mono_vo import MonoVO
-    from odometry.motion_stereo import (GrayImages, MotionStereoSettings, corrected_depth, motion_stereo_depth,
-                                        neighbour_frames, pair_motions)
+    from odometry.motion_stereo import (FrameTracks, GrayImages, MotionStereoSettings, corrected_depth,
+                                        motion_stereo_depth, neighbour_frames, pair_motions)
     from odometry.sweep_motion import SweepMotion
     from odometry.window_graph import WindowGraph
 
@@ -327,21 +327,26 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             earlier = history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, sample.frame.K))
         corners = None
+        tracks: list[FrameTracks] = []  # frame i's corners and tracks, shared by motion stereo and the pairs
+
+        def frame_tracks() -> FrameTracks:
+            if not tracks:
+                if i not in stereo_images.images:
+                    stereo_images.put(i, frame.image)
+                tracks.append(FrameTracks(i, stereo_images, sample.frame.K, sample.sparse, stereo))
+            return tracks[0]
+
         if cone_step(cfg.motion_stereo, sample):
-            if i not in stereo_images.images:
-                stereo_images.put(i, frame.image)
             corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.offsets), stereo_images,
-                                          sample.frame.K, sample.sparse, seen.sparse, stereo)
+                                          sample.frame.K, sample.sparse, seen.sparse, stereo, frame_tracks())
         depth, log_sigma = generator(seen)
         if corners is not None:  # the generator's depth moved towards the corners around them
             depth = corrected_depth(depth, corners, stereo.spread * float(sample.frame.K[0, 0]), stereo.support,
                                     stereo.range_log, stereo.edge_px)
         pairs = {}
         if cone_step(cfg.pair_factors, sample):  # the images' motion to the window's earlier frames
-            if i not in stereo_images.images:
-                stereo_images.put(i, frame.image)
             pairs = pair_motions(i, [i - o for o in cfg.pair_offsets if i - o in selected], stereo_images,
-                                 sample.frame.K, sample.sparse, stereo)
+                                 sample.frame.K, sample.sparse, stereo, frame_tracks())
         return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
