@@ -188,6 +188,10 @@ class RefineConfig(FrameSelection):
     consistency_sigma_log: float = 0.05
     lidar_depth_samples: int = Field(400, ge=0)  # own LiDAR returns on the correction field (0 = off)
     lidar_depth_sigma_log: float = 0.03
+    # motion stereo's corners (outside the LiDAR's reach) on the correction field, log sigma (0 = off): the only
+    # depth the field sees outside a cone LiDAR's reach; chosen on development drives, 0.03 against 0.01 and 0.1
+    # (docs/benchmarks.md, "Motion stereo's corners on the correction field")
+    stereo_depth_sigma_log: float = Field(0.03, ge=0)
     prior_sigma_min: float = 0.02  # generator prior on the field: sigma / depth per cell, clipped
     prior_sigma_max: float = 0.5
     mono_depth_sigma_log: float = 0.2  # no LiDAR: how far one frame's depth-based step length may be off

@@ -310,7 +310,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         return start[0]
 
     def prepare(i: int, motion: np.ndarray | None, earlier: np.ndarray | None
-                ) -> tuple[EvalSample, np.ndarray, np.ndarray, float, dict[int, np.ndarray]]:
+                ) -> tuple[EvalSample, np.ndarray, np.ndarray, float, dict[int, np.ndarray], np.ndarray | None]:
         """Frame i's input and generator depth; runs beside the graph update of the previous frame.
         `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
         predicted camera (the generator's input only)."""
@@ -347,7 +347,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if cone_step(cfg.pair_factors, sample):  # the images' motion to the window's earlier frames
             pairs = pair_motions(i, [i - o for o in cfg.pair_offsets if i - o in selected], stereo_images,
                                  sample.frame.K, sample.sparse, stereo, frame_tracks())
-        return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs
+        return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
     # (ONNX Runtime and OpenCV leave the interpreter lock); its inputs are known once the front
@@ -374,7 +374,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         for n, i in enumerate(tqdm(indices, desc=desc, unit="frame", disable=not progress)):
             if nxt is None:
                 nxt = submit(i, front.velocity if front.prev is not None else None)
-            sample, depth, log_sigma, gen_ms, pairs = nxt.result()
+            sample, depth, log_sigma, gen_ms, pairs, corners = nxt.result()
             nxt = None
             if reader is not None and n + 1 < len(indices) and indices[n + 1] not in reads:
                 reads[indices[n + 1]] = reader.submit(seq.__getitem__, indices[n + 1])
@@ -384,6 +384,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph)
             fi.pair_motions = pairs
+            if corners is not None:
+                cv, cu = np.nonzero(corners > 0)
+                fi.stereo_uvz = np.column_stack([cu, cv, corners[cv, cu]]).astype(float)
             t2 = time.perf_counter()
             if not history.sensor_known and sample.kept_points is not None and len(sample.kept_points) >= 100:
                 # judged on the first scan with returns: a spinning sensor keeps its own scan, and with
