@@ -25,7 +25,6 @@ from typing import Callable
 
 import cv2
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 
@@ -159,18 +158,25 @@ def triangulate(c: np.ndarray, views: list[tuple[np.ndarray, np.ndarray, np.ndar
     return X, rms, np.where(ok, np.nan_to_num(par), 0.0).max(1), nv
 
 
-def returns_at(sparse: np.ndarray, c: np.ndarray, radius_px: float) -> np.ndarray:
-    """The depth of the return nearest each pixel c (N x 2, rounded) when one lies within radius_px, else 0
-    (a k-d tree on the returns: a distance transform of the whole image cost 26 ms a KITTI frame)."""
+def nearest_returns(sparse: np.ndarray, c: np.ndarray, radius_px: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """For each pixel c (N x 2, rounded): the distance (px) to the nearest return of `sparse` and its depth,
+    (inf, 0) when none lies within radius_px. A k-d tree on the returns: a distance transform of the whole
+    image cost 26 ms a KITTI frame."""
     rv, ru = np.nonzero(sparse > 0)
-    out = np.zeros(len(c))
+    dist, depth = np.full(len(c), np.inf), np.zeros(len(c))
     if not len(rv) or not len(c):
-        return out
+        return dist, depth
     q = np.round(c).astype(np.float64)
-    dist, k = cKDTree(np.column_stack([ru, rv]).astype(np.float64)).query(q, distance_upper_bound=radius_px + 1e-9)
+    bound = radius_px + 1e-9 if np.isfinite(radius_px) else np.inf
+    dist, k = cKDTree(np.column_stack([ru, rv]).astype(np.float64)).query(q, distance_upper_bound=bound)
     hit = np.isfinite(dist)
-    out[hit] = sparse[rv[k[hit]], ru[k[hit]]]
-    return out
+    depth[hit] = sparse[rv[k[hit]], ru[k[hit]]]
+    return dist, depth
+
+
+def returns_at(sparse: np.ndarray, c: np.ndarray, radius_px: float) -> np.ndarray:
+    """The depth of the return nearest each pixel c (N x 2, rounded) when one lies within radius_px, else 0."""
+    return nearest_returns(sparse, c, radius_px)[1]
 
 
 @dataclass
@@ -203,7 +209,7 @@ class FrameTracks:
 
     def __init__(self, i: int, images: GrayImages, K: np.ndarray, own: np.ndarray,
                  s: MotionStereoSettings = MotionStereoSettings()) -> None:
-        self.i, self.images, self.K, self.s = i, images, K, s
+        self.images, self.K, self.s = images, K, s
         g0 = images[i]
         self.g0 = g0
         self.corners = None if g0 is None or not (own > 0).any() else detect_corners(g0, s)
@@ -296,7 +302,7 @@ def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np
                 & (c.z > s.min_depth_m) & (c.z < s.max_depth_m))
     c = c.take(keep)
     c = c.take(agree_with_neighbours(c, s.neighbour_radius * float(K[0, 0]), s.min_neighbours, s.max_log_diff))
-    far = distance_transform_edt((own if seen is None else seen) <= 0)[c.v, c.u] > s.lidar_gap_px
+    far = nearest_returns(own if seen is None else seen, np.column_stack([c.u, c.v]))[0] > s.lidar_gap_px
     out[c.v[far], c.u[far]] = c.z[far]
     return out
 

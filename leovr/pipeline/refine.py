@@ -326,27 +326,22 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if earlier is not None:
             earlier = history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, sample.frame.K))
-        corners = None
-        tracks: list[FrameTracks] = []  # frame i's corners and tracks, shared by motion stereo and the pairs
-
-        def frame_tracks() -> FrameTracks:
-            if not tracks:
-                if i not in stereo_images.images:
-                    stereo_images.put(i, frame.image)
-                tracks.append(FrameTracks(i, stereo_images, sample.frame.K, sample.sparse, stereo))
-            return tracks[0]
-
-        if cone_step(cfg.motion_stereo, sample):
+        corners, pairs, tracks = None, {}, None
+        with_stereo, with_pairs = cone_step(cfg.motion_stereo, sample), cone_step(cfg.pair_factors, sample)
+        if with_stereo or with_pairs:  # frame i's corners and tracks, shared by motion stereo and the pairs
+            if i not in stereo_images.images:
+                stereo_images.put(i, frame.image)
+            tracks = FrameTracks(i, stereo_images, sample.frame.K, sample.sparse, stereo)
+        if with_stereo:
             corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.offsets), stereo_images,
-                                          sample.frame.K, sample.sparse, seen.sparse, stereo, frame_tracks())
+                                          sample.frame.K, sample.sparse, seen.sparse, stereo, tracks)
         depth, log_sigma = generator(seen)
         if corners is not None:  # the generator's depth moved towards the corners around them
             depth = corrected_depth(depth, corners, stereo.spread * float(sample.frame.K[0, 0]), stereo.support,
                                     stereo.range_log, stereo.edge_px)
-        pairs = {}
-        if cone_step(cfg.pair_factors, sample):  # the images' motion to the window's earlier frames
+        if with_pairs:  # the images' motion to the window's earlier frames
             pairs = pair_motions(i, [i - o for o in cfg.pair_offsets if i - o in selected], stereo_images,
-                                 sample.frame.K, sample.sparse, stereo, frame_tracks())
+                                 sample.frame.K, sample.sparse, stereo, tracks)
         return sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners
 
     # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
