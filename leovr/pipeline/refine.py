@@ -190,6 +190,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     from odometry.mono_vo import MonoVO
     from odometry.motion_stereo import (FrameTracks, GrayImages, MotionStereoSettings, corrected_depth,
                                         motion_stereo_depth, neighbour_frames, pair_motions)
+    from odometry.photo_field import PhotoFieldSettings, free_nodes, photometric_correction, photometric_offsets
     from odometry.sweep_motion import SweepMotion
     from odometry.window_graph import WindowGraph
 
@@ -230,6 +231,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 replayed[r.index] = r.T_world_cam
                 continue
             refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
+            if r.index in photo_free:  # where no return lies, the depth its neighbours' images agree with
+                refined = photometric_step(r.index, r.T_world_cam, refined)
             if r.index in scored:
                 scored[r.index].add("generator", gen_depth)
                 scored[r.index].add("refined", refined)
@@ -258,6 +261,26 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         return out
 
     following = dict(zip(indices[:-1], indices[1:]))
+    # the photometric correction of a leaving frame: its neighbours' images and the nodes free to move
+    position = {j: n for n, j in enumerate(indices)}
+    photo = PhotoFieldSettings(min_gain=cfg.photometric_min_gain)
+    photo_images = GrayImages(lambda j: stereo_image(seq, j), keep=cfg.window + 2 * max(cfg.photometric_offsets, default=0) + 3)
+    photo_free: dict[int, np.ndarray] = {}
+
+    def photometric_step(i: int, T_i: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Frame i's refined depth after the plane sweep against the selected frames `photometric_offsets`
+        before and after it (the poses they have now: final before i, the window's after it)."""
+        free = photo_free.pop(i)
+        near = [indices[position[i] + o] for o in cfg.photometric_offsets + [-o for o in cfg.photometric_offsets]
+                if 0 <= position[i] + o < len(indices)]
+        poses = latest_poses(near)
+        gray = photo_images[i]
+        pairs = [(photo_images[j], invert_T(poses[j]) @ T_i) for j in near if j in poses]
+        pairs = [(im, T) for im, T in pairs if im is not None and im.shape == depth.shape]
+        if gray is None or not pairs:
+            return depth
+        return photometric_correction(depth, photometric_offsets(depth, gray, pairs, K, free, photo), photo)
+
     # motion stereo: image corners outside a cone LiDAR's reach, triangulated over neighbouring frames
     stereo = MotionStereoSettings()
     stereo_images = GrayImages(lambda j: stereo_image(seq, j), keep=2 * max(stereo.offsets + tuple(cfg.pair_offsets)) + 3)
@@ -379,6 +402,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph)
             fi.pair_motions = pairs
+            if i not in done and cone_step(cfg.photometric_field, sample):
+                photo_images.put(i, sample.frame.image)
+                photo_free[i] = free_nodes(sample.sparse, photo)
             if corners is not None:
                 cv, cu = np.nonzero(corners > 0)
                 fi.stereo_uvz = np.column_stack([cu, cv, corners[cv, cu]]).astype(float)

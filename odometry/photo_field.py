@@ -1,0 +1,137 @@
+"""Depth outside a cone LiDAR's reach from the images: a coarse photometric correction of a frame's refined depth.
+
+Outside a Mid-40's cone the correction field of the window graph has almost nothing to go by (a few motion
+stereo corners), and the generator guesses from one image. With the graph's poses, the frame's neighbours
+tell which depth is right: warped into the frame with the right depth, a textured patch matches. For every
+node of a coarse grid left without LiDAR returns, a plane sweep over a log-depth offset (a few candidates
+around the refined depth) sums the patches' ZNCC cost over the node's pixels (bilinear weights), in every
+neighbour; the best candidate (sub-step by a parabola) is kept when it lowers the cost by `min_gain` against
+no change. The kept offsets are upsampled bilinearly and multiply the refined depth. Nodes with LiDAR
+returns keep the graph's depth (there the returns are better, and the photometric choice made them worse on
+the development drives). Run when a frame leaves the window, with the poses it leaves with; settings chosen
+on the simulator's Mid-40 validation drives (docs/benchmarks.md, "Photometric correction outside the cone").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from odometry.depth_field import CorrectionGrid
+
+
+@dataclass(frozen=True)
+class PhotoFieldSettings:
+    rows: int = 16  # the correction's grid (nodes), corner to corner (finer than the graph's 8 x 14: 1.81 -> 1.77 m)
+    cols: int = 28
+    span_log: float = 0.5  # candidates: log offsets in [-span, span]
+    candidates: int = 11  # 0.1 apart; a parabola through the best and its neighbours refines it
+    patch_px: int = 2  # ZNCC window half size, at the downsampled scale
+    min_texture: float = 4.0  # gray-level variance in the window: flatter patches do not vote
+    min_pixels: int = 30  # a node needs this much (bilinear) weight of voting pixels for every candidate
+    min_gain: float = 0.05  # kept when the best candidate's mean cost is this much below no change
+    min_depth_m: float = 0.5
+    downsample: int = 2  # the sweep runs on images this much smaller (the patch size is at that scale)
+
+
+def _box(x: np.ndarray, k: int) -> np.ndarray:
+    return cv2.boxFilter(x, -1, (2 * k + 1, 2 * k + 1), borderType=cv2.BORDER_REFLECT)
+
+
+class _Votes:
+    """Per-node sums of the pixels' costs and weights, as sparse bilinear weights of a fixed image size."""
+
+    def __init__(self, grid: CorrectionGrid) -> None:
+        import scipy.sparse as sp
+
+        u, v = np.meshgrid(np.arange(grid.width, dtype=np.float64), np.arange(grid.height, dtype=np.float64))
+        idx, w = grid.weights(u.ravel(), v.ravel())
+        n = grid.height * grid.width
+        self.BT = sp.csr_matrix((w.ravel(), idx.ravel(), np.arange(0, 4 * n + 1, 4)), shape=(n, grid.size)).T.tocsr()
+
+    def __call__(self, values: np.ndarray) -> np.ndarray:
+        return self.BT @ values.ravel().astype(np.float64)
+
+
+_votes_cache: dict[CorrectionGrid, _Votes] = {}
+
+
+def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
+                        K: np.ndarray, free: np.ndarray, s: PhotoFieldSettings = PhotoFieldSettings()) -> np.ndarray:
+    """Per-node log offsets (grid `s.rows` x `s.cols`, flat) for a frame's depth (H x W, 0 = unknown).
+    `gray`: the frame's image (H x W); `neighbours`: (image, T_j_i) pairs, T_j_i mapping this camera's
+    coordinates into neighbour j's; `free`: per node, whether it may move (no LiDAR returns). Nodes
+    without enough textured, visible pixels or a clear minimum stay at 0."""
+    out = np.zeros(s.rows * s.cols)
+    if not neighbours or not free.any():
+        return out
+    f = max(int(s.downsample), 1)
+    if f > 1:  # pixel centres: (x + 0.5) / f - 0.5
+        def small(im: np.ndarray) -> np.ndarray:
+            return cv2.resize(im, (im.shape[1] // f, im.shape[0] // f), interpolation=cv2.INTER_AREA)
+        depth = depth[f // 2::f, f // 2::f][: depth.shape[0] // f, : depth.shape[1] // f]
+        gray, neighbours = small(gray), [(small(im), T) for im, T in neighbours]
+        K = np.array([[K[0, 0] / f, 0, (K[0, 2] + 0.5) / f - 0.5], [0, K[1, 1] / f, (K[1, 2] + 0.5) / f - 0.5], [0, 0, 1]])
+    h, w = depth.shape
+    grid = CorrectionGrid(s.rows, s.cols, h, w)
+    votes = _votes_cache.setdefault(grid, _Votes(grid))
+    k = s.patch_px
+    a = gray.astype(np.float32)
+    ma = _box(a, k)
+    va = _box(a * a, k) - ma * ma
+    textured = (va > s.min_texture) & (depth > 0)
+    fx, fy, cx, cy = (np.float32(K[r, c]) for r, c in ((0, 0), (1, 1), (0, 2), (1, 2)))
+    uu, vv = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    rays = np.stack([(uu - cx) / fx, (vv - cy) / fy, np.ones_like(uu)], -1) * depth[..., None].astype(np.float32)
+    cands = np.linspace(-s.span_log, s.span_log, s.candidates)
+    cost = np.zeros((len(cands), grid.size))
+    weight = np.zeros((len(cands), grid.size))
+    inner = (uu > k) & (uu < w - 1 - k) & (vv > k) & (vv < h - 1 - k)
+    for img, T in neighbours:
+        b_img = img.astype(np.float32)
+        A = rays @ T[:3, :3].T.astype(np.float32)  # rotated rays x depth; the candidates only scale them
+        t = T[:3, 3].astype(np.float32)
+        for n, c in enumerate(cands):
+            X = A * np.float32(np.exp(c)) + t
+            z = X[..., 2]
+            zs = np.maximum(z, 1e-3)
+            u2 = fx * X[..., 0] / zs + cx
+            v2 = fy * X[..., 1] / zs + cy
+            b = cv2.remap(b_img, u2, v2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            ok = textured & (z > s.min_depth_m) & (u2 > k) & (u2 < w - 1 - k) & (v2 > k) & (v2 < h - 1 - k) & inner
+            mb = _box(b, k)
+            vb = _box(b * b, k) - mb * mb
+            cab = _box(a * b, k) - ma * mb
+            zncc = cab / np.sqrt(np.maximum(va * vb, 1e-6))
+            ok &= vb > 1e-3
+            cost[n] += votes(np.where(ok, 1.0 - zncc, 0.0))
+            weight[n] += votes(ok)
+    mean = cost / np.maximum(weight, 1e-9)
+    nodes = np.arange(grid.size)
+    best = np.argmin(mean, 0)
+    inner_best = np.clip(best, 1, len(cands) - 2)
+    y0, y1, y2 = mean[inner_best - 1, nodes], mean[inner_best, nodes], mean[inner_best + 1, nodes]
+    curve = y0 - 2 * y1 + y2
+    step = np.where((best == inner_best) & (curve > 1e-9), 0.5 * (y0 - y2) / np.maximum(curve, 1e-9), 0.0)
+    chosen = cands[best] + np.clip(step, -0.5, 0.5) * (cands[1] - cands[0])
+    gain = mean[len(cands) // 2] - mean[best, nodes]
+    keep = free & (weight.min(0) >= s.min_pixels) & (gain > s.min_gain)
+    out[keep] = chosen[keep]
+    return out
+
+
+def free_nodes(sparse: np.ndarray, s: PhotoFieldSettings = PhotoFieldSettings()) -> np.ndarray:
+    """Per node of the photometric grid: True where the nearest-node cell holds no LiDAR return."""
+    grid = CorrectionGrid(s.rows, s.cols, *sparse.shape)
+    counts = grid.cell_means(np.where(sparse > 0, 1.0, 0.0))  # share of pixels with a return
+    return ~(np.nan_to_num(counts) > 0)
+
+
+def photometric_correction(depth: np.ndarray, offsets: np.ndarray, s: PhotoFieldSettings = PhotoFieldSettings()) -> np.ndarray:
+    """The depth times the upsampled offsets (0 stays 0)."""
+    if not np.any(offsets):
+        return depth
+    grid = CorrectionGrid(s.rows, s.cols, *depth.shape)
+    return np.where(depth > 0, depth * np.exp(grid.upsample(offsets)), 0.0)

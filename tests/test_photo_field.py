@@ -1,0 +1,91 @@
+"""The photometric correction of a leaving frame: where no LiDAR return lies, the images of the frames before
+and after pick the depth; nodes with returns, untextured or unseen ones keep the graph's depth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from leovr.config import SimulateConfig
+from leovr.data import open_sequence
+from leovr.geometry import invert_T
+from leovr.lidar.projection import sparse_depth
+from leovr.sim.simulate import simulate
+from odometry.depth_field import CorrectionGrid
+from odometry.photo_field import PhotoFieldSettings, free_nodes, photometric_correction, photometric_offsets
+
+S = PhotoFieldSettings()
+
+
+@pytest.fixture(scope="module")
+def drive():
+    """A straight Mid-40 drive: buildings beside the road, outside the 38-degree cone."""
+    import tempfile
+    from pathlib import Path
+
+    out = Path(tempfile.mkdtemp()) / "seq"
+    simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=9, seed=21), out, progress=False)
+    seq = open_sequence(out)
+    return seq, {i: seq[i] for i in range(len(seq))}
+
+
+def _gray(f):
+    import cv2
+
+    return cv2.cvtColor(f.image, cv2.COLOR_RGB2GRAY)
+
+
+def _neighbours(frames, i=4, offsets=(1, 2, 3)):
+    T_i = frames[i].T_world_cam
+    return [(_gray(frames[j]), invert_T(frames[j].T_world_cam) @ T_i) for o in offsets for j in (i - o, i + o)]
+
+
+def test_a_wrong_scale_outside_the_cone_comes_back_to_the_truth(drive):
+    _, frames = drive
+    f = frames[4]
+    own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+    free = free_nodes(own, S)
+    assert 0.3 < free.mean() < 0.95  # the cone's nodes hold returns, the rest of the image none
+    grid = CorrectionGrid(S.rows, S.cols, *f.shape)
+    shift = grid.upsample(0.3 * free)  # the free nodes' depth 35 % too far
+    wrong = np.where(f.depth > 0, f.depth * np.exp(shift), 0.0)
+    off = photometric_offsets(wrong, _gray(f), _neighbours(frames), f.K, free, S)
+    assert np.all(off[~free] == 0)  # nodes with returns never move
+    fixed = photometric_correction(wrong, off, S)
+    region = (shift > 0.29) & (f.depth > 0) & (f.depth < 80)
+    before = np.abs(wrong[region] - f.depth[region]).mean()
+    after = np.abs(fixed[region] - f.depth[region]).mean()
+    assert after < 0.5 * before
+    assert np.median(off[free & (off != 0)]) == pytest.approx(-0.3, abs=0.08)
+    # the right depth stays where it is (at most small sub-step moves)
+    assert np.abs(photometric_offsets(f.depth, _gray(f), _neighbours(frames), f.K, free, S)).max() < 0.1
+
+
+def test_no_neighbour_no_free_node_or_a_flat_image_moves_nothing(drive):
+    _, frames = drive
+    f = frames[4]
+    free = np.ones(S.rows * S.cols, bool)
+    depth = f.depth * 1.3
+    assert not photometric_offsets(depth, _gray(f), [], f.K, free, S).any()
+    assert not photometric_offsets(depth, _gray(f), _neighbours(frames), f.K, ~free, S).any()
+    flat = np.full(f.shape, 128, np.uint8)
+    assert not photometric_offsets(depth, flat, [(flat, np.eye(4))], f.K, free, S).any()
+    assert photometric_correction(depth, np.zeros(S.rows * S.cols), S) is depth
+
+
+def test_refine_runs_it_with_a_cone_lidar_and_can_be_turned_off(drive, tmp_path, monkeypatch):
+    import odometry.photo_field as pf
+    from leovr.config import RefineConfig
+    from leovr.pipeline.refine import run_refine
+
+    seq, _ = drive
+    calls = []
+    real = pf.photometric_offsets
+    monkeypatch.setattr(pf, "photometric_offsets", lambda *a, **k: calls.append(len(a[2])) or real(*a, **k))
+    on = run_refine(seq, RefineConfig(input="full"), tmp_path / "on", progress=False)
+    assert len(calls) == 9 and min(calls) == 3 and max(calls) == 6  # every frame; its neighbours within 3 frames
+    calls.clear()
+    off = run_refine(seq, RefineConfig(input="full", photometric_field=False), tmp_path / "off", progress=False)
+    assert calls == []
+    assert on["depth"]["generator"]["mae_m"] == pytest.approx(off["depth"]["generator"]["mae_m"], rel=1e-6)
+    assert on["depth"]["refined"]["mae_m"] != off["depth"]["refined"]["mae_m"]

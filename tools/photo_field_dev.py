@@ -1,0 +1,71 @@
+"""The photometric correction (odometry.photo_field) applied after the fact to `tools/field_dev.py collect` runs
+(issue 14, session 48; development drives only): each scored frame's refined depth PNG, the run's poses
+(poses_kitti.txt) and the drive's images; scores the corrected depth on the run's scored pixels, inside and
+outside the Mid-40 cone (mean over drives of the per-drive MAE).
+
+    FIELD_DEV_ROOT=ROOT tools/photo_field_dev.py TAG
+env: OFFS (neighbour offsets, negative = after; default 1,2,3,-1,-2,-3), GRID (rows,cols; 16,28), GAIN (0.05),
+DS (downsample, 2), PP (patch half size, 2), NC (candidates, 11), FREE (returns: nodes without a return of the
+frame's own scan, the shipped rule; cone: nodes outside the cone's circle)."""
+from __future__ import annotations
+
+import glob
+import os
+import sys
+import time
+from pathlib import Path
+import cv2
+import numpy as np
+
+from leovr.data import open_sequence
+from leovr.data.io import read_depth_png
+from leovr.sim.dataset import default_root
+from odometry.photo_field import PhotoFieldSettings, photometric_offsets, photometric_correction, free_nodes
+from leovr.pipeline.refine import completion_config, frame_sample
+from leovr.config import RefineConfig
+
+ROOT = Path(os.environ.get('FIELD_DEV_ROOT', 'runs/field_dev'))
+tag = sys.argv[1]
+offs = [int(x) for x in os.environ.get('OFFS', '1,2,3,-1,-2,-3').split(',')]
+gr = [int(x) for x in os.environ.get('GRID', '16,28').split(',')]
+s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GAIN", 0.05)), downsample=int(os.environ.get("DS", 2)), patch_px=int(os.environ.get("PP", 2)), candidates=int(os.environ.get("NC", 11)))
+H, W = 256, 448
+radius = 224 / np.tan(np.radians(40.5)) * np.tan(np.radians(19.2))
+acc = {}; tsum = [0.0, 0]
+for w in sorted(glob.glob(str(ROOT / f'work_{tag}_*'))):
+    name = w.split(f'work_{tag}_')[1]
+    seq = open_sequence(default_root() / 'default' / 'val' / name)
+    z = np.load(ROOT / f'{tag}_{name}.npz')
+    est = np.loadtxt(w + '/poses_kitti.txt').reshape(-1, 3, 4)
+    est = np.concatenate([est, np.tile([[[0, 0, 0, 1.]]], (len(est), 1, 1))], 1)
+    frames = sorted({int(k.split('_')[0]) for k in z.files})
+    gray = lambda j: cv2.cvtColor(seq[j].image, cv2.COLOR_RGB2GRAY)
+    for i in frames:
+        js = [i - o for o in offs if 0 <= i - o < len(est)]
+        if not js: continue
+        D = read_depth_png(Path(w) / 'depth' / f'{i:06d}.png')
+        if os.environ.get('FREE', 'returns') == 'returns':
+            ccfg = completion_config(RefineConfig(input='full'))
+            smp = frame_sample(seq, i, ccfg, None, 0.1, False, truth=False)
+            free = free_nodes(smp.sparse, s)
+        else:
+            nr, nc = np.divmod(np.arange(s.rows * s.cols), s.cols)
+            free = np.hypot(nc * (W - 1) / (s.cols - 1) - W / 2, nr * (H - 1) / (s.rows - 1) - H / 2) > radius
+        nb = [(gray(j), np.linalg.inv(est[j]) @ est[i]) for j in js]
+        t0 = time.perf_counter()
+        off = photometric_offsets(D, gray(i), nb, seq[i].K, free, s)
+        C = photometric_correction(D, off, s)
+        tsum[0] += time.perf_counter() - t0; tsum[1] += 1
+        rows, cols, gt, ref, gen = (z[f'{i}_{k}'] for k in ('rows', 'cols', 'gt', 'refined', 'generator'))
+        corr = np.minimum(C[rows, cols], 255.99)
+        inside = np.hypot(cols - W / 2, rows - H / 2) < radius
+        for reg, m in (('in', inside), ('out', ~inside), ('all', np.ones_like(inside))):
+            for k, p in (('ref', ref), ('photo', corr), ('gen', gen)):
+                a = acc.setdefault((name, reg, k), [0.0, 0]); a[0] += np.abs(p[m] - gt[m]).sum(); a[1] += m.sum()
+    print(name, ' '.join(f'{k}={v[0]/max(v[1],1):.3f}' for (n, r, k), v in acc.items() if n == name and r == 'all'), flush=True)
+tot = {}
+for (n, r, k), v in acc.items():
+    tot.setdefault((r, k), []).append(v[0] / max(v[1], 1))
+for (r, k), v in sorted(tot.items()):
+    print('mean', r, k, f'{np.mean(v):.3f}')
+print(f'ms per frame {1000 * tsum[0] / tsum[1]:.0f}')
