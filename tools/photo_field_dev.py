@@ -1,11 +1,11 @@
 """The photometric correction (odometry.photo_field) applied after the fact to `tools/field_dev.py collect` runs
 (issue 14, session 48; development drives only): each scored frame's refined depth PNG, the run's poses
 (poses_kitti.txt) and the drive's images; scores the corrected depth on the run's scored pixels, inside and
-outside the Mid-40 cone (mean over drives of the per-drive MAE).
+outside the Mid-40 cone (mean over drives of the per-drive MAE), and the distribution of the poses' check (bias).
 
     FIELD_DEV_ROOT=ROOT tools/photo_field_dev.py TAG
 env: OFFS (neighbour offsets, negative = after; default 1,2,3,-1,-2,-3), GRID (rows,cols; 16,28), GAIN (0.05),
-DS (downsample, 2), PP (patch half size, 2), NC (candidates, 11), FREE (returns: nodes without a return of the
+DS (downsample; 0: by sweep_pixels), PP (patch half size, 2), NC (candidates, 11), FREE (returns: nodes without a return of the
 frame's own scan, the shipped rule; cone: nodes outside the cone's circle)."""
 from __future__ import annotations
 
@@ -28,10 +28,10 @@ ROOT = Path(os.environ.get('FIELD_DEV_ROOT', 'runs/field_dev'))
 tag = sys.argv[1]
 offs = [int(x) for x in os.environ.get('OFFS', '1,2,3,-1,-2,-3').split(',')]
 gr = [int(x) for x in os.environ.get('GRID', '16,28').split(',')]
-s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GAIN", 0.05)), downsample=int(os.environ.get("DS", 2)), patch_px=int(os.environ.get("PP", 2)), candidates=int(os.environ.get("NC", 11)))
+s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GAIN", 0.05)), downsample=int(os.environ.get("DS", 0)), patch_px=int(os.environ.get("PP", 2)))
 H, W = 256, 448
 radius = 224 / np.tan(np.radians(40.5)) * np.tan(np.radians(19.2))
-acc = {}; tsum = [0.0, 0]
+acc = {}; tsum = [0.0, 0]; biases = []
 for w in sorted(glob.glob(str(ROOT / f'work_{tag}_*'))):
     name = w.split(f'work_{tag}_')[1]
     seq = open_sequence(default_root() / 'default' / 'val' / name)
@@ -53,7 +53,9 @@ for w in sorted(glob.glob(str(ROOT / f'work_{tag}_*'))):
             free = np.hypot(nc * (W - 1) / (s.cols - 1) - W / 2, nr * (H - 1) / (s.rows - 1) - H / 2) > radius
         nb = [(gray(j), np.linalg.inv(est[j]) @ est[i]) for j in js]
         t0 = time.perf_counter()
-        off = photometric_offsets(D, gray(i), nb, seq[i].K, free, s)
+        st: dict = {}
+        off = photometric_offsets(D, gray(i), nb, seq[i].K, free, s, st)
+        biases.append(st.get('bias', np.inf))
         C = photometric_correction(D, off, s)
         tsum[0] += time.perf_counter() - t0; tsum[1] += 1
         rows, cols, gt, ref, gen = (z[f'{i}_{k}'] for k in ('rows', 'cols', 'gt', 'refined', 'generator'))
@@ -69,3 +71,6 @@ for (n, r, k), v in acc.items():
 for (r, k), v in sorted(tot.items()):
     print('mean', r, k, f'{np.mean(v):.3f}')
 print(f'ms per frame {1000 * tsum[0] / tsum[1]:.0f}')
+b = np.array(biases)
+print('check: frames passing', f'{np.mean(np.abs(b) <= s.max_bias_log):.2f}', 'bias 5/25/50/75/95 %',
+      np.round(np.percentile(b[np.isfinite(b)], [5, 25, 50, 75, 95]), 3))
