@@ -60,3 +60,17 @@ def write_kitti_raw(root: Path, frames: int = 3) -> Path:
 @pytest.fixture
 def kitti_raw_tiny(tmp_path: Path) -> Path:
     return write_kitti_raw(tmp_path)
+
+
+@pytest.fixture(scope="session")
+def straight_mid40_drive(tmp_path_factory):
+    """A straight 9-frame Mid-40 drive at 30 km/h (seed 21): buildings beside the road, outside the 38-degree
+    cone; the sequence and its frames by index (motion stereo and the photometric correction)."""
+    from leovr.config import SimulateConfig
+    from leovr.data import open_sequence
+    from leovr.sim.simulate import simulate
+
+    out = tmp_path_factory.mktemp("straight_mid40") / "seq"
+    simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=9, seed=21), out, progress=False)
+    seq = open_sequence(out)
+    return seq, {i: seq[i] for i in range(len(seq))}

@@ -25,15 +25,8 @@ SETTINGS = MotionStereoSettings(offsets=(1, 2, 3, 4))  # a 9-frame drive
 
 
 @pytest.fixture(scope="module")
-def drive():
-    """A straight Mid-40 drive at 30 km/h: buildings beside the road, outside the 38-degree cone."""
-    import tempfile
-    from pathlib import Path
-
-    out = Path(tempfile.mkdtemp()) / "seq"
-    simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=9, seed=21), out, progress=False)
-    seq = open_sequence(out)
-    return seq, {i: seq[i] for i in range(len(seq))}
+def drive(straight_mid40_drive):
+    return straight_mid40_drive
 
 
 def _run(drive, own_scale: float = 1.0, load=None):

@@ -6,11 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from leovr.config import SimulateConfig
-from leovr.data import open_sequence
 from leovr.geometry import invert_T
 from leovr.lidar.projection import sparse_depth
-from leovr.sim.simulate import simulate
 from odometry.depth_field import CorrectionGrid
 from odometry.photo_field import PhotoFieldSettings, free_nodes, photometric_correction, photometric_offsets
 
@@ -18,15 +15,8 @@ S = PhotoFieldSettings()
 
 
 @pytest.fixture(scope="module")
-def drive():
-    """A straight Mid-40 drive: buildings beside the road, outside the 38-degree cone."""
-    import tempfile
-    from pathlib import Path
-
-    out = Path(tempfile.mkdtemp()) / "seq"
-    simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=9, seed=21), out, progress=False)
-    seq = open_sequence(out)
-    return seq, {i: seq[i] for i in range(len(seq))}
+def drive(straight_mid40_drive):
+    return straight_mid40_drive
 
 
 def _gray(f):
