@@ -127,7 +127,9 @@ def report(m: dict, source: str, inp: str) -> str:
         f"Ground truth: {m['ground_truth'] or 'none'}. `raw` is the LiDAR input scored where it has a return.",
         *(["`generator_frame` is the generator on each frame's own scan; `generator` had the returns of the earlier "
            "frames added (a Mid-40 cone: `refine.accumulate_frames`) and was moved towards image corners triangulated over "
-           "the frames around it (`refine.motion_stereo`, on for a cone by default), as the graph used it."] if "generator_frame" in depth else []),
+           "the frames around it (`refine.motion_stereo`, on for a cone by default), as the graph used it; `refined` "
+           "is also moved, where no return lies, by a photometric plane sweep against the frames +-1..3 when the "
+           "poses pass its check (`refine.photometric_field`)."] if "generator_frame" in depth else []),
         "",
         "| method | MAE (m) | RMSE (m) | AbsRel | delta<1.25 | " + " | ".join(f"MAE {b} m" for b in bins) + " |",
         "|---" * (5 + len(bins)) + "|",
