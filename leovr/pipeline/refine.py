@@ -225,6 +225,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
 
     def finish(results) -> None:
+        leaving = {r.index: r.T_world_cam for r in results}  # at the end the whole window leaves at once
         for r in results:
             gen_depth, scale = pending.pop(r.index)
             if r.index in done:
@@ -232,7 +233,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 continue
             refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
             if r.index in photo_free:  # where no return lies, the depth its neighbours' images agree with
-                refined = photometric_step(r.index, r.T_world_cam, refined)
+                refined = photometric_step(r.index, r.T_world_cam, refined, leaving)
             if r.index in scored:
                 scored[r.index].add("generator", gen_depth)
                 scored[r.index].add("refined", refined)
@@ -267,13 +268,14 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     photo_images = GrayImages(lambda j: stereo_image(seq, j), keep=cfg.window + 2 * max(cfg.photometric_offsets, default=0) + 3)
     photo_free: dict[int, np.ndarray] = {}
 
-    def photometric_step(i: int, T_i: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    def photometric_step(i: int, T_i: np.ndarray, depth: np.ndarray, leaving: dict[int, np.ndarray]) -> np.ndarray:
         """Frame i's refined depth after the plane sweep against the selected frames `photometric_offsets`
-        before and after it (the poses they have now: final before i, the window's after it)."""
+        before and after it (the poses they have now: final before i, the window's after it; `leaving`: the
+        poses of the frames leaving with i)."""
         free = photo_free.pop(i)
         near = [indices[position[i] + o] for o in cfg.photometric_offsets + [-o for o in cfg.photometric_offsets]
                 if 0 <= position[i] + o < len(indices)]
-        poses = latest_poses(near)
+        poses = latest_poses(near) | {j: leaving[j] for j in near if j in leaving}
         gray = photo_images[i]
         pairs = [(photo_images[j], invert_T(poses[j]) @ T_i) for j in near if j in poses]
         pairs = [(im, T) for im, T in pairs if im is not None and im.shape == depth.shape]
