@@ -48,6 +48,13 @@ class CorrectionGrid:
         """N x size matrix B with B @ c the interpolated offset at each pixel."""
         return self.dense(*self.weights(u, v))
 
+    def sparse_weights(self, u: np.ndarray, v: np.ndarray):
+        """`dense_weights` as a scipy CSR matrix (N x size, 4 entries a row), for whole images."""
+        import scipy.sparse as sp
+
+        idx, w = self.weights(u, v)
+        return sp.csr_matrix((w.ravel(), idx.ravel(), np.arange(0, 4 * len(w) + 1, 4)), shape=(len(w), self.size))
+
     def dense(self, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
         """`dense_weights` from precomputed `weights`."""
         B = np.zeros((len(idx), self.size))

@@ -57,12 +57,8 @@ class _Votes:
     """Per-node sums of the pixels' costs and weights, as sparse bilinear weights of a fixed image size."""
 
     def __init__(self, grid: CorrectionGrid) -> None:
-        import scipy.sparse as sp
-
         u, v = np.meshgrid(np.arange(grid.width, dtype=np.float64), np.arange(grid.height, dtype=np.float64))
-        idx, w = grid.weights(u.ravel(), v.ravel())
-        n = grid.height * grid.width
-        self.BT = sp.csr_matrix((w.ravel(), idx.ravel(), np.arange(0, 4 * n + 1, 4)), shape=(n, grid.size)).T.tocsr()
+        self.BT = grid.sparse_weights(u.ravel(), v.ravel()).T.tocsr()
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
         return self.BT @ values.ravel().astype(np.float64)

@@ -114,8 +114,7 @@ def _frames(tag: str):
             r = np.log(gt) - np.log(np.maximum(gen, 1e-3))
             fitted = {}
             for g, grid in grids.items():
-                idx, wt = grid.weights(cols.astype(float), rows.astype(float))
-                B = sp.csr_matrix((wt.ravel(), idx.ravel(), np.arange(0, 4 * len(wt) + 1, 4)), shape=(len(wt), grid.size))
+                B = grid.sparse_weights(cols.astype(float), rows.astype(float))
                 fitted[g] = np.minimum(gen * np.exp(B @ _fit(B, r)), 255.99)
             fitted["scale"] = np.minimum(gen * np.exp(np.median(r)), 255.99)
             yield Path(f).stem, rows, cols, gt, gen, ref, fitted
