@@ -105,3 +105,27 @@ def test_poses_whose_steps_read_short_are_caught_by_the_nodes_with_returns(drive
     stats.clear()
     assert photometric_offsets(f.depth, _gray(f), _neighbours(frames), f.K, free, S, stats).size == free.size
     assert abs(stats["bias"]) <= S.max_bias_log and stats["backed"] >= S.min_backed
+
+
+def test_texture_that_moves_with_the_camera_is_not_pushed_away(drive):
+    """A vehicle driving along with the camera stays put in the image: every candidate of the span matches it
+    worse than infinity, and without the far candidate its nodes went to the span's far end."""
+    from dataclasses import replace
+
+    _, frames = drive
+    f = frames[4]
+    own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+    free = free_nodes(own, S)
+    w = f.shape[1] // 4
+    along = []
+    for im, T in _neighbours(frames):
+        im = im.copy()
+        im[:, :w] = _gray(f)[:, :w]  # the left quarter: the same picture in every frame
+        along.append((im, T))
+    node_u = np.tile(np.linspace(0, f.shape[1] - 1, S.cols), S.rows)
+    region = free & (node_u < 0.7 * w)
+    assert region.sum() >= 10
+    naive = photometric_offsets(f.depth, _gray(f), along, f.K, free, replace(S, far_log=0.0))
+    assert np.median(naive[region]) > 0.3  # the naive sweep pushes it far
+    off = photometric_offsets(f.depth, _gray(f), along, f.K, free, S)
+    assert np.mean(np.abs(off[region]) > 0.1) < 0.2

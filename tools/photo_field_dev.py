@@ -28,7 +28,7 @@ ROOT = Path(os.environ.get('FIELD_DEV_ROOT', 'runs/field_dev'))
 tag = sys.argv[1]
 offs = [int(x) for x in os.environ.get('OFFS', '1,2,3,-1,-2,-3').split(',')]
 gr = [int(x) for x in os.environ.get('GRID', '16,28').split(',')]
-s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GAIN", 0.05)), downsample=int(os.environ.get("DS", 0)), patch_px=int(os.environ.get("PP", 2)))
+s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GAIN", 0.05)), downsample=int(os.environ.get("DS", 0)), patch_px=int(os.environ.get("PP", 2)), far_log=float(os.environ.get("FAR", 0)), far_gain=float(os.environ.get("FARGAIN", 0)), max_bias_log=float(os.environ.get("CHECK", 0.05)))
 H, W = 256, 448
 radius = 224 / np.tan(np.radians(40.5)) * np.tan(np.radians(19.2))
 acc = {}; tsum = [0.0, 0]; biases = []
