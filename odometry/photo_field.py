@@ -49,8 +49,8 @@ class PhotoFieldSettings:
     downsample: int = 0
     # a far candidate (depth x e^far_log, ~20x: as good as infinity) that a moved node's best must beat by
     # `far_gain`: a vehicle driving along with the camera matches best at infinity, and without this test its
-    # nodes were pushed to the span's far end (KITTI frames 0-37 with KISS-ICP's poses on the full scan:
-    # 1.70 -> 1.85 m without, 1.65 m with; simulator validation 1.823 -> 1.807 m); 0: off
+    # nodes were pushed to the span's far end (KITTI frames 0-37 with KISS-ICP's poses on the full scan, no
+    # check: 1.70 -> 1.85 m without, 1.65 m with; simulator validation 1.823 -> 1.807 m); 0: off
     far_log: float = 3.0
     far_gain: float = 0.05
 

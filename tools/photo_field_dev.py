@@ -5,8 +5,9 @@ outside the Mid-40 cone (mean over drives of the per-drive MAE), and the distrib
 
     FIELD_DEV_ROOT=ROOT tools/photo_field_dev.py TAG
 env: OFFS (neighbour offsets, negative = after; default 1,2,3,-1,-2,-3), GRID (rows,cols; 16,28), GAIN (0.05),
-DS (downsample; 0: by sweep_pixels), PP (patch half size, 2), NC (candidates, 11), FREE (returns: nodes without a return of the
-frame's own scan, the shipped rule; cone: nodes outside the cone's circle)."""
+DS (downsample; 0: by sweep_pixels), PP (patch half size, 2), FAR / FARGAIN (the far candidate; 0: off), CHECK (the
+poses' check, max_bias_log), FREE (returns: nodes without a return of the frame's own scan, the shipped rule; cone: nodes
+outside the cone's circle). Defaults: the shipped settings."""
 from __future__ import annotations
 
 import glob
@@ -28,7 +29,8 @@ ROOT = Path(os.environ.get('FIELD_DEV_ROOT', 'runs/field_dev'))
 tag = sys.argv[1]
 offs = [int(x) for x in os.environ.get('OFFS', '1,2,3,-1,-2,-3').split(',')]
 gr = [int(x) for x in os.environ.get('GRID', '16,28').split(',')]
-s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GAIN", 0.05)), downsample=int(os.environ.get("DS", 0)), patch_px=int(os.environ.get("PP", 2)), far_log=float(os.environ.get("FAR", 0)), far_gain=float(os.environ.get("FARGAIN", 0)), max_bias_log=float(os.environ.get("CHECK", 0.05)))
+d = PhotoFieldSettings()  # the shipped settings, each overridable
+s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GAIN", d.min_gain)), downsample=int(os.environ.get("DS", d.downsample)), patch_px=int(os.environ.get("PP", d.patch_px)), far_log=float(os.environ.get("FAR", d.far_log)), far_gain=float(os.environ.get("FARGAIN", d.far_gain)), max_bias_log=float(os.environ.get("CHECK", d.max_bias_log)))
 H, W = 256, 448
 radius = 224 / np.tan(np.radians(40.5)) * np.tan(np.radians(19.2))
 acc = {}; tsum = [0.0, 0]; biases = []
