@@ -129,3 +129,31 @@ def test_texture_that_moves_with_the_camera_is_not_pushed_away(drive):
     assert np.median(naive[region]) > 0.3  # the naive sweep pushes it far
     off = photometric_offsets(f.depth, _gray(f), along, f.K, free, S)
     assert np.mean(np.abs(off[region]) > 0.1) < 0.2
+
+
+def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive):
+    """Most nodes with returns must find a clear valley: where the images do not pin the depth that the LiDAR
+    measured, the sweep's choices elsewhere are not trusted either (the real KITTI clip: a quarter of them)."""
+    from dataclasses import replace
+
+    _, frames = drive
+    f = frames[4]
+    own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+    free = free_nodes(own, S)
+    grid = CorrectionGrid(S.rows, S.cols, *f.shape)
+    wrong = np.where(f.depth > 0, f.depth * np.exp(grid.upsample(0.3 * free)), 0.0)
+    cone = grid.upsample((~free).astype(float)) > 0.3
+    cols = np.nonzero(cone.any(0))[0]
+    cone[:, int(np.percentile(cols, 80)):] = False  # the cone's right part stays as it is: a few nodes still pin it
+    rng = np.random.default_rng(0)
+    unpinned = []
+    for im, T in _neighbours(frames):
+        im = im.copy()
+        im[cone] = rng.integers(0, 256, int(cone.sum()))  # there the neighbours show noise: no depth fits
+        unpinned.append((im, T))
+    stats: dict = {}
+    assert not photometric_offsets(wrong, _gray(f), unpinned, f.K, free, S, stats).any(), stats
+    assert stats["backed"] < S.min_backed_share * stats["eligible"]
+    # the share test is what refused it: without it the free nodes move as in the first test
+    off = photometric_offsets(wrong, _gray(f), unpinned, f.K, free, replace(S, min_backed_share=0.0))
+    assert np.median(off[free & (off != 0)]) == pytest.approx(-0.3, abs=0.1)

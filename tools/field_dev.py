@@ -2,7 +2,8 @@
 
     collect SPLIT TAG [key=value ...]   refine each Mid-40 drive of the split (env LIDAR, SEEDS) with RefineConfig
                                         overrides; keeps the scored pixels per frame in ROOT/TAG_<drive>.npz
-    kitti TAG [key=value ...]           refine the KITTI raw clip's development frames 0-37 (Mid-40-like)
+    kitti TAG [key=value ...]           refine the KITTI raw clip's development frames 0-37 (Mid-40-like); keeps the
+                                        scored pixels per frame in ROOT/kitti_TAG.npz
     compare TAG [TAG ...]               generator / refined MAE and ATE per drive and summed, per tag
     oracle TAG                          the best correction field of each grid size fitted to the truth
     region TAG                          generator / refined / 8 x 14 oracle MAE inside and outside the Mid-40 cone
@@ -72,8 +73,15 @@ def kitti(tag: str, args: list[str]) -> None:
     from leovr.paths import kitti_raw_dir
     from leovr.pipeline.refine import run_refine
 
+    col: dict = {}
     m = run_refine(open_sequence(kitti_raw_dir()), RefineConfig(**{"input": "mid40", "end": 38, **overrides(args)}),
-                   ROOT / f"kitti_{tag}", progress=False)
+                   ROOT / f"kitti_{tag}", progress=False, collect=col)
+    d = {}
+    for i, fs in col.items():  # the scored pixels per frame, as `collect` keeps them
+        d[f"{i}_rows"], d[f"{i}_cols"] = fs.pick
+        d[f"{i}_gt"] = fs.gt
+        d.update({f"{i}_{k}": v for k, v in fs.pred.items()})
+    np.savez_compressed(ROOT / f"kitti_{tag}.npz", **d)
     print(tag, " ".join(f"{k}={v['mae_m']:.3f}" for k, v in m["depth"].items()))
 
 

@@ -67,7 +67,7 @@ def sweep(run: Path, source: str) -> None:
                 far_gain=float(os.environ.get("FARGAIN", d.far_gain)))
     gray = [cv2.cvtColor(seq[j].image, cv2.COLOR_RGB2GRAY) for j in range(n)]
     acc: dict = {}
-    biases = []
+    biases, shares = [], []
     for i in range(n):
         js = [i - o for o in (1, 2, 3, -1, -2, -3) if 0 <= i - o < n]
         depth = read_depth_png(run / "depth" / f"{i:06d}.png")
@@ -75,6 +75,7 @@ def sweep(run: Path, source: str) -> None:
         stats: dict = {}
         off = photometric_offsets(depth, gray[i], [(gray[j], invert_T(est[j]) @ est[i]) for j in js], seq[i].K, free, s, stats)
         biases.append(stats.get("bias", np.nan))
+        shares.append(stats.get("backed", 0) / max(stats.get("eligible", 0), 1))
         fs = frame_score(seq, ccfg, run, i, True)
         fs.add("photo", photometric_correction(depth, off, s))
         ratio = fs.pred["photo"] / np.maximum(fs.pred["refined"], 1e-6)
@@ -85,7 +86,8 @@ def sweep(run: Path, source: str) -> None:
                 a[1] += int(m.sum())
     b = np.array(biases)
     print(run.name, source, " ".join(f"{p}_{k}={v[0] / max(v[1], 1):.3f} ({v[1]} px)" for (p, k), v in acc.items()),
-          f"check bias median {np.nanmedian(b):.3f}, frames passing {np.mean(np.abs(b) <= s.max_bias_log):.2f}")
+          f"check bias median {np.nanmedian(b):.3f}, frames passing the bias test {np.mean(np.abs(b) <= s.max_bias_log):.2f}, "
+          f"share of the nodes with returns that chose clearly: median {np.median(shares):.2f}")
 
 
 if __name__ == "__main__":
