@@ -161,9 +161,9 @@ class RefineConfig(FrameSelection):
     # `photometric_offsets` before and after it (the graph's poses; ZNCC of small patches on images shrunk to
     # ~30k pixels) moves each node of a 16 x 28 grid that holds no LiDAR return by the log offset that matches
     # best, when it lowers the cost by `photometric_min_gain`, unless the nodes with returns disagree with the
-    # poses (odometry.photo_field). Development drives (simulator Mid-40 validation): refined MAE outside the
-    # cone 1.99 -> 1.71 m; KITTI frames 0-37: unchanged, the check refuses them (docs/benchmarks.md). auto:
-    # cone LiDAR only
+    # poses or too few of them find a clear match (odometry.photo_field). Development drives (simulator Mid-40
+    # validation): refined MAE summed over 6 drives 12.44 -> 10.72 m; KITTI frames 0-37: unchanged, the check
+    # refuses every frame (docs/benchmarks.md). auto: cone LiDAR only
     photometric_field: bool | Literal["auto"] = "auto"
     photometric_offsets: list[int] = [1, 2, 3]
     photometric_min_gain: float = Field(0.05, ge=0)
