@@ -6,13 +6,14 @@ tell which depth is right: warped into the frame with the right depth, a texture
 node of a coarse grid left without LiDAR returns, a plane sweep over a log-depth offset (a few candidates
 around the refined depth) sums the patches' ZNCC cost over the node's pixels (bilinear weights), in every
 neighbour; the best candidate (sub-step by a parabola) is kept when it lowers the cost by `min_gain` against
-no change and against a depth far beyond the span (what a vehicle driving along with the camera looks like). The kept offsets are upsampled bilinearly and multiply the refined depth. Nodes with LiDAR
+no change and against a depth far beyond the span (what a vehicle driving along with the camera looks like).
+The kept offsets are upsampled bilinearly and multiply the refined depth. Nodes with LiDAR
 returns keep the graph's depth (there the returns are better, and the photometric choice made them worse on
 the development drives), and they check the poses and the images: most of them (`min_backed_share`) must have a
 clear valley, and there they should choose no change; otherwise, or when their median choice is off by more than
 `max_bias_log`, the frame keeps the graph's depth (on the real KITTI clip a quarter of them had a clear valley,
-their choice read the depth 5-40 % too far, and the sweep made every development frame worse). Run when a frame leaves the window, with the poses it leaves
-with (final before it, the window's after it). Settings chosen on development data only: the simulator's
+their choice read the depth 5-40 % too far, and the sweep made every development frame worse). Run when a
+frame leaves the window, with the poses it leaves with (final before it, the window's after it). Settings chosen on development data only: the simulator's
 Mid-40 validation drives and the KITTI clip's frames 0-37 (docs/benchmarks.md, "Photometric correction
 outside the cone").
 """

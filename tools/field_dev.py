@@ -40,6 +40,16 @@ def overrides(args: list[str]) -> dict:
     return out
 
 
+def save_pixels(col: dict, dst: Path) -> None:
+    """A run's scored pixels per frame (`run_refine(..., collect=col)`): rows, cols, truth and every method."""
+    d = {}
+    for i, fs in col.items():
+        d[f"{i}_rows"], d[f"{i}_cols"] = fs.pick
+        d[f"{i}_gt"] = fs.gt
+        d.update({f"{i}_{k}": v for k, v in fs.pred.items()})
+    np.savez_compressed(dst, **d)
+
+
 def collect(split: str, tag: str, args: list[str]) -> None:
     from leovr.config import RefineConfig
     from leovr.data import open_sequence
@@ -58,12 +68,7 @@ def collect(split: str, tag: str, args: list[str]) -> None:
         col: dict = {}
         run_refine(open_sequence(e["path"]), RefineConfig(**{"input": "full", **overrides(args)}),
                    ROOT / f"work_{tag}_{name}", progress=False, collect=col)
-        d = {}
-        for i, fs in col.items():
-            d[f"{i}_rows"], d[f"{i}_cols"] = fs.pick
-            d[f"{i}_gt"] = fs.gt
-            d.update({f"{i}_{k}": v for k, v in fs.pred.items()})
-        np.savez_compressed(dst, **d)
+        save_pixels(col, dst)
         print(name, "done", flush=True)
 
 
@@ -76,12 +81,7 @@ def kitti(tag: str, args: list[str]) -> None:
     col: dict = {}
     m = run_refine(open_sequence(kitti_raw_dir()), RefineConfig(**{"input": "mid40", "end": 38, **overrides(args)}),
                    ROOT / f"kitti_{tag}", progress=False, collect=col)
-    d = {}
-    for i, fs in col.items():  # the scored pixels per frame, as `collect` keeps them
-        d[f"{i}_rows"], d[f"{i}_cols"] = fs.pick
-        d[f"{i}_gt"] = fs.gt
-        d.update({f"{i}_{k}": v for k, v in fs.pred.items()})
-    np.savez_compressed(ROOT / f"kitti_{tag}.npz", **d)
+    save_pixels(col, ROOT / f"kitti_{tag}.npz")
     print(tag, " ".join(f"{k}={v['mae_m']:.3f}" for k, v in m["depth"].items()))
 
 

@@ -35,12 +35,13 @@ s = PhotoFieldSettings(rows=gr[0], cols=gr[1], min_gain=float(os.environ.get("GA
 H, W = 256, 448
 FADE = float(os.environ.get('FADE', 0))
 radius = 224 / np.tan(np.radians(40.5)) * np.tan(np.radians(19.2))
-acc = {}; tsum = [0.0, 0]; biases = []; per_frame = []
+acc = {}; tsum = [0.0, 0]; per_frame = []
 KITTI = os.environ.get('KITTI', '') == '1'
 if KITTI:  # a `field_dev.py kitti TAG` run: the KITTI clip's development frames, Mid-40-like input
     from leovr.paths import kitti_raw_dir
     H, W = 375, 1242
     radius = 721.5 * np.tan(np.radians(19.2))  # the cone's circle at KITTI's focal length
+ccfg = completion_config(RefineConfig(input='mid40' if KITTI else 'full'))  # the frames' own returns
 runs = [str(ROOT / f'kitti_{tag}')] if KITTI else sorted(glob.glob(str(ROOT / f'work_{tag}_*')))
 for w in runs:
     name = 'kitti' if KITTI else w.split(f'work_{tag}_')[1]
@@ -55,7 +56,6 @@ for w in runs:
         if not js: continue
         D = read_depth_png(Path(w) / 'depth' / f'{i:06d}.png')
         if os.environ.get('FREE', 'returns') == 'returns':
-            ccfg = completion_config(RefineConfig(input='mid40' if KITTI else 'full'))
             smp = frame_sample(seq, i, ccfg, None, 0.1, False, truth=False)
             free = free_nodes(smp.sparse, s)
         else:
@@ -65,11 +65,10 @@ for w in runs:
         t0 = time.perf_counter()
         st: dict = {}
         off = photometric_offsets(D, gray(i), nb, seq[i].K, free, s, st)
-        biases.append(st.get('bias', np.inf))
         C = photometric_correction(D, off, s)
         if FADE > 0:  # the correction faded near the frame's own returns: exp(-distance / FADE px)
             if os.environ.get('FREE', 'returns') != 'returns':
-                smp = frame_sample(seq, i, completion_config(RefineConfig(input='mid40' if KITTI else 'full')), None, 0.1, False, truth=False)
+                smp = frame_sample(seq, i, ccfg, None, 0.1, False, truth=False)
             dist = cv2.distanceTransform((smp.sparse <= 0).astype(np.uint8), cv2.DIST_L2, 5)
             fade = 1.0 - np.exp(-dist / FADE)
             C = np.where(D > 0, D * np.exp(fade * np.log(np.maximum(C, 1e-6) / np.maximum(D, 1e-6))), 0.0)
@@ -89,7 +88,6 @@ for (n, r, k), v in acc.items():
 for (r, k), v in sorted(tot.items()):
     print('mean', r, k, f'{np.mean(v):.3f}')
 print(f'ms per frame {1000 * tsum[0] / tsum[1]:.0f}')
-b = np.array(biases)
 pf = np.array([(b_, n_, e_) for _, _, b_, n_, e_, _ in per_frame])
 passing = (np.abs(pf[:, 0]) <= s.max_bias_log) & (pf[:, 1] >= np.maximum(s.min_backed, s.min_backed_share * pf[:, 2]))
 b = pf[:, 0]
