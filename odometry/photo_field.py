@@ -12,7 +12,7 @@ returns keep the graph's depth (there the returns are better, and the photometri
 the development drives), and they check the poses and the images: most of them (`min_backed_share`) must have a
 clear valley, and there they should choose no change; otherwise, or when their median choice is off by more than
 `max_bias_log`, the frame keeps the graph's depth (on the real KITTI clip a quarter of them had a clear valley,
-their choice read the depth 5-40 % too far, and the sweep made every development frame worse). Run when a
+their choice read the depth 5-40 % too far, and the sweep made 35 of the 38 development frames worse). Run when a
 frame leaves the window, with the poses it leaves with (final before it, the window's after it). Settings chosen on development data only: the simulator's
 Mid-40 validation drives and the KITTI clip's frames 0-37 (docs/benchmarks.md, "Photometric correction
 outside the cone").
@@ -46,7 +46,7 @@ class PhotoFieldSettings:
     # ... and this share of the seen nodes with returns: where the images pin the depth at few of the nodes whose
     # depth is known, the check rests on little and the sweep's choices elsewhere are no better (development data:
     # simulator drives 0.64-1.0 of them, 5-95 %, and the sweep helped on 91 % of the frames; KITTI frames 0-37
-    # 0.01-0.35, and the sweep made every frame worse with the graph's poses, whatever the check's bias)
+    # 0.01-0.35, and the sweep made 35 of 38 frames worse with the graph's poses, whatever the check's bias)
     min_backed_share: float = 0.5
     # their median choice may be this far from 0 (a step length read wrong, a turn misread). Simulator validation
     # drives: 5-95 % -0.07 to 0.04; the sweep helped in every bias bin, so with the share test above in front of

@@ -7,8 +7,9 @@
                                                      (a `tools/field_dev.py kitti TAG photometric_field=false` run),
                                                      with the run's poses or the reference's; MAE on the run's scored
                                                      pixels, split by where the sweep pushed (farther / nearer)
-env for sweep: CHECK (max_bias_log), FAR (far_log), FARGAIN (far_gain); defaults: the shipped settings.
-Figures: docs/benchmarks.md, "Photometric correction outside the cone", session 49 paragraph.
+env for sweep: CHECK (max_bias_log), SHARE (min_backed_share), FAR (far_log), FARGAIN (far_gain); defaults: the
+shipped settings.
+Figures: docs/benchmarks.md, "Photometric correction outside the cone", session 49 and 50 paragraphs.
 """
 
 from __future__ import annotations
@@ -64,7 +65,8 @@ def sweep(run: Path, source: str) -> None:
         est = reference(seq)[:n]
     d = PhotoFieldSettings()
     s = replace(d, max_bias_log=float(os.environ.get("CHECK", d.max_bias_log)), far_log=float(os.environ.get("FAR", d.far_log)),
-                far_gain=float(os.environ.get("FARGAIN", d.far_gain)))
+                far_gain=float(os.environ.get("FARGAIN", d.far_gain)),
+                min_backed_share=float(os.environ.get("SHARE", d.min_backed_share)))
     gray = [cv2.cvtColor(seq[j].image, cv2.COLOR_RGB2GRAY) for j in range(n)]
     acc: dict = {}
     biases, shares = [], []

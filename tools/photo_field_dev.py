@@ -93,5 +93,9 @@ passing = (np.abs(pf[:, 0]) <= s.max_bias_log) & (pf[:, 1] >= np.maximum(s.min_b
 b = pf[:, 0]
 print('check: frames passing', f'{np.mean(passing):.2f}', 'bias 5/25/50/75/95 %', np.round(np.percentile(b[np.isfinite(b)], [5, 25, 50, 75, 95]), 3),
       'share of the nodes with returns that chose clearly, 5/50/95 %', np.round(np.percentile(pf[:, 1] / np.maximum(pf[:, 2], 1), [5, 50, 95]), 2))
+dm = np.array([d_ for *_, d_ in per_frame])  # what the sweep did to each frame's MAE
+print('frames made better', f'{np.mean(dm < 0):.2f}', 'mean change per frame by |bias|:',
+      ' '.join(f'{lo}-{hi}: {dm[k].mean():+.3f} ({k.sum()})' for lo, hi in ((0, 0.03), (0.03, 0.05), (0.05, 0.08), (0.08, 0.12), (0.12, 0.2), (0.2, np.inf))
+               for k in [(np.abs(pf[:, 0]) >= lo) & (np.abs(pf[:, 0]) < hi)] if k.any()))
 if os.environ.get('FRAMES'):  # per frame: the check's figures and what the sweep did to the frame's MAE
     np.save(os.environ['FRAMES'], np.array([(b_, n_, e_, d_) for _, _, b_, n_, e_, d_ in per_frame]))
