@@ -30,6 +30,7 @@ import numpy as np
 from leovr.geometry import fundamental, invert_T
 from odometry.ground_plane import fit_ground, road_corners
 from odometry.mono_vo import corners, follow, gray, relative_motion
+from odometry.step_length import LengthReading
 
 
 @dataclass
@@ -41,6 +42,7 @@ class MonoStep:
     parallax_px: float
     scale_source: str  # "ground", "depth" (each "+tracks" when tracks gave the change), "standing" or "constant_speed"
     road_normal: np.ndarray | None = None  # the road's normal in the previous frame's camera, where the road was read
+    length_reading: LengthReading | None = None  # what the step-length filter read (None: not filtered)
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -259,6 +261,10 @@ class MonoMotion:
             self.var += self.speed_sigma_log**2
             return MonoStep(self.last.T_rel, 0, parallax, "constant_speed")
         absolute = ground if ground is not None else depth
+        reading = None  # kept for smoothing the lengths over the whole recording (`odometry.step_length`)
+        if absolute is not None or self.log_len is not None:
+            reading = LengthReading(None if absolute is None else absolute[0], 1.0 if absolute is None else absolute[1],
+                                    restart=self.log_len is None)
         self._fuse(absolute, log_ratio)
         source = "constant_speed" if absolute is None else ("ground" if ground is not None else "depth")
         source += "+tracks" if log_ratio is not None and absolute is not None else ""
@@ -275,4 +281,4 @@ class MonoMotion:
         X1 = (X * length) @ T_1_0[:3, :3].T + T_1_0[:3, 3]
         carry = front & (X1[:, 2] > 0.5)
         self.carried_uv, self.carried_z = p1[good][carry], X1[carry, 2]
-        return MonoStep(T, len(good), parallax, source, road_normal if ground is not None else None)
+        return MonoStep(T, len(good), parallax, source, road_normal if ground is not None else None, reading)

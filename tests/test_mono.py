@@ -173,7 +173,18 @@ def test_camera_only_refine_holds_the_scan_out_and_scores_the_textbook_beside(dr
     assert sum(v for k, v in sources.items() if "ground" in k) >= len(frames) - 3
     assert json.loads((out / "run.json").read_text())["camera_height_m"] == pytest.approx(1.65)
     traj = m["trajectory"]
-    assert {"leovr", "mono_vo"} <= traj.keys() and "kiss_icp" not in traj
+    assert {"leovr", "mono_vo", "leovr_window"} <= traj.keys() and "kiss_icp" not in traj
+    # the step lengths were solved again over the recording: the window pass's rotations and directions stay
+    state = json.loads((out / "progress.json").read_text())
+    est = read_kitti_poses(out / "poses_kitti.txt")
+    window = np.stack([np.array(state["poses_window"][str(i)]).reshape(4, 4) for i in range(len(frames))])
+    lengths = []
+    for k in range(1, len(frames)):
+        a, b = invert_T(window[k - 1]) @ window[k], invert_T(est[k - 1]) @ est[k]
+        assert np.allclose(a[:3, :3], b[:3, :3], atol=1e-6)
+        assert np.allclose(a[:3, 3] @ b[:3, 3], np.linalg.norm(a[:3, 3]) * np.linalg.norm(b[:3, 3]), rtol=1e-6)
+        lengths.append(np.linalg.norm(b[:3, 3]) / np.linalg.norm(a[:3, 3]))
+    assert np.ptp(lengths) > 1e-3  # the lengths did change
     assert traj["leovr"]["align"] == traj["mono_vo"]["align"] == "sim3"
     print(traj)
     assert traj["leovr"]["ate_m"] < 1.0 and 0.8 < traj["leovr"]["scale"] < 1.25
@@ -204,21 +215,23 @@ def test_camera_only_poses_on_the_real_raw_clip_stay_metric(tmp_path):
     """Without LiDAR the generator's errors on real frames grow with distance; as tight landmark priors and
     depth-consistency factors (the LiDAR settings) that depth pulled the road-scaled motion to a third of
     its length (Sim(3) scale 2.6 against KISS-ICP on the clip's full scan). The camera-only settings keep
-    the poses metric."""
+    the window pass's poses metric (checked with the lengths' smoothing off, which would rescale them), and
+    the shipped run is metric too."""
     from odometry.initial_pose import LidarOdometry
 
     seq, n = open_sequence(kitti_raw_dir()), 16
     icp = LidarOdometry(seq[0].T_cam_lidar)
     ref = np.stack([icp.register(seq[i].points) for i in range(n)])  # the scan is held out of the runs below
     scales = {}
-    for name, extra in (("camera_only", {}), ("lidar_settings", {"mono_landmark_prior_rel": 0.3,
-                                                                  "mono_consistency_sigma_log": 0.05})):
+    for name, extra in (("camera_only", {"mono_length_smoothing": False}), ("shipped", {}),
+                        ("lidar_settings", {"mono_landmark_prior_rel": 0.3, "mono_consistency_sigma_log": 0.05,
+                                            "mono_length_smoothing": False})):
         run_refine(seq, RefineConfig(input="none", end=n, loop_closure=False, **extra), tmp_path / name,
                    progress=False, score=False)
         est = read_kitti_poses(tmp_path / name / "poses_kitti.txt")
         scales[name] = trajectory_metrics(est, ref, "sim3")["scale"]
     print(scales)
-    assert 0.8 < scales["camera_only"] < 1.25
+    assert 0.8 < scales["camera_only"] < 1.25 and 0.8 < scales["shipped"] < 1.25
     assert scales["lidar_settings"] > 1.5
 
 

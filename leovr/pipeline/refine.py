@@ -160,6 +160,7 @@ class Progress:
     icp_poses: dict[int, list[float]] = field(default_factory=dict)
     sources: dict[int, str] = field(default_factory=dict)
     poses_no_loop: dict[int, list[float]] = field(default_factory=dict)  # before loop closure, when it ran
+    poses_window: dict[int, list[float]] = field(default_factory=dict)  # the window pass's, when a later pass moved them
     times: dict[int, list[float]] = field(default_factory=dict)  # frame -> ms per stage of TIMED
 
     @classmethod
@@ -167,8 +168,9 @@ class Progress:
         try:
             d = json.loads(path.read_text())
             d.setdefault("poses_no_loop", {})  # only runs with loop closure have it
+            d.setdefault("poses_window", {})  # only runs whose poses a whole-recording pass moved
             keyed = {name: {int(k): v for k, v in d[name].items()}
-                     for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times")}
+                     for name in ("poses", "icp_poses", "sources", "poses_no_loop", "poses_window", "times")}
             return cls(**keyed)
         except (OSError, ValueError, KeyError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
@@ -473,18 +475,30 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     if replayed:
         check_replay(out, state, replayed)
     landmarks, seen_by = graph.all_landmarks()
-    if cfg.loop_closure:
-        from leovr.pipeline.loops import loop_pass
 
-        before = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
-        corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary)
-        state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
-        state.poses = {i: T.ravel().tolist() for i, T in zip(indices, corrected)}
-        # landmarks move with the frame that last observed them
+    def move_poses(before: np.ndarray, after: np.ndarray) -> None:
+        """A whole-recording pass moved the poses: keep them, and move each landmark with the frame that
+        last observed it."""
+        state.poses = {i: T.ravel().tolist() for i, T in zip(indices, after)}
         at = {i: n for n, i in enumerate(indices)}
         for n, f in enumerate(seen_by):
             if f in at:
-                landmarks[n] = transform_points(corrected[at[f]] @ invert_T(before[at[f]]), landmarks[n][None])[0]
+                landmarks[n] = transform_points(after[at[f]] @ invert_T(before[at[f]]), landmarks[n][None])[0]
+
+    def current_poses() -> np.ndarray:
+        return np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
+
+    if not has_lidar and front.camera_height and cfg.mono_length_smoothing and len(indices) > 2:
+        before = current_poses()
+        state.poses_window = {i: T.ravel().tolist() for i, T in zip(indices, before)}
+        move_poses(before, smoothed_step_lengths(before, indices, front.length_readings, cfg))
+    if cfg.loop_closure:
+        from leovr.pipeline.loops import loop_pass
+
+        before = current_poses()
+        corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary)
+        state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
+        move_poses(before, corrected)
     state.save(state_path)
     atomic_write(out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
     atomic_write(out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
@@ -501,6 +515,15 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             write_kitti_poses(out / "poses_kiss_icp_kitti.txt", icp)
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
+
+
+def smoothed_step_lengths(poses: np.ndarray, indices: list[int], readings: dict, cfg: RefineConfig) -> np.ndarray:
+    """Camera only: the window pass's poses with each step's length solved again over the whole recording
+    from the road's readings (`odometry.step_length`); rotations and directions of travel are kept."""
+    from odometry.step_length import rescale_steps, smooth_log_lengths
+
+    chain = [readings.get(i) for i in indices[1:]]
+    return rescale_steps(poses, np.exp(smooth_log_lengths(chain, cfg.mono_accel_sigma_log, cfg.mono_smooth_speed_sigma_log)))
 
 
 def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
@@ -523,7 +546,11 @@ def road_height(seq: Sequence, cfg: RefineConfig) -> float | None:
 def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], tol_m: float = 0.05) -> None:
     """Warn when replaying the finished frames of a resumed run did not give back the poses written
     before the interruption (another leovr version, or the recording changed in between)."""
-    gap = {i: float(np.linalg.norm(T[:3, 3] - np.array(state.poses[i]).reshape(4, 4)[:3, 3])) for i, T in replayed.items()}
+    written = state.poses_window or state.poses_no_loop or state.poses  # as the window pass left them
+    gap = {i: float(np.linalg.norm(T[:3, 3] - np.array(written[i]).reshape(4, 4)[:3, 3])) for i, T in replayed.items()
+           if i in written}
+    if not gap:
+        return
     worst = max(gap, key=gap.get)
     if gap[worst] > tol_m:
         warnings.warn(f"{out}: resuming replayed the finished frames but frame {worst}'s pose moved {gap[worst]:.2f} m "
@@ -638,6 +665,9 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         if state.poses_no_loop and all(i in state.poses_no_loop for i in indices):
             before = np.stack([np.array(state.poses_no_loop[i]).reshape(4, 4) for i in indices])
             metrics["trajectory"]["leovr_no_loop"] = trajectory_metrics(before, ref, align)
+        if state.poses_window and all(i in state.poses_window for i in indices):
+            window = np.stack([np.array(state.poses_window[i]).reshape(4, 4) for i in indices])
+            metrics["trajectory"]["leovr_window"] = trajectory_metrics(window, ref, align)
         for name, (est, how) in (baselines or {}).items():
             metrics["trajectory"][name] = trajectory_metrics(est, ref, how)
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
