@@ -208,11 +208,10 @@ class RefineConfig(FrameSelection):
     mono_track_sigma_log: float = 0.05  # no LiDAR: how far the tracks' relative scale may be off
     mono_speed_sigma_log: float = 0.005  # no LiDAR: step-length change per frame (inertia; chosen on development clips, tools/mono_dev.py)
     # no LiDAR, with the road's scale: after the window pass, every step's length solved again over the whole
-    # recording from the road's readings (odometry/step_length.py), with these sigmas of the log length's second
-    # and first differences per frame (chosen on the development clips, tools/step_length_dev.py)
+    # recording from the road's readings (odometry/step_length.py), the step length changing by this much a
+    # frame (metres; 0.005 at 10 Hz is 0.5 m/s^2; chosen on the development clips, tools/step_length_dev.py)
     mono_length_smoothing: bool = True
-    mono_accel_sigma_log: float = Field(0.001, gt=0)
-    mono_smooth_speed_sigma_log: float = Field(0.02, gt=0)
+    mono_length_change_sigma_m: float = Field(0.005, gt=0)
     mono_odometry_sigma_rad: float = 0.005  # no LiDAR: the epipolar motion's weight in the graph
     mono_odometry_sigma_rel: float = 0.05  # no LiDAR: its translation sigma per metre of step
     # no LiDAR: the camera's height above the road (m); the road plane then gives the metric scale and

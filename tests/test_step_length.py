@@ -23,8 +23,8 @@ def test_smoothing_follows_a_braking_car_far_closer_than_its_readings():
     err = np.sqrt(np.mean((est - truth) ** 2))
     print(err_raw, err)
     assert err < 0.6 * err_raw
-    # a constant speed (tight first differences) cannot follow the braking: the second-order prior is what does
-    flat = smooth_log_lengths([LengthReading(float(m), 0.08) for m in meas], accel_sigma_log=1.0, speed_sigma_log=0.001)
+    # a prior of near-constant speed (0.5 mm a frame) cannot follow the braking: the car's 0.5 m/s^2 is what does
+    flat = smooth_log_lengths([LengthReading(float(m), 0.08) for m in meas], change_sigma_m=0.0005)
     assert err < 0.5 * np.sqrt(np.mean((flat - truth) ** 2))
 
 

@@ -8,10 +8,10 @@ Sim(3) ATE of:
 - `filtered`: the motion as the forward filter gives it;
 - `true_rot` / `true_dir` / `true_len`: the motion with each step's rotation / direction of travel / length
   replaced by the reference's (which part of the error matters);
-- `smooth_A_S`: the lengths solved again over the whole recording (`odometry.step_length`) with second-
-  and first-difference sigmas A and S.
+- `smooth_S`: the lengths solved again over the whole recording (`odometry.step_length`), the step length
+  changing by S metres a frame.
 
-    .venv/bin/python tools/step_length_dev.py [--grid A:S ...] -- SEQ [SEQ ...]
+    .venv/bin/python tools/step_length_dev.py [--grid S ...] -- SEQ [SEQ ...]
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def swapped(est: list[np.ndarray], ref: list[np.ndarray], rot: bool, direction: 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("sequences", nargs="+")
-    ap.add_argument("--grid", nargs="*", default=["0.001:0.02", "0.001:1", "0.0003:0.02", "0.003:1"])
+    ap.add_argument("--grid", nargs="*", type=float, default=[0.002, 0.003, 0.005, 0.01])
     a = ap.parse_args()
     cfg = RefineConfig(input="none")
     gen = generator_method(completion_config(cfg))
@@ -81,8 +81,7 @@ def main() -> None:
         for name, flags in (("true_rot", (1, 0, 0)), ("true_dir", (0, 1, 0)), ("true_len", (0, 0, 1))):
             row[name] = swapped(steps, ref_steps, *flags)
         for g in a.grid:
-            acc, speed = map(float, g.split(":"))
-            row[f"smooth_{acc}_{speed}"] = rescale_steps(poses, np.exp(smooth_log_lengths(readings, acc, speed)))
+            row[f"smooth_{g}"] = rescale_steps(poses, np.exp(smooth_log_lengths(readings, g)))
         print(json.dumps({k: (round(trajectory_metrics(v, ref, "sim3")["ate_m"], 4) if isinstance(v, np.ndarray) else v)
                           for k, v in row.items()}), flush=True)
 

@@ -523,7 +523,7 @@ def smoothed_step_lengths(poses: np.ndarray, indices: list[int], readings: dict,
     from odometry.step_length import rescale_steps, smooth_log_lengths
 
     chain = [readings.get(i) for i in indices[1:]]
-    return rescale_steps(poses, np.exp(smooth_log_lengths(chain, cfg.mono_accel_sigma_log, cfg.mono_smooth_speed_sigma_log)))
+    return rescale_steps(poses, np.exp(smooth_log_lengths(chain, cfg.mono_length_change_sigma_m)))
 
 
 def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
