@@ -55,8 +55,11 @@ def smooth_log_lengths(readings: list[LengthReading | None], change_sigma_m: flo
 
 def _solve_chain(chain: list[LengthReading], change_sigma_m: float, iterations: int) -> np.ndarray:
     m = len(chain)
-    w = np.array([0.0 if r.log_length is None else 1.0 / r.sigma_log for r in chain])
-    y = np.array([0.0 if r.log_length is None else r.log_length for r in chain])
+    read = [r.log_length is not None and np.isfinite(r.log_length) and r.sigma_log > 0 for r in chain]
+    w = np.array([1.0 / r.sigma_log if ok else 0.0 for r, ok in zip(chain, read)])
+    y = np.array([r.log_length if ok else 0.0 for r, ok in zip(chain, read)])
+    if not any(read):  # nothing to solve from: the caller keeps the window pass's lengths
+        return np.full(m, np.nan)
     diff = sp.diags([-np.ones(m - 1), np.ones(m - 1)], [0, 1], shape=(m - 1, m))
     change = np.full(m - 1, 1.0 / 0.1)  # first pass: a loose change of 10 % a frame
     for _ in range(iterations + 1):

@@ -69,3 +69,11 @@ def test_rescaled_steps_keep_rotation_and_direction():
     # NaN keeps the step's length
     assert np.linalg.norm((invert_T(out[1]) @ out[2])[:3, 3]) == pytest.approx(
         np.linalg.norm((invert_T(poses[1]) @ poses[2])[:3, 3]))
+
+
+def test_a_broken_reading_is_ignored_and_a_chain_without_any_keeps_its_steps():
+    truth = np.log(np.full(10, 0.5))
+    readings = [LengthReading(float(x), 0.05) for x in truth]
+    readings[4] = LengthReading(float("nan"), 0.05)
+    assert np.abs(smooth_log_lengths(readings) - truth).max() < 1e-6
+    assert np.isnan(smooth_log_lengths([LengthReading(None)] * 5)).all()
