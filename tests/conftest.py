@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -74,3 +76,25 @@ def straight_mid40_drive(tmp_path_factory):
     simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=9, seed=21), out, progress=False)
     seq = open_sequence(out)
     return seq, {i: seq[i] for i in range(len(seq))}
+
+
+@contextmanager
+def killed_after_saves(n: int) -> Iterator[None]:
+    """A refine run inside the block is killed (KeyboardInterrupt) right after its n-th progress save, as a
+    user's Ctrl-C or a lost machine would leave it; the block expects that interrupt."""
+    from leovr.pipeline import refine
+
+    save, calls = refine.Progress.save, []
+
+    def killed(self, path):
+        save(self, path)
+        calls.append(path)
+        if len(calls) == n:
+            raise KeyboardInterrupt
+
+    refine.Progress.save = killed
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            yield
+    finally:
+        refine.Progress.save = save

@@ -21,7 +21,7 @@ from leovr.sim.simulate import simulate
 from odometry.frontend import epipolar_agrees, parallax_agrees, sampson_px
 from odometry.mono_motion import MonoMotion
 from odometry.mono_vo import gray, mono_vo_poses, relative_motion, track
-from tests.conftest import needs_shared
+from tests.conftest import killed_after_saves, needs_shared
 
 
 @pytest.fixture(scope="module")
@@ -326,29 +326,17 @@ def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
     assert traj["ate_m"] < 0.2 and 0.8 < traj["scale"] < 1.25
 
 
-def test_a_resumed_camera_only_run_smooths_the_same_lengths(drive, tmp_path, monkeypatch):
+def test_a_resumed_camera_only_run_smooths_the_same_lengths(drive, tmp_path):
     """The lengths are solved again after the window pass from the road's readings of every frame; a run
     killed after 4 frames and resumed replays the finished frames through the front end, so its readings and
     the written poses are those of an uninterrupted run."""
     import warnings
 
-    from leovr.pipeline import refine
-
     seq_dir, frames = drive
     seq, cfg = open_sequence(seq_dir), RefineConfig(input="none", loop_closure=False)
     run_refine(seq, cfg, tmp_path / "whole", progress=False, score=False)
-    save, calls = refine.Progress.save, []
-
-    def killed_after_four(self, path):
-        save(self, path)
-        calls.append(path)
-        if len(calls) == 4:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(refine.Progress, "save", killed_after_four)
-    with pytest.raises(KeyboardInterrupt):
+    with killed_after_saves(4):
         run_refine(seq, cfg, tmp_path / "cut", progress=False, score=False)
-    monkeypatch.setattr(refine.Progress, "save", save)
     assert not json.loads((tmp_path / "cut" / "progress.json").read_text())["poses_window"]  # not smoothed yet
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the replay matches the poses written before the interruption

@@ -13,7 +13,7 @@ from leovr.data import open_sequence
 from leovr.paths import kitti_odometry_dir
 from leovr.pipeline.refine import run_refine
 from leovr.sim.simulate import simulate
-from tests.conftest import needs_shared
+from tests.conftest import killed_after_saves, needs_shared
 
 
 @pytest.fixture(scope="module")
@@ -132,28 +132,17 @@ def test_refine_resumes_after_an_interruption(refined, tmp_path):
 
 
 @needs_shared
-def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_path, monkeypatch):
+def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_path):
     """KITTI raw, VLP-16-like input, 8 frames: killed after 4 frames were finished (later ones were already
     in the window), then resumed. Two uninterrupted runs agree to about 1e-7 m in pose and to one PNG
     step (1/256 m) at a rare pixel (`tools/resume_check.py`); the resumed one must too: same poses, the
     same depth up to that step, the same IP-Basic PNGs, the same landmarks, and every frame timed once."""
     from leovr.paths import kitti_raw_dir
-    from leovr.pipeline import refine
 
     seq, cfg = open_sequence(kitti_raw_dir()), RefineConfig(input="vlp16", end=8)
     run_refine(seq, cfg, tmp_path / "whole", progress=False)
-    save, calls = refine.Progress.save, []
-
-    def killed_after_four(self, path):
-        save(self, path)
-        calls.append(path)
-        if len(calls) == 4:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(refine.Progress, "save", killed_after_four)
-    with pytest.raises(KeyboardInterrupt):
+    with killed_after_saves(4):
         run_refine(seq, cfg, tmp_path / "cut", progress=False)
-    monkeypatch.setattr(refine.Progress, "save", save)
     assert len(json.loads((tmp_path / "cut" / "progress.json").read_text())["poses"]) == 4
     run_refine(seq, cfg, tmp_path / "cut", resume=True, progress=False)
     a, b = tmp_path / "whole", tmp_path / "cut"
