@@ -263,8 +263,7 @@ class MonoMotion:
         absolute = ground if ground is not None else depth
         reading = None  # kept for smoothing the lengths over the whole recording (`odometry.step_length`)
         if absolute is not None or self.log_len is not None:
-            reading = LengthReading(None if absolute is None else absolute[0], 1.0 if absolute is None else absolute[1],
-                                    restart=self.log_len is None)
+            reading = LengthReading(*(absolute or (None, 1.0)), restart=self.log_len is None)
         self._fuse(absolute, log_ratio)
         source = "constant_speed" if absolute is None else ("ground" if ground is not None else "depth")
         source += "+tracks" if log_ratio is not None and absolute is not None else ""

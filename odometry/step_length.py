@@ -3,7 +3,7 @@
 Without LiDAR each step's metric length is read from the road plane (`odometry.mono_motion`), about 8 %
 off per frame, and the forward filter there can only use readings up to the current frame: the slow
 part of its error is what the Sim(3)-aligned trajectory error is made of (on the development clips, the
-true step lengths in place of the filtered ones cut the error 2-3x, true rotations changed it by under
+true step lengths in place of the filtered ones cut the error 2-7x, true rotations changed it by under
 5 %). A recorded sequence has the later readings too, so after the window pass the lengths are solved
 again over the whole chain: least squares on the log length, with each step's absolute reading and a
 vehicle's smooth speed (the step length's change from frame to frame, in metres). A step without a

@@ -178,6 +178,14 @@ class Progress:
     def save(self, path: Path) -> None:
         write_text(path, json.dumps(self.__dict__) + "\n")
 
+    def stacked(self, name: str, indices: list[int]) -> np.ndarray | None:
+        """The poses kept under `name` ("poses", "poses_no_loop", "poses_window") as F x 4 x 4 in the order
+        of `indices`; None unless every one of them is there."""
+        kept = getattr(self, name)
+        if not indices or any(i not in kept for i in indices):
+            return None
+        return np.stack([np.array(kept[i]).reshape(4, 4) for i in indices])
+
 
 @single_threaded_blas
 def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True,
@@ -485,17 +493,14 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             if f in at:
                 landmarks[n] = transform_points(after[at[f]] @ invert_T(before[at[f]]), landmarks[n][None])[0]
 
-    def current_poses() -> np.ndarray:
-        return np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
-
     if not has_lidar and front.camera_height and cfg.mono_length_smoothing and len(indices) > 2:
-        before = current_poses()
+        before = state.stacked("poses", indices)
         state.poses_window = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         move_poses(before, smoothed_step_lengths(before, indices, front.length_readings, cfg))
     if cfg.loop_closure:
         from leovr.pipeline.loops import loop_pass
 
-        before = current_poses()
+        before = state.stacked("poses", indices)
         corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary)
         state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         move_poses(before, corrected)
@@ -662,12 +667,10 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         ref = np.stack([invert_T(gt_poses[0]) @ T for T in gt_poses])
         align = "se3" if has_lidar else "sim3"
         metrics["trajectory"] = {"leovr": trajectory_metrics(poses, ref, align)}
-        if state.poses_no_loop and all(i in state.poses_no_loop for i in indices):
-            before = np.stack([np.array(state.poses_no_loop[i]).reshape(4, 4) for i in indices])
-            metrics["trajectory"]["leovr_no_loop"] = trajectory_metrics(before, ref, align)
-        if state.poses_window and all(i in state.poses_window for i in indices):
-            window = np.stack([np.array(state.poses_window[i]).reshape(4, 4) for i in indices])
-            metrics["trajectory"]["leovr_window"] = trajectory_metrics(window, ref, align)
+        for name, kept in (("leovr_no_loop", "poses_no_loop"), ("leovr_window", "poses_window")):
+            earlier = state.stacked(kept, indices)  # before a whole-recording pass moved them, when one did
+            if earlier is not None:
+                metrics["trajectory"][name] = trajectory_metrics(earlier, ref, align)
         for name, (est, how) in (baselines or {}).items():
             metrics["trajectory"][name] = trajectory_metrics(est, ref, how)
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
