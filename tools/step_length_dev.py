@@ -43,6 +43,22 @@ def chain(steps: list[np.ndarray]) -> np.ndarray:
     return np.stack(poses)
 
 
+def motion_steps(seq, cfg: RefineConfig, gen) -> tuple[list[np.ndarray], list]:
+    """leovr's camera-only motion alone over a sequence (the road's scale; 1.65 m where the sequence does not
+    record its camera height): each step's T_rel and the length reading its filter used."""
+    mm = MonoMotion(seq[0].K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
+                    camera_height=road_height(seq, cfg) or 1.65, ground_sigma_log=cfg.mono_ground_sigma_log)
+    steps, readings = [], []
+    for i in range(len(seq)):
+        f = seq[i]
+        d, ls = gen(EvalSample(f, np.zeros(f.shape, np.float32), None, "none", None))
+        s = mm.step(f.image, d, ls)
+        if s is not None:
+            steps.append(s.T_rel)
+            readings.append(s.length_reading)
+    return steps, readings
+
+
 def swapped(est: list[np.ndarray], ref: list[np.ndarray], rot: bool, direction: bool, length: bool) -> np.ndarray:
     out = []
     for e, g in zip(est, ref):
@@ -65,16 +81,7 @@ def main() -> None:
         seq = open_sequence(path)
         n = len(seq)
         ref, ref_name = reference(seq, n)
-        mm = MonoMotion(seq[0].K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
-                        camera_height=road_height(seq, cfg) or 1.65, ground_sigma_log=cfg.mono_ground_sigma_log)
-        steps, readings = [], []
-        for i in range(n):
-            f = seq[i]
-            d, ls = gen(EvalSample(f, np.zeros(f.shape, np.float32), None, "none", None))
-            s = mm.step(f.image, d, ls)
-            if s is not None:
-                steps.append(s.T_rel)
-                readings.append(s.length_reading)
+        steps, readings = motion_steps(seq, cfg, gen)
         ref_steps = [invert_T(ref[k - 1]) @ ref[k] for k in range(1, n)]
         poses = chain(steps)
         row = {"sequence": Path(path).name, "reference": ref_name, "filtered": poses}

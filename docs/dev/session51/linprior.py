@@ -6,7 +6,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 sys.path.insert(0, str(__import__('pathlib').Path(__file__).resolve().parents[3] / 'tools'))
 from mono_dev import reference
-from step_length_dev import chain
+from step_length_dev import chain, motion_steps
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.eval.trajectory import trajectory_metrics
@@ -43,13 +43,7 @@ cfg = RefineConfig(input="none"); gen = generator_method(completion_config(cfg))
 grid=[(0.002,None),(0.005,None),(0.01,None),(0.005,0.001),(0.01,0.001),(0.003,None)]
 for path in sys.argv[1:]:
     seq=open_sequence(path); n=len(seq); ref,_=reference(seq,n)
-    mm = MonoMotion(seq[0].K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
-                    camera_height=road_height(seq, cfg) or 1.65, ground_sigma_log=cfg.mono_ground_sigma_log)
-    steps=[]; R=[]
-    for i in range(n):
-        f=seq[i]; d,ls=gen(EvalSample(f, np.zeros(f.shape, np.float32), None, "none", None))
-        s=mm.step(f.image,d,ls)
-        if s is not None: steps.append(s.T_rel); R.append(s.length_reading)
+    steps, R = motion_steps(seq, cfg, gen)
     P=chain(steps)
     row={"seq":path.rstrip('/').split('/')[-1],"filtered":round(trajectory_metrics(P,ref,"sim3")["ate_m"],4),
          "shipped":round(trajectory_metrics(rescale_steps(P,np.exp(smooth_log_lengths(R,0.001,0.02))),ref,"sim3")["ate_m"],4),

@@ -5,7 +5,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation as Rot
 sys.path.insert(0, str(__import__('pathlib').Path(__file__).resolve().parents[3] / 'tools'))
 from mono_dev import reference
-from step_length_dev import chain
+from step_length_dev import chain, motion_steps
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.eval.trajectory import trajectory_metrics
@@ -36,13 +36,7 @@ def nh_steps(steps, moving_min=0.05, blend=1.0):
 cfg = RefineConfig(input="none"); gen = generator_method(completion_config(cfg))
 for path in sys.argv[1:]:
     seq=open_sequence(path); n=len(seq); ref,_=reference(seq,n)
-    mm = MonoMotion(seq[0].K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
-                    camera_height=road_height(seq, cfg) or 1.65, ground_sigma_log=cfg.mono_ground_sigma_log)
-    steps=[]; R=[]
-    for i in range(n):
-        f=seq[i]; d,ls=gen(EvalSample(f, np.zeros(f.shape, np.float32), None, "none", None))
-        s=mm.step(f.image,d,ls)
-        if s is not None: steps.append(s.T_rel); R.append(s.length_reading)
+    steps, R = motion_steps(seq, cfg, gen)
     Ls=np.exp(smooth_log_lengths(R))
     P=chain(steps); Ps=rescale_steps(P,Ls)
     sm=[invert_T(Ps[k-1])@Ps[k] for k in range(1,len(Ps))]
