@@ -28,6 +28,11 @@ def invert_T(T: np.ndarray) -> np.ndarray:
     return Ti
 
 
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """The angle (degrees) of a rotation matrix."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
 def transform_points(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply a 4x4 transform to N x 3 points."""
     pts = np.asarray(pts)

@@ -100,12 +100,14 @@ class FrontEnd:
         prior_rel: dict[int, float] = {}
         trusted = None
         odo_cov = None
+        matches_prev = None
         if self.prev is None:
             T_init, source, T_rel = np.eye(4), "first", None
         else:
             p = self.prev
             T_prev = graph.pose(p.index)
             ia, ib = match(p.feats, feats)
+            matches_prev = (p.index, p.feats.uv[ia].astype(np.float64), feats.uv[ib].astype(np.float64))
             obj = (p.cam_pts[ia] @ T_prev[:3, :3].T + T_prev[:3, 3]) if len(ia) else np.zeros((0, 3))
             img = feats.uv[ib].astype(np.float64)
             cands: dict[str, np.ndarray | None] = {}
@@ -161,9 +163,11 @@ class FrontEnd:
         icp_pose = None  # KISS-ICP as the graph's pose prior: spinning LiDARs only (a Mid-40 cone misleads it)
         if T_icp is not None and cfg.icp_prior != "off" and self.icp.spinning and self.icp.covariance is not None:
             icp_pose = (T_icp, self.icp.covariance)
-        return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
-                          trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
-                          step.road_normal if step is not None else None)
+        fi = FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
+                        trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
+                        step.road_normal if step is not None else None)
+        fi.matches_prev = matches_prev
+        return fi
 
     def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
                           uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:

@@ -17,8 +17,9 @@ import gtsam
 import numpy as np
 
 from leovr.config import RefineConfig
-from leovr.geometry import invert_T
+from leovr.geometry import invert_T, rotation_angle_deg
 from odometry.depth_field import CorrectionGrid
+from odometry.mono_vo import relative_motion
 from odometry.factors import (
     DepthConsistency,
     FrameDepth,
@@ -73,6 +74,9 @@ class FrameInput:
     # length; odometry.motion_stereo.pair_motions), a between factor where j is still in the window
     pair_motions: dict[int, np.ndarray] = field(default_factory=dict)
     stereo_uvz: np.ndarray | None = None  # M x 3: motion stereo's corners outside the LiDAR's reach (u, v, depth)
+    # the front end's feature matches with the previous frame: (its index, its pixels, this frame's pixels); a
+    # second opinion on the rotation where a pair motion and the initial pose disagree (`_pair_factors`)
+    matches_prev: tuple[int, np.ndarray, np.ndarray] | None = None
 
 
 @dataclass
@@ -184,15 +188,39 @@ class WindowGraph:
     def _pair_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph) -> None:
         """The images' motions from this frame to earlier frames of the window: rotation to
         `pair_sigma_rad`, translation to `pair_sigma_rel` of its length, Huber-robust (a pair's essential
-        matrix is sometimes far off)."""
+        matrix is sometimes far off). A pair whose rotation is more than `pair_gate_deg` from the front end's
+        initial pose is kept only if the essential matrix of the front end's own matches with the previous
+        frame agrees with it instead: in a fast turn either the pair's tracks or the initial pose can be the
+        one that failed (Huber still lets a 100-sigma outlier pull the pose)."""
         cfg = self.cfg
+        second: list[np.ndarray | None] = []  # the matches' rotation, computed once and only when needed
         for j, T in f.pair_motions.items():
             if j not in self.poses:
+                continue
+            if cfg.pair_gate_deg > 0 and not self._pair_agrees(f, j, T, second):
                 continue
             length = float(np.linalg.norm(T[:3, 3]))
             base = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, cfg.pair_sigma_rad), np.full(3, cfg.pair_sigma_rel * length + 0.01)])
             noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345), base)
             graph.add(gtsam.BetweenFactorPose3(X(j), X(f.index), gtsam.Pose3(T), noise))
+
+    def _pair_agrees(self, f: FrameInput, j: int, T: np.ndarray, second: list[np.ndarray | None]) -> bool:
+        """Whether pair j's rotation lies within `pair_gate_deg` of the initial pose's, or else of the rotation
+        of the essential matrix of the front end's matches with the previous frame (chained to j through the
+        window's poses)."""
+        gate = self.cfg.pair_gate_deg
+        R_pair = T[:3, :3]
+        if rotation_angle_deg(R_pair.T @ (invert_T(self.poses[j]) @ f.T_init)[:3, :3]) <= gate:
+            return True
+        if f.matches_prev is None or f.matches_prev[0] not in self.poses:
+            return False
+        if not second:
+            motion, _ = relative_motion(f.matches_prev[1], f.matches_prev[2], self.K, method=cv2.USAC_ACCURATE)
+            second.append(None if motion is None else motion[:3, :3])
+        if second[0] is None:
+            return False
+        R_ref = (invert_T(self.poses[j]) @ self.poses[f.matches_prev[0]])[:3, :3] @ second[0]
+        return rotation_angle_deg(R_pair.T @ R_ref) <= gate
 
     def _icp_factors(self, i: int, T: np.ndarray, cov: np.ndarray, graph: gtsam.NonlinearFactorGraph) -> None:
         """KISS-ICP as the pose prior. `window`: its motion from every frame still in the window to this

@@ -20,7 +20,7 @@ import numpy as np
 from leovr.bench.common import write_bench
 from leovr.config import BenchLoopConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
-from leovr.geometry import invert_T
+from leovr.geometry import invert_T, rotation_angle_deg
 from leovr.paths import kitti_odometry_dir, kitti_raw_dir, shipped_vocabulary
 from leovr.pipeline.refine import run_refine
 from leovr.sim.simulate import simulate
@@ -30,15 +30,11 @@ TRUE_LOOP_M = 1.0  # a loop is true when its measured relative pose is within th
 TRUE_LOOP_DEG = 5.0
 
 
-def _angle(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
-
-
 def loop_error(T_j_i: np.ndarray, T_world_i: np.ndarray, T_world_j: np.ndarray) -> tuple[float, float, bool]:
     """A loop's measured relative pose (camera i seen from camera j) against the ground-truth poses:
     translation error (m), rotation error (degrees), and whether that makes it a true loop."""
     dT = invert_T(invert_T(T_world_j) @ T_world_i) @ np.asarray(T_j_i)
-    err_m, err_deg = float(np.linalg.norm(dT[:3, 3])), _angle(dT[:3, :3])
+    err_m, err_deg = float(np.linalg.norm(dT[:3, 3])), rotation_angle_deg(dT[:3, :3])
     return err_m, err_deg, err_m < TRUE_LOOP_M and err_deg < TRUE_LOOP_DEG
 
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from leovr.geometry import rotation_angle_deg
 from odometry.features import Features, match
 
 
@@ -79,7 +80,7 @@ def _pnp(P: np.ndarray, uv: np.ndarray, K: np.ndarray, reproj_px: float) -> tupl
 def _disagreement(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
     """Translation (m) and rotation (deg) between two rigid transforms."""
     D = np.linalg.solve(A, B)
-    return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1))))
+    return float(np.linalg.norm(D[:3, 3])), rotation_angle_deg(D[:3, :3])
 
 
 def validate_loop(fi: Features, pts_i: np.ndarray, fj: Features, pts_j: np.ndarray, K: np.ndarray,
