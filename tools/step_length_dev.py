@@ -59,6 +59,17 @@ def motion_steps(seq, cfg: RefineConfig, gen) -> tuple[list[np.ndarray], list]:
     return steps, readings
 
 
+def dev_runs(paths: list[str]):
+    """Per development sequence: (path, sequence, reference poses, the reference's name, the camera-only config,
+    its generator), the set-up every camera-only development script shares."""
+    cfg = RefineConfig(input="none")
+    gen = generator_method(completion_config(cfg))
+    for path in paths:
+        seq = open_sequence(path)
+        ref, ref_name = reference(seq, len(seq))
+        yield path, seq, ref, ref_name, cfg, gen
+
+
 def swapped(est: list[np.ndarray], ref: list[np.ndarray], rot: bool, direction: bool, length: bool) -> np.ndarray:
     out = []
     for e, g in zip(est, ref):
@@ -75,12 +86,8 @@ def main() -> None:
     ap.add_argument("sequences", nargs="+")
     ap.add_argument("--grid", nargs="*", type=float, default=[0.002, 0.003, 0.005, 0.01])
     a = ap.parse_args()
-    cfg = RefineConfig(input="none")
-    gen = generator_method(completion_config(cfg))
-    for path in a.sequences:
-        seq = open_sequence(path)
+    for path, seq, ref, ref_name, cfg, gen in dev_runs(a.sequences):
         n = len(seq)
-        ref, ref_name = reference(seq, n)
         steps, readings = motion_steps(seq, cfg, gen)
         ref_steps = [invert_T(ref[k - 1]) @ ref[k] for k in range(1, n)]
         poses = chain(steps)

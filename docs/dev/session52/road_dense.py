@@ -19,19 +19,17 @@ ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "tools"))
 sys.path.insert(0, str(ROOT))
 
-from leovr.config import RefineConfig  # noqa: E402
-from leovr.data import open_sequence  # noqa: E402
+sys.path.insert(0, str(Path(__file__).parent))
+
 from leovr.eval.trajectory import trajectory_metrics  # noqa: E402
 from leovr.geometry import invert_T  # noqa: E402
-from leovr.pipeline.completion import EvalSample, generator_method  # noqa: E402
-from leovr.pipeline.refine import completion_config, road_height  # noqa: E402
-from mono_dev import reference  # noqa: E402
+from leovr.pipeline.completion import EvalSample  # noqa: E402
+from leovr.pipeline.refine import road_height  # noqa: E402
 from odometry.ground_plane import _corridor_mask  # noqa: E402
 from odometry.mono_motion import MonoMotion  # noqa: E402
-sys.path.insert(0, str(Path(__file__).parent))
-from road_homography import align_road  # noqa: E402
 from odometry.step_length import LengthReading, rescale_steps, smooth_log_lengths  # noqa: E402
-from step_length_dev import chain  # noqa: E402
+from road_homography import align_road  # noqa: E402
+from step_length_dev import chain, dev_runs  # noqa: E402
 
 
 def main() -> None:
@@ -42,12 +40,8 @@ def main() -> None:
     ap.add_argument("--margin", type=float, default=0.08)
     ap.add_argument("--sigma-floor", type=float, default=0.02)
     a = ap.parse_args()
-    cfg = RefineConfig(input="none")
-    gen = generator_method(completion_config(cfg))
-    for path in a.sequences:
-        seq = open_sequence(path)
+    for path, seq, ref, ref_name, cfg, gen in dev_runs(a.sequences):
         n = len(seq)
-        ref, ref_name = reference(seq, n)
         h = road_height(seq, cfg) or 1.65
         K = seq[0].K
         mm = MonoMotion(K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
