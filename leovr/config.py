@@ -157,9 +157,11 @@ class RefineConfig(FrameSelection):
     pair_offsets: list[int] = [1, 2, 3]
     pair_sigma_rad: float = Field(0.0007, gt=0)
     pair_sigma_rel: float = Field(0.02, gt=0)
-    # a pair whose rotation is this far (degrees) from the front end's own (PnP / ICP) is left out: in a fast turn
-    # the tracks can fail together and give a wrong essential matrix that the tight sigma above would impose
-    # (tuning lap Mid-40 3000, frame 56: 7.4 degrees of heading lost in one step; docs/benchmarks.md); 0: no test
+    # a pair whose rotation is this far (degrees) from the front end's initial pose (PnP / ICP) and from the essential
+    # matrix of the front end's matches with the previous frame is left out: in a fast turn the tracks can fail
+    # together and give a wrong essential matrix that the tight sigma above would impose (tuning lap Mid-40 3000,
+    # frame 56: 7.4 degrees of heading lost in one step; chosen on tuning laps 3000-3001 and the validation drives,
+    # docs/benchmarks.md); 0: no test
     pair_gate_deg: float = Field(3.0, ge=0)
     # when a frame leaves the window: a plane sweep over its refined depth against the images of the frames
     # `photometric_offsets` before and after it (the graph's poses; ZNCC of small patches on images shrunk to
