@@ -102,18 +102,26 @@ def displacement_px(Rt: np.ndarray, X: np.ndarray, K: np.ndarray) -> tuple[np.nd
     return uv, np.linalg.norm(uv - uv_inf, axis=1)
 
 
-def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
-                s: MotionStereoSettings) -> np.ndarray | None:
-    """Frame i -> j as [R | t] (3 x 4) from the tracks: rotation and direction from the essential matrix,
-    length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
-    when either cannot be had."""
+def essential_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """Frame i -> j as [R | t] (3 x 4, unit t) from the essential matrix of the tracked corners (c in i, p in j,
+    `ok`: tracked); None with under 20 tracks or no essential matrix."""
     if ok.sum() < 20:
         return None
     E, inl = cv2.findEssentialMat(c[ok], p[ok], K, cv2.USAC_ACCURATE, 0.999, 0.5)
     if E is None or E.shape != (3, 3):
         return None
     _, R, t, _ = cv2.recoverPose(E, c[ok], p[ok], K, mask=inl.copy())
-    Rt = np.hstack([R, t / max(np.linalg.norm(t), 1e-12)])
+    return np.hstack([R, t / max(np.linalg.norm(t), 1e-12)])
+
+
+def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
+                s: MotionStereoSettings) -> np.ndarray | None:
+    """Frame i -> j as [R | t] (3 x 4) from the tracks: rotation and direction from the essential matrix,
+    length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
+    when either cannot be had."""
+    Rt = essential_motion(c, p, ok, K)
+    if Rt is None:
+        return None
     Xh = cv2.triangulatePoints(K @ np.eye(3, 4), K @ Rt, c[ok].T.astype(np.float64), p[ok].T.astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = Xh[2] / Xh[3]

@@ -21,18 +21,7 @@ sys.path.insert(0, str(ROOT))
 from leovr.data import open_sequence  # noqa: E402
 from leovr.geometry import invert_T, rotation_angle_deg  # noqa: E402
 from odometry.mono_vo import gray  # noqa: E402
-from odometry.motion_stereo import MotionStereoSettings, detect_corners, track  # noqa: E402
-
-
-def essential_rotation(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray) -> np.ndarray | None:
-    """As `pair_motion` reads the rotation (i -> j), without the LiDAR length."""
-    if ok.sum() < 20:
-        return None
-    E, inl = cv2.findEssentialMat(c[ok], p[ok], K, cv2.USAC_ACCURATE, 0.999, 0.5)
-    if E is None or E.shape != (3, 3):
-        return None
-    _, R, _, _ = cv2.recoverPose(E, c[ok], p[ok], K, mask=inl.copy())
-    return R
+from odometry.motion_stereo import MotionStereoSettings, detect_corners, essential_motion, track  # noqa: E402
 
 
 def track_from(g0: np.ndarray, g1: np.ndarray, c: np.ndarray, guess: np.ndarray, s: MotionStereoSettings):
@@ -67,8 +56,8 @@ def main() -> None:
             out = {"i": i, "j": j, "turn": rotation_angle_deg(R_true)}
             for name, (p, ok) in (("shipped", track(grays[i], grays[j], c, s)),
                                   ("init_flow", track_from(grays[i], grays[j], c, guess, s))):
-                R = essential_rotation(c, p, ok, K)
-                out[name] = np.nan if R is None else rotation_angle_deg(R.T @ R_true)
+                Rt = essential_motion(c, p, ok, K)  # as `pair_motion` reads the rotation, without the LiDAR length
+                out[name] = np.nan if Rt is None else rotation_angle_deg(Rt[:, :3].T @ R_true)
             rows.append(out)
     for name in ("shipped", "init_flow"):
         e = np.array([r[name] for r in rows])
