@@ -163,11 +163,9 @@ class FrontEnd:
         icp_pose = None  # KISS-ICP as the graph's pose prior: spinning LiDARs only (a Mid-40 cone misleads it)
         if T_icp is not None and cfg.icp_prior != "off" and self.icp.spinning and self.icp.covariance is not None:
             icp_pose = (T_icp, self.icp.covariance)
-        fi = FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
-                        trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
-                        step.road_normal if step is not None else None)
-        fi.matches_prev = matches_prev
-        return fi
+        return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
+                          trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
+                          step.road_normal if step is not None else None, matches_prev=matches_prev)
 
     def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
                           uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:

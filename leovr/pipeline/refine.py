@@ -35,7 +35,7 @@ from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.heldout import parallax_filter
 from leovr.eval.trajectory import trajectory_metrics
-from leovr.geometry import invert_T, transform_points
+from leovr.geometry import invert_T
 from leovr.lidar.accumulate import ScanHistory, with_history
 from leovr.lidar.deskew import deskew_frame
 from leovr.lidar.projection import sparse_depth
@@ -488,10 +488,13 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         """A whole-recording pass moved the poses: keep them, and move each landmark with the frame that
         last observed it."""
         state.poses = {i: T.ravel().tolist() for i, T in zip(indices, after)}
-        at = {i: n for n, i in enumerate(indices)}
-        for n, f in enumerate(seen_by):
-            if f in at:
-                landmarks[n] = transform_points(after[at[f]] @ invert_T(before[at[f]]), landmarks[n][None])[0]
+        moves = after @ np.stack([invert_T(T) for T in before])  # per frame: its old pose to its new one
+        order = np.argsort(indices)
+        at = np.searchsorted(np.asarray(indices)[order], seen_by).clip(0, len(indices) - 1)
+        n = order[at]
+        mine = np.asarray(indices)[n] == seen_by  # landmarks whose frame is one of the poses
+        D = moves[n[mine]]
+        landmarks[mine] = np.einsum("nij,nj->ni", D[:, :3, :3], landmarks[mine]) + D[:, :3, 3]
 
     if not has_lidar and front.camera_height and cfg.mono_length_smoothing and len(indices) > 2:
         before = state.stacked("poses", indices)
