@@ -134,6 +134,7 @@ class RefineConfig(FrameSelection):
     # as many matches agree with them as with the last step (odometry.sweep_motion: the start and end of
     # turns). "constant_velocity": the last estimated step, the first two sweeps as if standing (before s43)
     deskew_motion: Literal["images", "constant_velocity"] = "images"
+    icp_guess: Literal["images", "constant_velocity"] = "constant_velocity"  # experiment: KISS-ICP's prediction
     # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's
     # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,
     # their accumulated returns made the generator worse on the development drives; docs/benchmarks.md)

@@ -82,9 +82,11 @@ class FrontEnd:
         return pts, lidar_cam
 
     def process(self, index: int, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray,
-                sparse: np.ndarray | None, scan: np.ndarray | None, graph: WindowGraph) -> FrameInput:
+                sparse: np.ndarray | None, scan: np.ndarray | None, graph: WindowGraph,
+                icp_guess: np.ndarray | None = None) -> FrameInput:
         """Build the graph input of a new frame (`depth`: generator depth; `sparse`: the LiDAR input
-        as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP)."""
+        as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP; `icp_guess`: the camera's motion
+        from the previous frame read from the images, KISS-ICP's prediction)."""
         cfg = self.cfg
         step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
         if step is not None:
@@ -93,7 +95,7 @@ class FrontEnd:
             depth, log_sigma = depth * self.depth_scale, log_sigma + np.log(self.depth_scale)
         feats = detect(image, cfg.n_features)
         cam_pts, lidar_cam = self._feature_points(feats, depth, sparse)
-        T_icp = self.icp.register(scan) if self.icp is not None and scan is not None else None
+        T_icp = self.icp.register(scan, guess=icp_guess) if self.icp is not None and scan is not None else None
         landmark = np.full(len(feats), -1, np.int64)
         observations: list[Observation] = []
         new_landmarks: dict[int, np.ndarray] = {}

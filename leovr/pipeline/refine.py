@@ -312,6 +312,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         return spinning is False
 
     sweep_images = SweepMotion()
+    sweep_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame), set in `prepare`
 
     def next_frame(i: int, frame: Frame) -> Frame | None:
         """Frame i + 1 when it is the next selected one and frame i's scan has point times (its sweep ends
@@ -353,7 +354,11 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         t_sweep = time.perf_counter()
         if cfg.deskew and cfg.deskew_motion == "images" and has_lidar and i == indices[0]:
             motion = start_motion(i, frame)
+        given = motion
         motion = sweep(i, frame, motion) if cfg.deskew else None
+        # KISS-ICP's prediction for the next frame: the images' motion only where it overruled the last step
+        # (the start and end of turns); elsewhere KISS-ICP keeps its own constant velocity
+        sweep_of[i] = motion if motion is not given and given is not None else None
         sweep_s = time.perf_counter() - t_sweep  # counted with the generator: the same thread's per-frame work
         # the held-out truth is scoring, not refinement: built in the main thread's scoring step below
         sample = frame_sample(seq, i, ccfg, motion, frame_dt, camera_only, truth=False, frame=frame)
@@ -411,8 +416,11 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             if has_lidar and i not in done and not (sample.sparse > 0).any():
                 empty.append(i)
             t1 = time.perf_counter()
+            prev_i = indices[n - 1] if n else None
+            guess = sweep_of.pop(prev_i, None)  # the previous sweep's motion, read from its images: to this frame
+            guess = guess if cfg.icp_guess == "images" and following.get(prev_i) == i else None
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
-                               sample.kept_points, graph)
+                               sample.kept_points, graph, icp_guess=guess)
             fi.pair_motions = pairs
             if i not in done and cone_step(cfg.photometric_field, sample):
                 photo_images.put(i, sample.frame.image)
