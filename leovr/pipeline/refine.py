@@ -418,7 +418,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             t1 = time.perf_counter()
             prev_i = indices[n - 1] if n else None
             guess = sweep_of.pop(prev_i, None)  # the previous sweep's motion, read from its images: to this frame
-            guess = guess if cfg.icp_guess == "images" and following.get(prev_i) == i else None
+            # spinning LiDARs only: measured there (a cone's KISS-ICP pose only competes with PnP as the initial pose)
+            spinning_now = sensor.get("spinning") is True
+            guess = guess if cfg.icp_guess == "images" and spinning_now and following.get(prev_i) == i else None
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph, icp_guess=guess)
             fi.pair_motions = pairs
