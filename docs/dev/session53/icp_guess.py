@@ -8,7 +8,7 @@ KISS-ICP's poses and of leovr's poses before loop closure.
     .venv/bin/python docs/dev/session53/icp_guess.py DIR [--lidars vlp16] [--seeds 3000 3001]
         [--cfg '{"icp_guess": "images"}' --tag images]
 
-With `--val`: the validation split's VLP-16 drives instead (seeds 2000-2002: city loop, straight, dynamic; day and
+With `--val`: the validation split's drives of the first of `--lidars` instead (seeds 2000-2002: city loop, straight, dynamic; day and
 night; 40 frames at 448 x 256, rendered into DIR as the dataset recipe renders them), refined as `leovr bench
 refine` refines its drives (no loop closure), ATE of leovr and of KISS-ICP alone.
 """
@@ -46,10 +46,10 @@ def turn_errors(P: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
     return round(float(err[turn].max()), 2), round(float(np.median(err[turn])), 3)
 
 
-def validation(keep: Path, overrides: dict, tag: str) -> None:
-    """The validation split's VLP-16 drives, refined as `bench refine` does: ATE of leovr and KISS-ICP."""
+def validation(keep: Path, overrides: dict, tag: str, lidar: str = "vlp16", lights: tuple[str, ...] = ("day", "night")) -> None:
+    """The validation split's drives of one LiDAR, refined as `bench refine` does: ATE of leovr and KISS-ICP."""
     for split, sim in RECIPES["default"].items():
-        if split != "val" or sim.lidar != "vlp16":
+        if split != "val" or sim.lidar != lidar or sim.light not in lights:
             continue
         name = f"val_{sim.scenario}_{sim.lidar}_{sim.light}_s{sim.seed}"
         seq_dir = keep / name
@@ -71,10 +71,11 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=bench.tuning_seeds)
     ap.add_argument("--cfg", default="{}", help="RefineConfig overrides as JSON")
     ap.add_argument("--tag", default="base")
-    ap.add_argument("--val", action="store_true", help="the validation split's VLP-16 drives instead of the laps")
+    ap.add_argument("--val", action="store_true", help="the validation split's drives instead of the laps")
+    ap.add_argument("--lights", nargs="*", default=["day", "night"], help="with --val")
     a = ap.parse_args()
     if a.val:
-        return validation(Path(a.keep), json.loads(a.cfg), a.tag)
+        return validation(Path(a.keep), json.loads(a.cfg), a.tag, a.lidars[0], tuple(a.lights))
     if set(a.seeds) & set(bench.seeds):
         raise SystemExit("the loop benchmark's reported seeds are not for development")
     keep = Path(a.keep)
