@@ -96,6 +96,8 @@ class FrontEnd:
         feats = detect(image, cfg.n_features)
         cam_pts, lidar_cam = self._feature_points(feats, depth, sparse)
         T_icp = self.icp.register(scan, guess=icp_guess) if self.icp is not None and scan is not None else None
+        if self.icp is not None and scan is None:  # KISS-ICP did not see this frame: no guess from it next time
+            self.icp.skipped_last = True
         landmark = np.full(len(feats), -1, np.int64)
         observations: list[Observation] = []
         new_landmarks: dict[int, np.ndarray] = {}

@@ -43,6 +43,7 @@ class LidarOdometry:
         self.T_cl = T_cam_lidar
         self.cov_inflation = cov_inflation
         self.frames = 0
+        self.skipped_last = False  # the last scan had too few points: KISS-ICP's last pose is an older frame's
         self.spinning: bool | None = None  # a 360-degree scanner (VLP-16, HDL-64), from the first scan
         self._fit: tuple | None = None  # the last registration's inputs, for `covariance` (computed on demand)
         self._covariance: np.ndarray | None = None
@@ -51,23 +52,25 @@ class LidarOdometry:
                  ) -> np.ndarray | None:
         """Camera pose (camera to world) after registering this scan, or None when it has too few points.
         `times` (one per point, any unit: KISS-ICP normalises them over the sweep) are used only with
-        `deskew=True`. `guess`: the camera's motion since the last registered scan (pose of this camera in
-        that one), KISS-ICP's prediction in place of its constant velocity (which misses the start of a turn
-        by the turn's whole rate, further than its correspondence distance reaches)."""
+        `deskew=True`. `guess`: the camera's motion since the previous scan (pose of this camera in that one),
+        KISS-ICP's prediction in place of its constant velocity (which misses the start of a turn by the turn's
+        whole rate, further than its correspondence distance reaches); ignored after a skipped scan."""
         xyz = np.ascontiguousarray(points[:, :3], np.float64)
         self._fit, self._covariance = None, None
         if len(xyz) < MIN_SCAN_POINTS:
+            self.skipped_last = True
             return None
         if self.spinning is None:
             self.spinning = is_spinning(xyz)
         timed = self.icp.config.data.deskew and times is not None and len(times) == len(xyz) and np.ptp(times) > 0
         local_map = self.icp.local_map.point_cloud() if self.frames else None  # before this scan joins it
         stamps = np.asarray(times, np.float64) if timed else np.array([])
-        if guess is not None and self.frames:
+        if guess is not None and self.frames and not self.skipped_last:  # a guess from the frame KISS-ICP last saw
             source = self._register_predicted(xyz, stamps, invert_T(self.T_cl) @ guess @ self.T_cl)
         else:
             _, source = self.icp.register_frame(xyz, stamps)
         self.frames += 1
+        self.skipped_last = False
         T_l0_l = self.icp.last_pose
         self._fit = (source, local_map, T_l0_l, 3.0 * self.icp.adaptive_threshold.get_threshold())
         return self.T_cl @ T_l0_l @ invert_T(self.T_cl)

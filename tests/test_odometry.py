@@ -392,3 +392,22 @@ def test_a_predicted_registration_keeps_kiss_icps_own_match_distance():
     assert own_threshold > 5.0  # the weave's constant-velocity misses grew it from its initial 2 m
     assert abs(predicted_threshold / own_threshold - 1) < 0.05
     np.testing.assert_allclose(predicted, own, rtol=0.15)
+
+
+def test_a_guess_after_a_skipped_scan_is_not_used(monkeypatch):
+    """The guess is the motion from the previous frame; after a scan KISS-ICP skipped (too few points) its last
+    pose is an older frame's, so the guess would be one step short: KISS-ICP's own prediction is used then."""
+    from odometry.initial_pose import LidarOdometry
+
+    scans, T_cl, steps = _turning_drive([0.0] * 4)
+    odo, predicted = LidarOdometry(T_cl), []
+    real = LidarOdometry._register_predicted
+    monkeypatch.setattr(LidarOdometry, "_register_predicted", lambda self, *a: predicted.append(self.frames) or real(self, *a))
+    odo.register(scans[0])
+    odo.register(scans[1], guess=steps[0])
+    assert predicted == [1]
+    assert odo.register(scans[2][:10], guess=steps[1]) is None  # skipped
+    odo.register(scans[3], guess=steps[2])
+    assert predicted == [1]
+    odo.register(scans[4], guess=steps[3])
+    assert predicted == [1, 3]

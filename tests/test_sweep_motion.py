@@ -61,3 +61,36 @@ def test_first_step_from_the_first_two_raw_scans(turning):
     assert T is not None
     assert abs(np.linalg.norm(T[:3, 3]) - np.linalg.norm(truth[:3, 3])) < 0.15 * np.linalg.norm(truth[:3, 3])
     assert first_step(f0.points[:10], f1.points, f0.T_cam_lidar) is None  # too few points: no motion
+
+
+def test_refine_predicts_kiss_icp_with_the_images_motion_only_where_it_overruled_the_last_step(tmp_path, monkeypatch):
+    """`refine.icp_guess: images` with a spinning LiDAR: KISS-ICP starts from the sweep's motion read from the
+    images only at frames where that motion overruled the last step (a turn's start or end); elsewhere, and with
+    `constant_velocity` everywhere, it keeps its own prediction, so its poses equal the constant-velocity run's up
+    to the first predicted frame and differ after it."""
+    import json
+
+    from leovr.config import RefineConfig
+    from leovr.pipeline.refine import run_refine
+    from odometry.initial_pose import LidarOdometry
+
+    seq_dir = tmp_path / "seq"  # a city loop at 80 km/h that starts in a 90-degree turn and leaves it
+    simulate(SimulateConfig(scenario="city_loop", lidar="vlp16", frames=10, seed=3001, speed_kmh=80.0), seq_dir, progress=False)
+    seq = open_sequence(seq_dir)
+    predicted: list[int] = []
+    real = LidarOdometry._register_predicted
+    monkeypatch.setattr(LidarOdometry, "_register_predicted", lambda self, *a: predicted.append(self.frames) or real(self, *a))
+
+    def icp_poses(guess: str) -> dict[int, np.ndarray]:
+        run_refine(seq, RefineConfig(input="full", icp_guess=guess), tmp_path / guess, progress=False)
+        state = json.loads((tmp_path / guess / "progress.json").read_text())
+        return {int(k): np.array(v).reshape(4, 4) for k, v in state["icp_poses"].items()}
+
+    own = icp_poses("constant_velocity")
+    assert predicted == []
+    images = icp_poses("images")
+    assert 0 < len(predicted) < 8, predicted  # some frames, not every frame (9 registrations after the first)
+    first = predicted[0]
+    for k in range(first):
+        np.testing.assert_allclose(images[k], own[k], atol=1e-9)
+    assert max(np.abs(images[k] - own[k]).max() for k in range(first, len(seq))) > 1e-4

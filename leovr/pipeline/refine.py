@@ -420,7 +420,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             guess = sweep_of.pop(prev_i, None)  # the previous sweep's motion, read from its images: to this frame
             # spinning LiDARs only: measured there (a cone's KISS-ICP pose only competes with PnP as the initial pose)
             spinning_now = sensor.get("spinning") is True
-            guess = guess if cfg.icp_guess == "images" and spinning_now and following.get(prev_i) == i else None
+            guess = guess if cfg.icp_guess == "images" and spinning_now else None
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph, icp_guess=guess)
             fi.pair_motions = pairs
