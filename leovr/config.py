@@ -134,12 +134,13 @@ class RefineConfig(FrameSelection):
     # as many matches agree with them as with the last step (odometry.sweep_motion: the start and end of
     # turns). "constant_velocity": the last estimated step, the first two sweeps as if standing (before s43)
     deskew_motion: Literal["images", "constant_velocity"] = "images"
-    # KISS-ICP's prediction of the next scan (spinning LiDAR only; a cone keeps constant velocity). "images": the sweep's motion read from the images
-    # where it overruled the last step (deskew_motion "images": the start and end of turns), else KISS-ICP's
-    # own constant velocity, which at 80 km/h misses a turn's start by its whole rate (tuning lap 3001: one
-    # step 16 degrees off); its adaptive threshold still measures its own prediction's error, so the match
-    # distance and covariance stay as calibrated (chosen on tuning laps 3000-3001 and the validation drives,
-    # session 53, docs/benchmarks.md). "constant_velocity": KISS-ICP's own (before session 53)
+    # KISS-ICP's prediction of the next scan (spinning LiDAR only; a cone keeps constant velocity). "images":
+    # the sweep's motion read from the images where it overruled the last step (deskew_motion "images": the
+    # start and end of turns), else KISS-ICP's own constant velocity, which at 80 km/h misses a turn's start
+    # by its whole rate (tuning lap 3001: one step 16 degrees off); its adaptive threshold still measures its
+    # own prediction's error, so the match distance and covariance stay as calibrated (chosen on tuning laps
+    # 3000-3001 and the validation drives, session 53, docs/benchmarks.md). "constant_velocity": KISS-ICP's
+    # own (before session 53)
     icp_guess: Literal["images", "constant_velocity"] = "images"
     # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's
     # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,

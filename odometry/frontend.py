@@ -95,9 +95,7 @@ class FrontEnd:
             depth, log_sigma = depth * self.depth_scale, log_sigma + np.log(self.depth_scale)
         feats = detect(image, cfg.n_features)
         cam_pts, lidar_cam = self._feature_points(feats, depth, sparse)
-        T_icp = self.icp.register(scan, guess=icp_guess) if self.icp is not None and scan is not None else None
-        if self.icp is not None and scan is None:  # KISS-ICP did not see this frame: no guess from it next time
-            self.icp.skipped_last = True
+        T_icp = self.icp.register(scan, guess=icp_guess) if self.icp is not None else None
         landmark = np.full(len(feats), -1, np.int64)
         observations: list[Observation] = []
         new_landmarks: dict[int, np.ndarray] = {}

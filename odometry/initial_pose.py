@@ -48,18 +48,19 @@ class LidarOdometry:
         self._fit: tuple | None = None  # the last registration's inputs, for `covariance` (computed on demand)
         self._covariance: np.ndarray | None = None
 
-    def register(self, points: np.ndarray, times: np.ndarray | None = None, guess: np.ndarray | None = None
+    def register(self, points: np.ndarray | None, times: np.ndarray | None = None, guess: np.ndarray | None = None
                  ) -> np.ndarray | None:
-        """Camera pose (camera to world) after registering this scan, or None when it has too few points.
-        `times` (one per point, any unit: KISS-ICP normalises them over the sweep) are used only with
-        `deskew=True`. `guess`: the camera's motion since the previous scan (pose of this camera in that one),
-        KISS-ICP's prediction in place of its constant velocity (which misses the start of a turn by the turn's
-        whole rate, further than its correspondence distance reaches); ignored after a skipped scan."""
-        xyz = np.ascontiguousarray(points[:, :3], np.float64)
+        """Camera pose (camera to world) after registering this scan, or None when it has too few points or
+        is None (the frame has no scan). `times` (one per point, any unit: KISS-ICP normalises them over the
+        sweep) are used only with `deskew=True`. `guess`: the camera's motion since the previous scan (pose of
+        this camera in that one), KISS-ICP's prediction in place of its constant velocity (which misses the start
+        of a turn by the turn's whole rate, further than its correspondence distance reaches); ignored after a
+        skipped scan."""
         self._fit, self._covariance = None, None
-        if len(xyz) < MIN_SCAN_POINTS:
+        if points is None or len(points) < MIN_SCAN_POINTS:
             self.skipped_last = True
             return None
+        xyz = np.ascontiguousarray(points[:, :3], np.float64)
         if self.spinning is None:
             self.spinning = is_spinning(xyz)
         timed = self.icp.config.data.deskew and times is not None and len(times) == len(xyz) and np.ptp(times) > 0
