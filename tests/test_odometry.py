@@ -372,7 +372,7 @@ def test_a_predicted_registration_keeps_kiss_icps_own_match_distance():
     """KISS-ICP's adaptive threshold sets the match distance that the registration covariance (what the graph
     weighs KISS-ICP's pose with, calibrated by `icp_cov_inflation`) is computed within. Predicting with the true
     motion must not shrink it: the threshold keeps measuring KISS-ICP's own constant-velocity error (learnt from
-    the good predictions it shrank 8-15x on a tuning lap and the graph then trusted KISS-ICP 2-4x more in turns
+    the good predictions it shrank 3-10x on a tuning lap and the graph then trusted KISS-ICP up to 5x more in turns
     than its errors there deserve). A weaving drive whose speed changes every frame: constant velocity is off by
     4 degrees and 0.8 m a step, yet converges; on these clean scans the covariances agree either way."""
     from odometry.initial_pose import LidarOdometry
