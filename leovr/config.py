@@ -183,6 +183,10 @@ class RefineConfig(FrameSelection):
     photometric_min_gain: float = Field(0.05, ge=0)
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
+    # the loop pose graph's odometry factors under a Cauchy kernel of this constant (in sigmas; null: Gaussian, as
+    # before session 54): a step the front end got grossly wrong gives way to the validated loops (Mid-40 tuning
+    # laps 3000-3003 with loops 1.975 / 0.476 / 0.598 / 0.635 -> 0.242 / 0.483 / 0.438 / 0.592 m; docs/benchmarks.md)
+    loop_odometry_cauchy: float | None = Field(1.0, gt=0)
     compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and KISS-ICP alone (`kiss_icp`, with LiDAR; always with ground-truth poses)
     vocabulary: str | None = None  # ORB vocabulary (.npz); None = the shipped one
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets

@@ -115,6 +115,34 @@ def test_pose_graph_pulls_a_drifted_loop_closed():
     assert err(fixed) < 0.5 * err(est)
 
 
+def test_pose_graph_lets_a_grossly_wrong_odometry_step_give_way_to_the_loops():
+    """A square lap of 48 poses, 2 m steps; the last 8 poses revisit the first 8 and their loops are measured
+    exactly; the odometry is exact but for one step 4 m off among the revisiting poses (a front-end failure in a
+    turn, as on Mid-40 tuning lap 3000, step 112 of 130). Trusted as a Gaussian, the bad step holds the loops
+    back and its error is spread over the lap; under the Cauchy kernel it gives way between the two loops that
+    pin its ends. (Far from every loop, LM from the odometry spreads it either way: a cycle alone cannot say
+    which step failed.)"""
+    n = 48
+    gt = [make_T(Rotation.from_euler("y", 90 * (k // 10), degrees=True).as_matrix()) for k in range(n)]
+    pos = np.zeros(3)
+    for k in range(n):  # 10 steps a side: pose 40 is back at pose 0, 41..47 follow 1..7
+        gt[k][:3, 3] = pos
+        pos = pos + gt[k][:3, :3] @ np.array([0, 0, 2.0])
+    est = [gt[0]]
+    for k in range(1, n):
+        step = np.linalg.inv(gt[k - 1]) @ gt[k]
+        if k == 44:
+            step = step @ make_T(np.eye(3), [3.0, 0, -2.6])  # 4 m off
+        est.append(est[-1] @ step)
+    est = np.stack(est)
+    loops = [(k, k - 40, np.linalg.inv(gt[k - 40]) @ gt[k]) for k in range(40, n)]
+    err = lambda P: float(np.mean([np.linalg.norm(P[k][:3, 3] - gt[k][:3, 3]) for k in range(n)]))  # noqa: E731
+    gaussian = optimise_pose_graph(est, loops, odo_cauchy=None)
+    robust = optimise_pose_graph(est, loops)
+    assert err(est) > 0.3  # only the 3 poses after the bad step are off
+    assert err(gaussian) > err(est)  # the Gaussian graph bends the whole lap towards the bad step
+    assert err(robust) < 0.01
+
 
 def test_consistent_loops_rejects_the_odd_one_out():
     """A run of loops measured from true poses agrees through the odometry; one measurement off by

@@ -36,7 +36,7 @@ def feature_points(feats, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, min_gap: int = 30,
-              vocabulary: str | Path | None = None) -> tuple[np.ndarray, list[dict], float]:
+              vocabulary: str | Path | None = None, odo_cauchy: float | None = 1.0) -> tuple[np.ndarray, list[dict], float]:
     """Detect, validate and close loops; returns (corrected poses, loop records, ms per query)."""
     voc = Vocabulary.load(vocabulary or shipped_vocabulary())
     det = LoopDetector(min_gap=min_gap)
@@ -66,7 +66,7 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
     for r, ok in zip(validated, keep):
         r["consistent"] = r["accepted"] = ok
     loops = [lp for lp, ok in zip(loops, keep) if ok]
-    corrected = optimise_pose_graph(poses, loops) if loops else poses
+    corrected = optimise_pose_graph(poses, loops, odo_cauchy=odo_cauchy) if loops else poses
     ms = 1000.0 * float(np.mean(t_query)) if t_query else 0.0
     write_text(run / "loops.json", json.dumps({"ms_per_query": ms, "vocabulary_words": voc.words, "loops": records}, indent=2) + "\n")
     return corrected, records, ms

@@ -514,7 +514,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         from leovr.pipeline.loops import loop_pass
 
         before = state.stacked("poses", indices)
-        corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary)
+        corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary, cfg.loop_odometry_cauchy)
         state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         move_poses(before, corrected)
     state.save(state_path)
