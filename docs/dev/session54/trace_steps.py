@@ -3,6 +3,7 @@
 that step after every window update while the frame is in the window, against the truth.
 
     .venv/bin/python docs/dev/session54/trace_steps.py SEQ --end N --frames 111 112 [--cfg '{"pair_factors": false}']
+        [--cv 112]   (frame 112's initial pose forced to constant velocity)
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ def main() -> None:
     ap.add_argument("--end", type=int, required=True)
     ap.add_argument("--frames", type=int, nargs="+", required=True)
     ap.add_argument("--cfg", default="{}")
+    ap.add_argument("--cv", type=int, nargs="*", default=[], help="frames whose initial pose is forced to constant velocity")
     a = ap.parse_args()
     seq = open_sequence(a.sequence)
     gt = {i: seq[i].T_world_cam for i in range(len(seq))}
@@ -52,6 +54,16 @@ def main() -> None:
         return out
 
     wg.WindowGraph.add_frame = traced
+    import odometry.frontend as fe
+    process, choose = fe.FrontEnd.process, fe.choose_pose
+    now = {}
+
+    def traced_process(self, index, *args, **kw):
+        now["i"] = index
+        return process(self, index, *args, **kw)
+
+    fe.FrontEnd.process = traced_process
+    fe.choose_pose = lambda *args, **kw: None if now.get("i") in a.cv else choose(*args, **kw)
     with tempfile.TemporaryDirectory() as tmp:
         run_refine(seq, RefineConfig(end=a.end, **json.loads(a.cfg)), Path(tmp) / "run", progress=False)
 
