@@ -411,3 +411,63 @@ def test_a_guess_after_a_skipped_scan_is_not_used(monkeypatch):
     assert predicted == [1]
     odo.register(scans[4], guess=steps[3])
     assert predicted == [1, 3]
+
+
+def _camera_step(yaw_deg: float, length_m: float, yaw_before_deg: float = 0.0) -> np.ndarray:
+    """A car's step in its camera frame (x right, y down, z forward): turning `yaw_deg` over the step, the chord
+    at half the turn; `yaw_before_deg` rotates it as seen from the camera one frame earlier."""
+    half = np.radians(yaw_before_deg + yaw_deg / 2)
+    return make_T(Rotation.from_rotvec([0, np.radians(yaw_deg), 0]).as_matrix(),
+                  [length_m * np.sin(half), 0.0, length_m * np.cos(half)])
+
+
+def test_the_step_gate_keeps_what_a_car_can_drive_and_drops_a_stop_within_a_frame():
+    from odometry.frontend import drivable
+
+    straight = _camera_step(0.0, 2.2)  # 80 km/h at 10 Hz
+    assert drivable(_camera_step(12.8, 2.2), straight, 0.2, 0.25)  # the first frame of a fast turn
+    assert drivable(_camera_step(0.0, 2.3), straight, 0.2, 0.25)  # 1 g of braking or acceleration: 0.1 m a frame
+    assert drivable(_camera_step(0.0, 0.02), _camera_step(0.0, 0.12), 0.2, 0.25)  # a crawl coming to a stop
+    assert not drivable(_camera_step(0.0, 0.0), straight, 0.2, 0.25)  # standing still within a frame
+    assert not drivable(_camera_step(180.0, 0.17), _camera_step(12.8, 1.5), 0.2, 0.25)  # reversing, as PnP had it
+
+
+def test_the_front_end_leaves_out_an_initial_pose_a_car_cannot_drive(tmp_path, monkeypatch):
+    """A rendered Mid-40 drive at 80 km/h whose PnP says the car stood still at frame 5: with the gate that
+    candidate never reaches the choice (the frame starts from KISS-ICP or constant velocity); without it, it
+    does. On every other frame the gate lets PnP's pose through (it is within centimetres of the truth)."""
+    import odometry.frontend as fe
+    from leovr.config import RefineConfig, SimulateConfig
+    from leovr.data import open_sequence
+    from leovr.pipeline.refine import run_refine
+    from leovr.sim.simulate import simulate
+
+    seq_dir = tmp_path / "seq"
+    simulate(SimulateConfig(scenario="straight", lidar="mid40", frames=7, seed=3001, speed_kmh=80.0), seq_dir, progress=False)
+    seq = open_sequence(seq_dir)
+    now, offered = {}, {}
+    real_process, real_pnp, real_choose = fe.FrontEnd.process, fe.pnp_pose, fe.choose_pose
+
+    def process(self, index, image, depth, log_sigma, sparse, scan, graph, **kw):
+        now["i"], now["prev"] = index, graph.pose(self.prev.index) if self.prev is not None else None
+        return real_process(self, index, image, depth, log_sigma, sparse, scan, graph, **kw)
+
+    def pnp(*a, **kw):
+        T, *rest = real_pnp(*a, **kw)
+        return (now["prev"].copy(), *rest) if now["i"] == 5 else (T, *rest)
+
+    def choose(cands, *a, **kw):
+        offered.setdefault(gate, {})[now["i"]] = sorted(k for k, T in cands.items() if T is not None)
+        return real_choose(cands, *a, **kw)
+
+    monkeypatch.setattr(fe.FrontEnd, "process", process)
+    monkeypatch.setattr(fe, "pnp_pose", pnp)
+    monkeypatch.setattr(fe, "choose_pose", choose)
+    sources = {}
+    for gate in (0.2, None):
+        cfg = RefineConfig(input="full", initial_step_gate_m=gate, pair_factors=False, photometric_field=False)
+        run_refine(seq, cfg, tmp_path / f"run_{gate}", progress=False)
+        sources[gate] = __import__("json").loads((tmp_path / f"run_{gate}" / "progress.json").read_text())["sources"]
+    assert "pnp" in offered[None][5] and "pnp" not in offered[0.2][5]
+    assert all("pnp" in offered[0.2][i] for i in (2, 3, 4, 6))
+    assert sources[0.2]["5"] != "pnp" and sources[0.2]["6"] == "pnp"
