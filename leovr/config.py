@@ -204,11 +204,6 @@ class RefineConfig(FrameSelection):
     assoc_radius_px: float = 5.0  # feature <-> projected LiDAR point (eq. 10)
     assoc_max_rel_spread: float = 0.1  # reject when depths within the radius spread more than this
     pnp_reproj_px: float = 2.0
-    # with LiDAR, an initial-pose candidate (PnP, KISS-ICP) whose step is further than this (m) + `_rel` x the last
-    # step's length from the window graph's last step is left out (a car cannot stop or reverse within a frame);
-    # none left: constant velocity. null: no gate (before session 54)
-    initial_step_gate_m: float | None = Field(0.2, gt=0)
-    initial_step_gate_rel: float = Field(0.25, ge=0)
     pixel_sigma: float = 1.0  # reprojection factor (eq. 8), Huber
     bearing_sigma_rad: float = 0.003  # LiDAR point factor (eq. 10)
     range_sigma_m: float = 0.1

@@ -1,6 +1,6 @@
 """The visual-LiDAR front end: per new frame, ORB features matched to the previous frame, LiDAR depth
-associated to features, an initial pose (KISS-ICP or PnP, by a reprojection quality test, among the
-candidates a car could have driven after its last step; else constant velocity), landmarks from consistent matches, and the trusted region for the depth factor: the convex
+associated to features, an initial pose (KISS-ICP or PnP, by a reprojection quality test, or constant
+velocity), landmarks from consistent matches, and the trusted region for the depth factor: the convex
 hull of the matches that agree with the camera motion (features on moving objects do not).
 
 Without LiDAR the initial pose is the epipolar one (`odometry.mono_motion`: essential matrix, step
@@ -49,7 +49,6 @@ class FrontEnd:
     prev: _Prev | None = None
     next_landmark: int = 0
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
-    prev_prev: int | None = None  # the frame before `prev`, while the window graph still holds its pose
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
     length_readings: dict[int, LengthReading | None] = field(default_factory=dict)  # camera only: per frame index
@@ -120,14 +119,9 @@ class FrontEnd:
                 T_init, source, odo_cov = self._camera_only_pose(step, T_prev, obj, img, p.feats.uv[ia], feats.uv[ib])
             else:
                 cands["pnp"] = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
-                last = self._last_step(graph)
-                gated = {k: T for k, T in cands.items() if T is None or last is None
-                         or drivable(invert_T(T_prev) @ T, last, cfg.initial_step_gate_m, cfg.initial_step_gate_rel)}
-                guess = choose_pose(gated, obj, img, self.K, cfg.pnp_reproj_px)
-                if guess is None or guess.inliers < 6 and "icp" not in gated:
-                    velocity = self.velocity if last is None else last
-                    T_init = T_prev @ velocity
-                    source = "constant_velocity" if len(gated) == len(cands) else "constant_velocity (step gate)"
+                guess = choose_pose(cands, obj, img, self.K, cfg.pnp_reproj_px)
+                if guess is None or guess.inliers < 6 and "icp" not in cands:
+                    T_init, source = T_prev @ self.velocity, "constant_velocity"
                 else:
                     T_init, source = guess.T_world_cam, guess.source
             T_rel = invert_T(T_prev) @ T_init
@@ -167,7 +161,6 @@ class FrontEnd:
             lv, lu = np.nonzero(sparse > 0)
             lidar_uvz = np.stack([lu, lv, sparse[lv, lu]], 1).astype(float)
         rel_sigma = np.exp(log_sigma) / np.maximum(depth, 1e-3)
-        self.prev_prev = self.prev.index if self.prev is not None else None
         self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
         icp_pose = None  # KISS-ICP as the graph's pose prior: spinning LiDARs only (a Mid-40 cone misleads it)
         if T_icp is not None and cfg.icp_prior != "off" and self.icp.spinning and self.icp.covariance is not None:
@@ -175,15 +168,6 @@ class FrontEnd:
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
                           trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
                           step.road_normal if step is not None else None, matches_prev=matches_prev)
-
-    def _last_step(self, graph: WindowGraph) -> np.ndarray | None:
-        """The window graph's current estimate of the last step (previous frame from the one before it), or
-        None where there is none (the first two frames, a gate switched off, a pose the window let go)."""
-        if self.cfg.initial_step_gate_m is None or self.prev is None or self.prev_prev is None:
-            return None
-        if self.prev_prev not in graph.poses or self.prev.index not in graph.poses:
-            return None
-        return invert_T(graph.pose(self.prev_prev)) @ graph.pose(self.prev.index)
 
     def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
                           uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:
@@ -234,16 +218,6 @@ def parallax_agrees(T_rel: np.ndarray, X0: np.ndarray, uv0: np.ndarray, uv1: np.
     judged = ahead & (predicted >= min_px)
     ratio = seen / np.maximum(predicted, 1e-9)
     return ~judged | ((ratio >= 1.0 / max_ratio) & (ratio <= max_ratio))
-
-
-def drivable(T_rel: np.ndarray, last: np.ndarray, tol_m: float, tol_rel: float) -> bool:
-    """Whether a candidate step could follow the last one: its translation within `tol_m` + `tol_rel` x the
-    last step's length of the last step's translation (both in the previous camera's frame). A car at 1 g
-    changes its step by 0.1 m a frame at 10 Hz, and the first frame of a 13-degree-a-frame turn turns a 2.2 m
-    step by about 0.3 m; a PnP pose that had the car stand still, or reverse, in the middle of such a turn (a
-    tuning lap, Mid-40, 80 km/h) did not."""
-    dev = float(np.linalg.norm(T_rel[:3, 3] - last[:3, 3]))
-    return dev <= tol_m + tol_rel * float(np.linalg.norm(last[:3, 3]))
 
 
 def epipolar_agrees(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float = 2.0,
