@@ -2,7 +2,7 @@
 `tools/loop_tuning_dev.py --keep DIR`): what limits the loop closure's ATE ratio.
 
 For each kept lap: ATE before / after the shipped pose graph, then the same graph with (a) the loops' measured
-relative poses replaced by the truth, (b) each odometry step's sigma set from its true error (an oracle weighting),
+relative poses replaced by the truth, (b) a Gaussian graph with each odometry step's sigma set from its true error (an oracle weighting),
 (c) both. Prints where the accepted loops are and the per-step error profile.
 
     .venv/bin/python docs/dev/session54/loop_oracle.py DIR
@@ -63,8 +63,8 @@ def main() -> None:
         orot, otr = np.maximum(rot_err, 2e-4), np.maximum(tr_err, 5e-3)
         print(f"{tag}: {len(before)} poses, {len(loops)} loops, frames i {sorted({i for i, _, _ in loops})}, "
               f"j {sorted({j for _, j, _ in loops})}")
-        print(f"  ATE no loops {ate(before):.3f}  shipped {ate(optimise_pose_graph(before, loops)):.3f}  "
-              f"true loops {ate(optimise_pose_graph(before, true_loops)):.3f}  "
+        print(f"  ATE no loops {ate(before):.3f}  as shipped (optimise_pose_graph defaults) {ate(optimise_pose_graph(before, loops)):.3f}  "
+              f"the same, true loops {ate(optimise_pose_graph(before, true_loops)):.3f}  "
               f"oracle sigmas {ate(graph(before, loops, orot, otr)):.3f}  both {ate(graph(before, true_loops, orot, otr)):.3f}  "
               f"oracle rot only {ate(graph(before, true_loops, orot, np.full(len(otr), 0.05))):.3f}")
         loop_err = [(np.degrees(np.linalg.norm(gtsam.Rot3((invert_T(T) @ Tt)[:3, :3]).ypr())), np.linalg.norm((invert_T(T) @ Tt)[:3, 3]))
