@@ -22,25 +22,14 @@ sys.path.insert(0, str(ROOT / "tools"))
 
 from leovr.eval.trajectory import trajectory_metrics  # noqa: E402
 from leovr.geometry import invert_T  # noqa: E402
-from odometry.loop.pose_graph import optimise_pose_graph  # noqa: E402
+from odometry.loop.pose_graph import build_pose_graph, diagonal, optimise_pose_graph, robust, solve_pose_graph  # noqa: E402
 from pose_graph_dev import lap_data  # noqa: E402
 
 
 def graph(poses, loops, sig_rot, sig_tr, loop_sigma=(0.02, 0.1)):
-    """Pose graph with per-step sigmas (arrays of len(poses) - 1)."""
-    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    lc = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
-                                        gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, loop_sigma[0]), np.full(3, loop_sigma[1])]))
-    g.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(poses[0]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
-    for k, T in enumerate(poses):
-        v.insert(k, gtsam.Pose3(T))
-        if k:
-            n = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, sig_rot[k - 1]), np.full(3, sig_tr[k - 1])])
-            g.add(gtsam.BetweenFactorPose3(k - 1, k, gtsam.Pose3(invert_T(poses[k - 1]) @ T), n))
-    for i, j, T_j_i in loops:
-        g.add(gtsam.BetweenFactorPose3(j, i, gtsam.Pose3(T_j_i), lc))
-    res = gtsam.LevenbergMarquardtOptimizer(g, v).optimize()
-    return np.stack([res.atPose3(k).matrix() for k in range(len(poses))])
+    """Gaussian pose graph with per-step sigmas (arrays of len(poses) - 1)."""
+    lc = robust(gtsam.noiseModel.mEstimator.Huber.Create(1.345), diagonal(*loop_sigma))
+    return solve_pose_graph(*build_pose_graph(poses, loops, lambda k: diagonal(sig_rot[k - 1], sig_tr[k - 1]), lc), len(poses))
 
 
 def main() -> None:

@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from leovr.eval.trajectory import trajectory_metrics  # noqa: E402
-from leovr.geometry import invert_T  # noqa: E402
+from odometry.loop.pose_graph import build_pose_graph, diagonal, robust, solve_pose_graph  # noqa: E402
 from pose_graph_dev import lap_data  # noqa: E402
 
 M = gtsam.noiseModel.mEstimator
@@ -39,20 +39,9 @@ VARIANTS = {  # name: (kernel, constant, odometry sigmas rad / m)
 
 
 def solve(poses, loops, kernel, c, odo, loop_sigma=(0.02, 0.1)) -> np.ndarray:
-    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    base = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, odo[0]), np.full(3, odo[1])])
-    odo_n = base if kernel is None else gtsam.noiseModel.Robust.Create(kernel.Create(c), base)
-    lc = gtsam.noiseModel.Robust.Create(M.Huber.Create(1.345),
-                                        gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, loop_sigma[0]), np.full(3, loop_sigma[1])]))
-    g.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(poses[0]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
-    for k, T in enumerate(poses):
-        v.insert(k, gtsam.Pose3(T))
-        if k:
-            g.add(gtsam.BetweenFactorPose3(k - 1, k, gtsam.Pose3(invert_T(poses[k - 1]) @ T), odo_n))
-    for i, j, T in loops:
-        g.add(gtsam.BetweenFactorPose3(j, i, gtsam.Pose3(T), lc))
-    res = gtsam.LevenbergMarquardtOptimizer(g, v).optimize()
-    return np.stack([res.atPose3(k).matrix() for k in range(len(poses))])
+    odo_n = robust(None if kernel is None else kernel.Create(c), diagonal(*odo))
+    lc = robust(M.Huber.Create(1.345), diagonal(*loop_sigma))
+    return solve_pose_graph(*build_pose_graph(poses, loops, lambda k: odo_n, lc), len(poses))
 
 
 def main() -> None:
