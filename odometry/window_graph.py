@@ -94,6 +94,18 @@ class _Pair:
     trusted_uv: tuple[np.ndarray, np.ndarray]
 
 
+def lm_params(cfg: RefineConfig) -> gtsam.LevenbergMarquardtParams:
+    """The smoother's Levenberg-Marquardt settings: `lm_iterations` iterations, and a step that does not lower
+    the error is retried with more damping only while lambda stays under `lm_lambda_upper_bound`. gtsam's batch
+    smoother never lets lambda fall below 1e-10, so the default cap of 1e-10 ends the update at the first step
+    that fails (the window is converged) instead of solving it again up to 4 times at damping too small to change
+    the step."""
+    lm = gtsam.LevenbergMarquardtParams()
+    lm.setMaxIterations(cfg.lm_iterations)
+    lm.setlambdaUpperBound(cfg.lm_lambda_upper_bound)
+    return lm
+
+
 @dataclass
 class WindowGraph:
     cfg: RefineConfig
@@ -102,10 +114,7 @@ class WindowGraph:
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
 
     def __post_init__(self) -> None:
-        lm = gtsam.LevenbergMarquardtParams()
-        lm.setMaxIterations(self.cfg.lm_iterations)
-        lm.setlambdaUpperBound(self.cfg.lm_lambda_upper_bound)
-        self.smoother = gtsam.BatchFixedLagSmoother(self.cfg.window - 0.5, lm)
+        self.smoother = gtsam.BatchFixedLagSmoother(self.cfg.window - 0.5, lm_params(self.cfg))
         self.grid = CorrectionGrid(self.cfg.grid_rows, self.cfg.grid_cols, *self.shape)
         self.cal = gtsam.Cal3_S2(self.K[0, 0], self.K[1, 1], 0.0, self.K[0, 2], self.K[1, 2])
         self.depths: dict[int, FrameDepth] = {}

@@ -411,3 +411,39 @@ def test_a_guess_after_a_skipped_scan_is_not_used(monkeypatch):
     assert predicted == [1]
     odo.register(scans[4], guess=steps[3])
     assert predicted == [1, 3]
+
+
+def _failed_step_solves(cap: float) -> tuple[int, float]:
+    """Linear solves of one smoother update whose Gauss-Newton step raises the error (a Jacobian 0.4x the
+    residual's slope: the step overshoots 2.5x), and the estimate it leaves."""
+    import gtsam
+
+    from leovr.config import RefineConfig
+    from odometry.window_graph import lm_params
+
+    key = gtsam.symbol("c", 0)
+
+    def residual(this, values, H):
+        if H is not None:
+            H[0] = np.array([[0.4]])
+        return values.atVector(key) - 1.0
+
+    smoother = gtsam.BatchFixedLagSmoother(10.0, lm_params(RefineConfig(lm_lambda_upper_bound=cap)))
+    graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap()
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [key], residual))
+    values.insert(key, np.array([0.0]))
+    stamps.insert((key, 0.0))
+    result = smoother.update(graph, values, stamps)
+    return result.getIntermediateSteps(), float(smoother.calculateEstimate().atVector(key)[0])
+
+
+def test_a_step_that_raises_the_error_ends_the_update_without_retries():
+    """The default LM cap: a failed step is not solved again at a damping too small to change it (those
+    retries were the graph's slowest frames, issue 17); a cap of 1e-2 retries it 3 times, to the same end."""
+    from leovr.config import RefineConfig
+
+    assert RefineConfig().lm_lambda_upper_bound <= 1e-10
+    solves, x = _failed_step_solves(RefineConfig().lm_lambda_upper_bound)
+    assert solves == 1 and x == 0.0
+    solves_old, x_old = _failed_step_solves(1e-2)
+    assert solves_old == 4 and x_old == x
