@@ -193,12 +193,12 @@ class RefineConfig(FrameSelection):
     grid_cols: int = Field(14, ge=2)
     lm_iterations: int = Field(3, ge=1)  # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
     # LM retries a step that does not lower the error with 10x the damping only while lambda is under this cap.
-    # 1e-10 (gtsam's batch smoother never goes lower): no retry, the update ends there (the window has converged;
-    # at lambda <= 1e-4 the retried step is the same step). Issue 17, session 55: with the cap at 1e-4 the third
-    # iteration of 1 update in 5 failed and was solved 3 more times, which made the graph's slowest frames (200-frame
-    # development drive, one thread: p95 / median 1.54 -> 1.24); the six validation drives' MAE and ATE are unchanged
-    # to 4 digits, camera only ATE 0.056 / 0.026 / 0.029 -> 0.056 / 0.012 / 0.027 m (docs/benchmarks.md). Session 36
-    # had cut the cap from 1e-2 (11 retries) to 1e-4 the same way.
+    # 1e-10 (gtsam's batch smoother never goes lower): no retry, the update ends there (the window has converged).
+    # Issue 17, session 55: with the cap at 1e-4 the third iteration of 1 update in 5 failed and was solved up to 3
+    # more times, which made the graph's slowest frames (200-frame development drive, one thread: p95 / median
+    # 1.54 -> 1.24). With a LiDAR no retry changed a result (six validation drives, MAE and ATE to 4 digits); camera
+    # only, where retries sometimes took a step, every development clip's ATE is better or level without them
+    # (docs/benchmarks.md, "Refinement speed", session 55). Session 36 had cut the cap from 1e-2 the same way.
     lm_lambda_upper_bound: float = Field(1e-10, gt=0)
     # a frame leaving the window: its observations of landmarks that stay become factors on those landmarks alone
     # (conditioned on its pose); marginalised, they tied all those landmarks in one dense factor (issue 17)

@@ -98,8 +98,7 @@ def lm_params(cfg: RefineConfig) -> gtsam.LevenbergMarquardtParams:
     """The smoother's Levenberg-Marquardt settings: `lm_iterations` iterations, and a step that does not lower
     the error is retried with more damping only while lambda stays under `lm_lambda_upper_bound`. gtsam's batch
     smoother never lets lambda fall below 1e-10, so the default cap of 1e-10 ends the update at the first step
-    that fails (the window is converged) instead of solving it again up to 4 times at damping too small to change
-    the step."""
+    that fails (the window is converged) instead of solving it again at damping that barely changes the step."""
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(cfg.lm_iterations)
     lm.setlambdaUpperBound(cfg.lm_lambda_upper_bound)
