@@ -196,9 +196,10 @@ class RefineConfig(FrameSelection):
     # 1e-10 (gtsam's batch smoother never goes lower): no retry, the update ends there (the window has converged).
     # Issue 17, session 55: with the cap at 1e-4 the third iteration of 1 update in 5 failed and was solved up to 3
     # more times, which made the graph's slowest frames (200-frame development drive, one thread: p95 / median
-    # 1.57 -> 1.19, MAE and ATE identical). With a LiDAR no retry changed a result (six validation drives, MAE and ATE to 4 digits); camera
-    # only, where retries sometimes took a step, every development clip's ATE is better or level without them
-    # (docs/benchmarks.md, "Refinement speed", session 55). Session 36 had cut the cap from 1e-2 the same way.
+    # 1.57 -> 1.19, MAE and ATE identical). With a LiDAR no retry changed a result (six validation drives, MAE and
+    # ATE to 4 digits); camera only, where retries sometimes took a step, every development clip's ATE is better or
+    # level without them (docs/benchmarks.md, "Refinement speed", session 55). Session 36 had cut the cap from 1e-2
+    # the same way.
     lm_lambda_upper_bound: float = Field(1e-10, gt=0)
     # a frame leaving the window: its observations of landmarks that stay become factors on those landmarks alone
     # (conditioned on its pose); marginalised, they tied all those landmarks in one dense factor (issue 17)

@@ -38,6 +38,7 @@ def build_pose_graph(poses: np.ndarray, loops: list[tuple[int, int, np.ndarray]]
 
 
 def solve_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int) -> np.ndarray:
+    """Levenberg-Marquardt from `values`; the n poses (keys 0..n-1) as n x 4 x 4 camera-to-world."""
     res = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     return np.stack([res.atPose3(k).matrix() for k in range(n)])
 
