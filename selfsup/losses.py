@@ -60,6 +60,13 @@ def feature_point_loss(depth: torch.Tensor, feature_depth: torch.Tensor, kind: s
     return masked_mean(depth_target_error(depth, feature_depth, kind), feature_depth > 0)
 
 
+def sparse_depth_loss(depth: torch.Tensor, sparse: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:
+    """Sparse depth reconstruction (unsupervised depth completion, e.g. all-day-depth-completion Sec. II):
+    error to the LiDAR input itself at its returns (sparse > 0). It also holds the pixels that no
+    photometric mask keeps, such as a mover's, where the LiDAR sees them."""
+    return masked_mean(depth_target_error(depth, sparse, kind), sparse > 0)
+
+
 def refined_depth_loss(depth: torch.Tensor, refined: torch.Tensor, use: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:
     """Eq. 21: error to the graph's refined depth, only on frames whose refined depth agreed
     with the landmarks (`use`, B bools)."""

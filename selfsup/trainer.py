@@ -42,12 +42,13 @@ from selfsup.losses import (
     photometric_error,
     photometric_loss,
     refined_depth_loss,
+    sparse_depth_loss,
     second_order_smoothness,
 )
 from selfsup.supervision import build_supervision, graph_pass, train_frames
 from selfsup.warp import warp_image
 
-TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "mask_kept", "refined_used")
+TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "sparse", "mask_kept", "refined_used")
 
 
 def init_epochs(cfg: SelfSupConfig) -> int:
@@ -99,12 +100,14 @@ def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: 
     use_r = refine_stage and cfg.weight_refined > 0 and bool(b["use_refined"].any())
     lr = refined_depth_loss(depth, b["refined"], b["use_refined"], cfg.target_loss) if use_r else depth.new_zeros(())
     ls = second_order_smoothness(depth, img) if cfg.weight_smooth > 0 else depth.new_zeros(())
+    lz = sparse_depth_loss(depth, b["sparse"], cfg.target_loss) if cfg.weight_sparse > 0 else depth.new_zeros(())
     nll = depth.new_zeros(())
     if cfg.weight_nll > 0 and log_sigma is not None:
         nll = gaussian_nll(depth.detach(), log_sigma, b["feature_depth"], (b["feature_depth"] > 0).to(depth.dtype))
-    loss = lp + cfg.weight_feature * lf + cfg.weight_refined * lr + cfg.weight_smooth * ls + cfg.weight_nll * nll
+    loss = (lp + cfg.weight_feature * lf + cfg.weight_refined * lr + cfg.weight_smooth * ls + cfg.weight_nll * nll
+            + cfg.weight_sparse * lz)
     terms = {"loss": loss.item(), "photometric": lp.item(), "feature": lf.item(), "refined": lr.item(),
-             "smooth": ls.item(), "nll": nll.item(), "mask_kept": float(torch.cat(masks).float().mean()),
+             "smooth": ls.item(), "nll": nll.item(), "sparse": lz.item(), "mask_kept": float(torch.cat(masks).float().mean()),
              "refined_used": float(b["use_refined"].float().mean()) if refine_stage else 0.0}
     return loss, terms, {"warped_prev": warped[0], "mask_prev": masks[0]}
 

@@ -26,6 +26,7 @@ from selfsup.losses import (
     photometric_error,
     refined_depth_loss,
     second_order_smoothness,
+    sparse_depth_loss,
 )
 from selfsup.supervision import TrainFrame, landmark_depth, refined_agrees
 from selfsup.warp import warp_image
@@ -82,6 +83,19 @@ def test_photometric_error_and_depth_terms():
     step[..., 15:] = 20.0
     flat = torch.zeros_like(a)
     assert second_order_smoothness(ramp, flat).item() < 1e-5 < second_order_smoothness(step, flat).item()
+
+
+def test_sparse_depth_term_pulls_only_the_returns_towards_the_lidar():
+    depth = torch.full((1, 1, 8, 8), 10.0, requires_grad=True)
+    sparse = torch.zeros(1, 1, 8, 8)
+    sparse[0, 0, 2, 3], sparse[0, 0, 6, 1] = 20.0, 5.0
+    loss = sparse_depth_loss(depth, sparse)
+    assert loss.item() == pytest.approx(np.log(2.0))
+    loss.backward()
+    g = depth.grad[0, 0]
+    assert g[2, 3] < 0 < g[6, 1]  # a step against the gradient moves each return's depth towards its LiDAR depth
+    g[2, 3] = g[6, 1] = 0.0
+    assert g.abs().max() == 0.0  # and no other pixel
 
 
 def test_fundamental_matrix_and_epipolar_distance():
