@@ -234,6 +234,9 @@ class RefineConfig(FrameSelection):
     # frame (metres; 0.005 at 10 Hz is 0.5 m/s^2; chosen on the development clips, tools/step_length_dev.py)
     mono_length_smoothing: bool = True
     mono_length_change_sigma_m: float = Field(0.005, gt=0)
+    # ... then each step's direction of travel across the car's up axis from a rigid vehicle (the camera at a fitted
+    # offset from a point that moves along its chord; odometry/vehicle_motion.py), fitted over the whole recording
+    mono_vehicle_directions: bool = True
     mono_odometry_sigma_rad: float = 0.005  # no LiDAR: the epipolar motion's weight in the graph
     mono_odometry_sigma_rel: float = 0.05  # no LiDAR: its translation sigma per metre of step
     # no LiDAR: the camera's height above the road (m); the road plane then gives the metric scale and
