@@ -11,7 +11,10 @@ matrix gives far better than the direction itself (the epipole of forward motion
 development drives the direction is off by about 1 degree a step, and with the reference's directions the
 trajectory error falls 1.5-4x). Only the component across the car's up axis is taken from the model; the one
 along it stays measured, because the body pitches on its suspension and the road's slope changes, which a rigid
-model does not see. Session 51 tried m = 0 (the camera over the axle): the city loop lost 5x."""
+model does not see. Session 51 tried m = 0 (the camera over the axle): the city loop lost 5x.
+
+Off by default (`refine.mono_vehicle_directions`): better or level on all six development clips, but on the real
+KITTI odometry clip the ATE rose 0.059 -> 0.068 m while the RPE fell (docs/benchmarks.md, session 56)."""
 
 from __future__ import annotations
 
