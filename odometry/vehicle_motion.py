@@ -38,7 +38,16 @@ class VehicleModel:
 
 
 def _half(R: np.ndarray) -> np.ndarray:
+    """Half of each rotation of a stack (N x 3 x 3)."""
     return Rotation.from_rotvec(0.5 * Rotation.from_matrix(R).as_rotvec()).as_matrix()
+
+
+def vehicle_directions(poses: np.ndarray) -> np.ndarray:
+    """Camera-to-world poses (F x 4 x 4) with each step's direction across the car's up axis from the vehicle
+    model fitted to their own steps; the poses as they are where too few steps move (`fit_vehicle`)."""
+    steps = invert_T(poses[:-1]) @ poses[1:]
+    model = fit_vehicle(steps)
+    return poses if model is None else _redirect(poses[0], steps, model)
 
 
 def fit_vehicle(steps: np.ndarray, min_step_m: float = 0.05, huber_m: float = 0.02, offset_sigma_m: float = 2.0,
@@ -53,7 +62,7 @@ def fit_vehicle(steps: np.ndarray, min_step_m: float = 0.05, huber_m: float = 0.
     if len(use) < 5:
         return None
     R = steps[use, :3, :3]
-    half = np.stack([_half(r) for r in R])
+    half = _half(R)
     b = steps[use, :3, 3].reshape(-1)
     prior = np.hstack([np.zeros((3, 3)), np.eye(3) * huber_m / offset_sigma_m])
     s, w = L[use], np.ones(len(b))
@@ -89,9 +98,14 @@ def _up_axis(R: np.ndarray, f: np.ndarray, min_turn_deg: float = 0.5) -> np.ndar
 def redirect_steps(poses: np.ndarray, model: VehicleModel) -> np.ndarray:
     """Camera-to-world poses (F x 4 x 4) whose steps keep their rotation, length and the component of their
     direction along the car's up axis, and take the component across it from the vehicle model."""
-    steps = np.stack([invert_T(a) @ b for a, b in zip(poses[:-1], poses[1:])])
+    return _redirect(poses[0], invert_T(poses[:-1]) @ poses[1:], model)
+
+
+def _redirect(first: np.ndarray, steps: np.ndarray, model: VehicleModel) -> np.ndarray:
+    """The poses chained from `first` through `steps` (F-1 x 4 x 4), each step redirected as `redirect_steps` says."""
+    steps = steps.copy()
     L = np.linalg.norm(steps[:, :3, 3], axis=1)
-    a = np.stack([_half(s[:3, :3]) for s in steps]) @ model.forward
+    a = _half(steps[:, :3, :3]) @ model.forward
     I_minus_R = np.eye(3)[None] - steps[:, :3, :3]
     t_model = _axle_lengths(a, I_minus_R, model.offset, L)[:, None] * a + I_minus_R @ model.offset
     u = model.up
@@ -101,7 +115,7 @@ def redirect_steps(poses: np.ndarray, model: VehicleModel) -> np.ndarray:
     v /= np.maximum(np.linalg.norm(v, axis=1), 1e-12)[:, None]
     moving = L > 1e-9
     steps[moving, :3, 3] = L[moving, None] * v[moving]
-    out = [poses[0]]
+    out = [first]
     for s in steps:
         out.append(out[-1] @ s)
     return np.stack(out)

@@ -510,7 +510,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         before = state.stacked("poses", indices)
         state.poses_window = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         after = smoothed_step_lengths(before, indices, front.length_readings, cfg)
-        if cfg.mono_vehicle_directions:
+        if cfg.mono_vehicle_directions:  # off by default: worse on the real KITTI odometry clip (session 56)
+            from odometry.vehicle_motion import vehicle_directions
+
             after = vehicle_directions(after)
         move_poses(before, after)
     if cfg.loop_closure:
@@ -545,15 +547,6 @@ def smoothed_step_lengths(poses: np.ndarray, indices: list[int], readings: dict,
 
     chain = [readings.get(i) for i in indices[1:]]
     return rescale_steps(poses, np.exp(smooth_log_lengths(chain, cfg.mono_length_change_sigma_m)))
-
-
-def vehicle_directions(poses: np.ndarray) -> np.ndarray:
-    """Camera only: each step's direction of travel across the car's up axis from a rigid vehicle model fitted
-    over the whole recording (`odometry.vehicle_motion`); the poses as they are where too few steps move."""
-    from odometry.vehicle_motion import fit_vehicle, redirect_steps
-
-    model = fit_vehicle(np.stack([invert_T(a) @ b for a, b in zip(poses[:-1], poses[1:])]))
-    return poses if model is None else redirect_steps(poses, model)
 
 
 def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
