@@ -236,7 +236,7 @@ class RefineConfig(FrameSelection):
     mono_length_change_sigma_m: float = Field(0.005, gt=0)
     # ... then each step's direction of travel across the car's up axis from a rigid vehicle (the camera at a fitted
     # offset from a point that moves along its chord; odometry/vehicle_motion.py), fitted over the whole recording.
-    # Off: better or level on all six development clips (simulator turns 16-54 %), but on the real KITTI odometry
+    # Off: better or level on all six development clips (simulator turns 12-54 %), but on the real KITTI odometry
     # clip the ATE rose 0.059 -> 0.068 m (RPE fell 0.022 -> 0.017); docs/benchmarks.md, session 56
     mono_vehicle_directions: bool = False
     mono_odometry_sigma_rad: float = 0.005  # no LiDAR: the epipolar motion's weight in the graph
