@@ -438,7 +438,7 @@ def bench_selfsup(
         if f"{k}_mae_m" in r:
             typer.echo(f"{k:18s} MAE {r[f'{k}_mae_m']:.3f} m")
     for k, v in r.get("traffic_only", {}).items():
-        typer.echo(f"traffic {k:18s} {'MAE' if k.startswith('selfsup') else '   '} {v:.3f}")
+        typer.echo(f"traffic {k:19s} {'MAE' if k.startswith('selfsup') else '   '} {v:.3f}")
     for stage in ("mask_quality", "mask_quality_refine"):
         for k, v in r.get(stage, {}).items():
             if isinstance(v, dict):

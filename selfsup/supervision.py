@@ -201,8 +201,11 @@ def keep_mask(t: PairKeep, cfg: SelfSupConfig) -> np.ndarray:
 
 
 def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSupConfig, with_refined: bool,
-                      mask_dir: Path | None = None) -> Supervision:
-    """Per-frame targets from a graph pass; masks are written as PNGs to `mask_dir` for inspection."""
+                      mask_dir: Path | None = None, moving: list[np.ndarray] | None = None) -> Supervision:
+    """Per-frame targets from a graph pass; masks are written as PNGs to `mask_dir` for inspection.
+
+    `moving` (a bound for benchmarks, never a method): each frame's true moving mask at the training
+    resolution; the photometric mask is then exactly its complement, in place of every configured test."""
     n = len(frames)
     keep = graph.landmark_lidar if cfg.landmarks_lidar_only else np.ones(len(graph.landmarks), bool)
     fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
@@ -219,13 +222,14 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
             use[k] = refined_agrees(refined[k], fdepth[k], cfg.refined_agree_rel)
     prev: list[np.ndarray | None] = [None] * n
     nxt: list[np.ndarray | None] = [None] * n
-    if cfg.flow_mask or cfg.rigid_mask or cfg.depth_mask:
+    if moving is not None or cfg.flow_mask or cfg.rigid_mask or cfg.depth_mask:
         if mask_dir is not None:
             mask_dir.mkdir(parents=True, exist_ok=True)
         for k in range(n):
             for j, store, tag in ((k - 1, prev, "prev"), (k + 1, nxt, "next")):
                 if 0 <= j < n:
-                    store[k] = keep_mask(pair_tests(frames, graph.poses, rigid_depth, cfg, k, j), cfg)
+                    store[k] = (~moving[k] if moving is not None
+                                else keep_mask(pair_tests(frames, graph.poses, rigid_depth, cfg, k, j), cfg))
                     if mask_dir is not None:
                         cv2.imwrite(str(mask_dir / f"{frames[k].index:06d}_{tag}.png"), store[k].astype(np.uint8) * 255)
     return Supervision(graph.poses, fdepth, refined, use, prev, nxt)

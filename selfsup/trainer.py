@@ -19,6 +19,7 @@ import json
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 import torch.distributed as dist
@@ -45,7 +46,7 @@ from selfsup.losses import (
     sparse_depth_loss,
     second_order_smoothness,
 )
-from selfsup.supervision import build_supervision, graph_pass, train_frames
+from selfsup.supervision import TrainFrame, build_supervision, graph_pass, train_frames
 from selfsup.warp import warp_image
 
 TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "sparse", "mask_kept", "refined_used")
@@ -159,13 +160,28 @@ def _append_logs(out: Path, record: dict) -> None:
 
 @single_threaded_blas
 def train_selfsup(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
-                  rerun: Path | None = None) -> dict:
-    """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0)."""
-    return fit(cfg, sequences, out, resume, progress, rerun)[0]
+                  rerun: Path | None = None, oracle_masks: bool = False) -> dict:
+    """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0).
+
+    `oracle_masks`: a bound for benchmarks on rendered sequences, not a method. The photometric mask is the
+    simulator's moving mask (ground truth), in place of eq. 19 and every other test."""
+    return fit(cfg, sequences, out, resume, progress, rerun, oracle_masks)[0]
+
+
+def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarray]:
+    """The true moving mask of each training frame, at its training resolution (ground truth: bounds only)."""
+    out = []
+    for f in frames:
+        m = seq.base[f.index].moving_mask
+        if m is None:
+            raise DataError(seq.path, f"frame {f.index} has no moving mask; oracle masks need a rendered sequence")
+        h, w = f.sparse.shape
+        out.append(cv2.resize(m.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0)
+    return out
 
 
 def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
-        rerun: Path | None = None) -> tuple[dict, DepthGenerator]:
+        rerun: Path | None = None, oracle_masks: bool = False) -> tuple[dict, DepthGenerator]:
     """`train_selfsup`, also returning this process's model."""
     if not sequences:
         raise DataError("sequences", "self-supervised training needs at least one sequence folder")
@@ -176,6 +192,7 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
     np.random.seed(cfg.seed)
     seqs = [BlindSequence(open_sequence(p)) for p in sequences]
     frames = [train_frames(s, cfg) for s in seqs]
+    moving = [oracle_moving(s, f) for s, f in zip(seqs, frames)] if oracle_masks else [None] * len(seqs)
     model = DepthGenerator(generator_config(cfg))
     if cfg.init_checkpoint and not resume:
         init_from(model, Path(cfg.init_checkpoint))
@@ -210,8 +227,8 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
                   for k, s in enumerate(seqs)]
         if rank == 0:
             barrier(world)
-        sup = [build_supervision(frames[k], g, cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None)
-               for k, g in enumerate(graphs)]
+        sup = [build_supervision(frames[k], g, cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None,
+                                 moving[k]) for k, g in enumerate(graphs)]
         if dataset is None:
             return SelfSupSamples(frames, sup)
         dataset.set_supervision(sup)

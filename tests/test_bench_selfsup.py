@@ -19,7 +19,7 @@ def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
     r = doc["results"]
     assert doc["quick"] and doc["parts"] == ["synthetic", "traffic"] and "kitti_raw" not in r
     assert all(r[f"{k}_mae_m"] > 0 for k in ("untrained", "selfsup", "selfsup_nomask", "supervised"))
-    assert {"selfsup", "selfsup_nomask", "selfsup_eq19_only", "mask_gain"} <= set(r["traffic_only"])
+    assert {"selfsup", "selfsup_nomask", "selfsup_eq19_only", "selfsup_oracle_mask", "mask_gain", "oracle_mask_gain"} <= set(r["traffic_only"])
     assert doc["traffic_test_sequences"] and all("traffic" in p for p in doc["traffic_test_sequences"])
     for stage in ("mask_quality", "mask_quality_refine"):
         q = r[stage]

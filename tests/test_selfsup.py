@@ -224,6 +224,28 @@ def test_blind_sequence_hides_ground_truth(dynamic_seq):
     assert f.points is not None and f.image.shape == seq[0].image.shape
 
 
+def test_oracle_masks_are_the_true_moving_mask_at_training_resolution(dynamic_seq):
+    """The benchmark's bound (`train_selfsup(oracle_masks=True)`): each frame's photometric mask is exactly the
+    complement of the simulator's moving mask, resampled to the training resolution, in place of every test
+    (the config here switches them all off, so without the oracle there would be no mask at all)."""
+    from selfsup.supervision import GraphResult, build_supervision, train_frames
+    from selfsup.trainer import oracle_moving
+
+    seq = BlindSequence(open_sequence(dynamic_seq))
+    cfg = SelfSupConfig(**{**TINY, "max_frames": 4, "flow_mask": False, "rigid_mask": False, "auto_mask": False})
+    frames = train_frames(seq, cfg)
+    moving = oracle_moving(seq, frames)
+    h, w = frames[0].sparse.shape
+    truth = seq.base[1].moving_mask
+    assert moving[1].shape == (h, w) and truth.shape != (h, w) and truth.any()
+    assert abs(moving[1].mean() - truth.mean()) < 0.01  # the same share of moving pixels after resampling
+    graph = GraphResult(np.stack([np.eye(4)] * 4), list(range(4)), np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, bool), Path("-"))
+    sup = build_supervision(frames, graph, cfg, False, moving=moving)
+    assert np.array_equal(sup.mask_prev[1], ~moving[1]) and np.array_equal(sup.mask_next[1], ~moving[1])
+    assert sup.mask_prev[0] is None and sup.mask_next[3] is None
+    assert build_supervision(frames, graph, cfg, False).mask_prev[1] is None  # no oracle, no test: no mask
+
+
 def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
     """torchrun with two CPU processes (gloo): after training, both ranks hold the same weights."""
     worker = tmp_path / "worker.py"

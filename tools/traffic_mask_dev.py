@@ -4,11 +4,12 @@ the test seeds that `leovr bench selfsup` reports. MAE is given on all pixels an
 and static ones (the simulator's moving masks).
 
     .venv/bin/python tools/traffic_mask_dev.py NAME [--set rigid_mask=false --set auto_mask=false] [--epochs 24]
-    .venv/bin/python tools/traffic_mask_dev.py oracle --oracle --set rigid_mask=false --set auto_mask=false
+    .venv/bin/python tools/traffic_mask_dev.py oracle --oracle --set flow_mask=false --set rigid_mask=false --set auto_mask=false
 
 Runs go to runs/traffic_mask_dev/NAME (resumed with the same settings); the network-free
 initialisation graph pass is shared between runs. `--oracle` is a bound, not a method: the photometric
-mask is the simulator's moving mask (ground truth, read by this tool only), in place of eq. 19.
+mask is the simulator's moving mask (ground truth; `selfsup.trainer.train_selfsup(oracle_masks=True)`), in place of
+every configured test.
 """
 
 from __future__ import annotations
@@ -19,12 +20,9 @@ import shutil
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import yaml
 
-import selfsup.supervision as supervision
-import selfsup.trainer as trainer
 from leovr.bench.selfsup import base_config, pick_sequences, score, train_run
 from leovr.config import BenchSelfSupConfig, CompleteConfig
 from leovr.data import open_sequence
@@ -32,7 +30,6 @@ from leovr.data.sequence import Sequence
 from leovr.depth.inference import load_generator, predict_at_focal
 from leovr.pipeline.completion import prepare_sample
 from leovr.sim.dataset import RECIPES, make_dataset
-from selfsup.motion_mask import PairKeep
 
 
 def moving_static_mae(model, seqs: list[Sequence], focal_px: float) -> dict[str, float]:
@@ -49,25 +46,6 @@ def moving_static_mae(model, seqs: list[Sequence], focal_px: float) -> dict[str,
     return {f"mae_{k}_m": float(np.concatenate(v).mean()) if sum(e.size for e in v) else None for k, v in errors.items()}
 
 
-def use_oracle_masks() -> None:
-    """The trainer's eq. 19 mask replaced by the simulator's moving mask (a development bound only)."""
-    frames_of = supervision.train_frames
-
-    def train_frames(seq, cfg):
-        frames = frames_of(seq, cfg)
-        for f in frames:
-            m = seq.base[f.index].moving_mask.astype(np.uint8)  # under the BlindSequence: ground truth
-            f.moving = cv2.resize(m, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
-        return frames
-
-    def pair_tests(frames, poses, depth, cfg, k, j):
-        keep = np.ones(frames[k].sparse.shape, bool)
-        return PairKeep(keep, ~frames[k].moving, keep, keep)
-
-    trainer.train_frames = train_frames
-    supervision.pair_tests = pair_tests
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("name")
@@ -76,16 +54,12 @@ def main() -> None:
     ap.add_argument("--runs", type=Path, default=Path("runs/traffic_mask_dev"))
     ap.add_argument("--oracle", action="store_true", help="bound: the simulator's moving masks as the photometric mask")
     args = ap.parse_args()
-    if args.oracle:
-        use_oracle_masks()
     bench = BenchSelfSupConfig()
     root = make_dataset(RECIPES["traffic"], progress=False)
     train = pick_sequences(root, "train", bench, bench.traffic_sequences, ["traffic"])
     val = [open_sequence(p) for p in pick_sequences(root, "val", bench, 1, ["traffic"])]
     overrides = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}
     cfg = base_config(bench, args.epochs, **overrides)
-    if args.oracle and not cfg.flow_mask:
-        ap.error("--oracle replaces eq. 19's mask: it needs flow_mask=true")
     run = args.runs / args.name
     marker = run / "oracle.json"  # --oracle is not part of the config: a run is resumed only the same way
     started = json.loads(marker.read_text())["oracle"] if marker.is_file() else False
@@ -94,7 +68,8 @@ def main() -> None:
     run.mkdir(parents=True, exist_ok=True)
     marker.write_text(json.dumps({"oracle": args.oracle}) + "\n")
     t0 = time.time()
-    train_run(cfg, train, run, progress=False, share_init=args.runs / "_init" if (args.runs / "_init").is_dir() else None)
+    train_run(cfg, train, run, progress=False, share_init=args.runs / "_init" if (args.runs / "_init").is_dir() else None,
+              oracle_masks=args.oracle)
     if not (args.runs / "_init").is_dir():
         shutil.copytree(run / "graph" / "init", args.runs / "_init")
     model = load_generator(run / "generator.pt")

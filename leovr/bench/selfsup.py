@@ -122,9 +122,11 @@ def base_config(cfg: BenchSelfSupConfig, epochs: int, max_frames: int | None = N
                          train_focal_px=cfg.train_focal_px, input="full", max_frames=max_frames, **update)
 
 
-def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bool, share_init: Path | None = None) -> tuple[Path, float]:
+def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bool, share_init: Path | None = None,
+              oracle_masks: bool = False) -> tuple[Path, float]:
     """Self-supervised run (resumed when interrupted); returns (generator.pt, minutes spent on it over
-    every invocation, kept in `train_minutes.json`)."""
+    every invocation, kept in `train_minutes.json`). `oracle_masks`: the bound of `train_selfsup`; keep
+    such a run in its own folder (the flag is not part of the config that resuming checks)."""
     t0 = time.time()
     done = run / "generator.pt"
     last = run / "checkpoint_last.pt"
@@ -137,7 +139,7 @@ def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bo
             return done, _minutes(run)
     if share_init is not None and share_init.is_dir() and not (run / "graph" / "init").exists():
         shutil.copytree(share_init, run / "graph" / "init")  # the initialisation pass uses no network: same for every run
-    train_selfsup(cfg, sequences, run, resume=last.is_file(), progress=progress)
+    train_selfsup(cfg, sequences, run, resume=last.is_file(), progress=progress, oracle_masks=oracle_masks)
     return done, _minutes(run, (time.time() - t0) / 60.0)
 
 
@@ -231,19 +233,25 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
                  progress: bool, bins: list[float]) -> tuple[dict, dict]:
     """The masks on the `traffic` scenario: the full mask (eq. 19 + rigid-flow test + auto-mask), eq. 19
     alone and no mask, each trained on the traffic training sequences and scored on its test
-    sequences; then each mask test scored against the moving masks of the test sequences."""
+    sequences; then each mask test scored against the moving masks of the test sequences.
+
+    `selfsup_oracle_mask` is a bound, not a method: no mask but the simulator's true moving mask (what
+    a perfect mover mask could gain over no mask)."""
     train = pick_sequences(root, "train", cfg, 1 if quick else cfg.traffic_sequences, ["traffic"])
     test_paths = pick_sequences(root, "test", cfg, 1 if quick else 2, ["traffic"])
     tests = [shorten(open_sequence(p)) for p in test_paths]
     runs = {"selfsup": base, "selfsup_nomask": base.model_copy(update=NO_MASKS),
-            "selfsup_eq19_only": base.model_copy(update={"rigid_mask": False, "depth_mask": False, "auto_mask": False})}
+            "selfsup_eq19_only": base.model_copy(update={"rigid_mask": False, "depth_mask": False, "auto_mask": False}),
+            "selfsup_oracle_mask": base.model_copy(update=NO_MASKS)}
     maes, minutes, checkpoints = {}, {}, {}
     for name, vcfg in runs.items():
         share = None if name == "selfsup" else work / "traffic_selfsup" / "graph" / "init"
-        checkpoints[name], minutes[f"traffic_{name}"] = train_run(vcfg, train, work / f"traffic_{name}", progress, share)
+        checkpoints[name], minutes[f"traffic_{name}"] = train_run(vcfg, train, work / f"traffic_{name}", progress, share,
+                                                                  oracle_masks=name == "selfsup_oracle_mask")
         maes[name] = score_paths(checkpoints[name], tests, cfg, bins)["mae_m"]
     maes["mask_gain"] = 1.0 - maes["selfsup"] / maes["selfsup_nomask"]
     maes["eq19_gain"] = 1.0 - maes["selfsup_eq19_only"] / maes["selfsup_nomask"]
+    maes["oracle_mask_gain"] = 1.0 - maes["selfsup_oracle_mask"] / maes["selfsup_nomask"]
     model = load_generator(checkpoints["selfsup"])
     quality = {}
     for stage, ck in (("mask_quality", None), ("mask_quality_refine", checkpoints["selfsup"])):
