@@ -29,6 +29,7 @@ from selfsup.dataset import image_tensor
 from selfsup.losses import photometric_error
 from selfsup.supervision import (
     TrainFrame,
+    at_training_size,
     graph_depth_at,
     graph_pass,
     keep_mask,
@@ -74,7 +75,7 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
     for k, f in enumerate(frames):
         gt = seq[f.index]
         size = (f.sparse.shape[1], f.sparse.shape[0])
-        moving = cv2.resize(gt.moving_mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        moving = at_training_size(gt.moving_mask, f)
         has_depth = cv2.resize(gt.depth, size, interpolation=cv2.INTER_NEAREST) > 0
         net_depth = filled[k]
         if model is not None:

@@ -60,6 +60,13 @@ class Supervision:
     mask_next: list[np.ndarray | None]
 
 
+def at_training_size(mask: np.ndarray, frame: TrainFrame) -> np.ndarray:
+    """A full-resolution boolean mask of `frame` (e.g. the simulator's moving mask) resampled, nearest, to the
+    frame's training resolution."""
+    h, w = frame.sparse.shape
+    return cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+
+
 def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
     """Images and cheap LiDAR input of the selected frames at the training focal length."""
     n = len(seq) if cfg.max_frames is None else min(len(seq), cfg.max_frames)

@@ -19,7 +19,6 @@ import json
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 import torch.distributed as dist
@@ -46,7 +45,7 @@ from selfsup.losses import (
     sparse_depth_loss,
     second_order_smoothness,
 )
-from selfsup.supervision import TrainFrame, build_supervision, graph_pass, train_frames
+from selfsup.supervision import TrainFrame, at_training_size, build_supervision, graph_pass, train_frames
 from selfsup.warp import warp_image
 
 TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "sparse", "mask_kept", "refined_used")
@@ -175,8 +174,7 @@ def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarr
         m = seq.base[f.index].moving_mask
         if m is None:
             raise DataError(seq.path, f"frame {f.index} has no moving mask; oracle masks need a rendered sequence")
-        h, w = f.sparse.shape
-        out.append(cv2.resize(m.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0)
+        out.append(at_training_size(m, f))
     return out
 
 
