@@ -35,8 +35,9 @@ LOOP_SIG = np.r_[np.full(3, 0.002), np.full(3, 0.01)]
 FLOOR = np.r_[np.full(3, 1e-4), np.full(3, 1e-3)]  # the other axes' sigma in the one-part shapes (well conditioned)
 
 
-def steps(P: np.ndarray) -> list[np.ndarray]:
-    return [invert_T(P[k - 1]) @ P[k] for k in range(1, len(P))]
+def steps(P: np.ndarray) -> np.ndarray:
+    """The F-1 relative steps (camera k-1 to k) of F camera-to-world poses."""
+    return invert_T(P[:-1]) @ P[1:]
 
 
 def chain(first: np.ndarray, d: list[np.ndarray]) -> np.ndarray:
