@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 
 def make_T(R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
@@ -50,21 +50,41 @@ def pose_to_tum(T: np.ndarray) -> np.ndarray:
 
 
 def interpolate_poses(T0: np.ndarray, T1: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Poses at fractions `s` (any shape, 0 -> T0, 1 -> T1): SLERP on rotation, linear on translation.
+    """Poses at fractions `s` (any shape, 0 -> T0, 1 -> T1): rotation along the geodesic (SLERP),
+    translation linear. Fractions outside [0, 1] extrapolate both at the same rates.
 
-    Returns an array of shape s.shape + (4, 4). Fractions outside [0, 1] extrapolate linearly in
-    translation and are clipped for rotation.
+    Returns an array of shape s.shape + (4, 4).
     """
     s = np.asarray(s, np.float64)
     flat = s.ravel()
-    rots = Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]]))
-    R = Slerp([0.0, 1.0], rots)(np.clip(flat, 0.0, 1.0)).as_matrix()
+    rotvec = Rotation.from_matrix(T0[:3, :3].T @ T1[:3, :3]).as_rotvec()
+    R = T0[:3, :3] @ Rotation.from_rotvec(flat[:, None] * rotvec[None]).as_matrix()
     t = T0[:3, 3][None] + flat[:, None] * (T1[:3, 3] - T0[:3, 3])[None]
     out = np.zeros((len(flat), 4, 4))
     out[:, :3, :3] = R
     out[:, :3, 3] = t
     out[:, 3, 3] = 1.0
     return out.reshape(s.shape + (4, 4))
+
+
+def orthonormalized(T: np.ndarray) -> np.ndarray:
+    """The pose with its rotation block projected onto SO(3) (the nearest rotation): chained and
+    inverted matrices drift off it by ~1e-9, more than Sophus (KISS-ICP) accepts."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    out = np.array(T, np.float64, copy=True)
+    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return out
+
+
+def poses_at(times: np.ndarray, poses: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Poses (F x 4 x 4) stamped `times` (increasing) resampled at the times `at`: interpolated between
+    the two stamps around each, extrapolated from the first or last two beyond them."""
+    times, at = np.asarray(times, np.float64), np.asarray(at, np.float64)
+    if len(times) < 2:
+        return np.repeat(poses[:1], len(at), axis=0)
+    k = np.clip(np.searchsorted(times, at) - 1, 0, len(times) - 2)
+    frac = (at - times[k]) / np.maximum(times[k + 1] - times[k], 1e-12)
+    return np.stack([interpolate_poses(poses[a], poses[a + 1], np.array(f)) for a, f in zip(k, frac)])
 
 
 def back_project(uv: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:

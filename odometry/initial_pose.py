@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 
 from leovr.data.io import MIN_SCAN_POINTS
-from leovr.geometry import invert_T, skew
+from leovr.geometry import invert_T, orthonormalized, skew
 
 
 @dataclass
@@ -67,7 +67,7 @@ class LidarOdometry:
         local_map = self.icp.local_map.point_cloud() if self.frames else None  # before this scan joins it
         stamps = np.asarray(times, np.float64) if timed else np.array([])
         if guess is not None and self.frames and not self.skipped_last:  # a guess from the frame KISS-ICP last saw
-            source = self._register_predicted(xyz, stamps, invert_T(self.T_cl) @ guess @ self.T_cl)
+            source = self._register_predicted(xyz, stamps, orthonormalized(invert_T(self.T_cl) @ guess @ self.T_cl))
         else:
             _, source = self.icp.register_frame(xyz, stamps)
         self.frames += 1

@@ -15,10 +15,16 @@ from leovr.paths import shared_data_dir
 SHARED = shared_data_dir()
 KITTI_RAW = SHARED / "kitti_raw"
 KITTI_ODOM = SHARED / "kitti_odometry" / "sequences" / "06"
+KITTI_RAW_POSES = SHARED / "kitti_raw_0013"  # the second drive: OXTS poses and scan start / end times
 
 needs_shared = pytest.mark.skipif(
     not KITTI_RAW.is_dir() or not KITTI_ODOM.is_dir(),
     reason=f"shared KITTI clips not found at {SHARED} (set LEOVR_SHARED_DATA or place ../shared/data)",
+)
+
+needs_posed_drive = pytest.mark.skipif(
+    not KITTI_RAW_POSES.is_dir(),
+    reason=f"the KITTI raw drive with OXTS poses not found at {KITTI_RAW_POSES} (set LEOVR_SHARED_DATA or place ../shared/data)",
 )
 
 # KITTI-like axes: LiDAR x forward, y left, z up; camera x right, y down, z forward.

@@ -34,8 +34,48 @@ def test_projection_hand_computed_pixel_and_nearest_wins():
 
 
 def test_azimuth_times_for_spinning_lidar():
-    pts = np.array([[-1.0, -1e-6, 0], [1.0, 0.0, 0], [0.0, 1.0, 0]])
-    np.testing.assert_allclose(azimuth_times(pts, 0.1), [0.0, 0.05, 0.075], atol=1e-6)
+    # starts behind the car, turns clockwise seen from above: left, forward at mid-sweep, right, behind again
+    pts = np.array([[-1.0, 1e-6, 0], [0.0, 1.0, 0], [1.0, 0.0, 0], [0.0, -1.0, 0], [-1.0, -1e-6, 0]])
+    np.testing.assert_allclose(azimuth_times(pts, 0.1), [0.0, 0.025, 0.05, 0.075, 0.1], atol=1e-6)
+
+
+def test_interpolate_poses_extrapolates_rotation_and_translation():
+    R = np.array([[np.cos(0.2), -np.sin(0.2), 0], [np.sin(0.2), np.cos(0.2), 0], [0, 0, 1]])
+    T1 = make_T(R, [1.0, 0.0, 0.0])
+    back, ahead = interpolate_poses(np.eye(4), T1, np.array([-0.5, 1.5]))
+    np.testing.assert_allclose(back[:3, 3], [-0.5, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(np.arctan2(back[1, 0], back[0, 0]), -0.1, atol=1e-12)
+    np.testing.assert_allclose(np.arctan2(ahead[1, 0], ahead[0, 0]), 0.3, atol=1e-12)
+
+
+def test_deskew_frame_moves_points_to_the_image_time_from_either_side():
+    """A sweep that starts before the image and ends after it (KITTI raw): every return lands where the
+    LiDAR at the image's time would have seen it."""
+    from leovr.data.records import Frame
+    from leovr.lidar.deskew import deskew_frame
+
+    rng = np.random.default_rng(1)
+    world = rng.uniform(-20, 20, (400, 3))  # static points, LiDAR frame at the image's time
+    yaw = np.array([[np.cos(0.02), 0, np.sin(0.02)], [0, 1, 0], [-np.sin(0.02), 0, np.cos(0.02)]])  # about camera y
+    motion = make_T(yaw, [0.0, 0.0, 1.2])  # the camera's motion over one frame interval (0.1 s)
+    T_cl = make_T(R_CAM_LIDAR)
+    times = rng.uniform(-0.06, 0.04, len(world))
+    lidar_motion = invert_T(T_cl) @ motion @ T_cl
+    at = interpolate_poses(np.eye(4), lidar_motion, times / 0.1)  # the LiDAR at each return's time
+    measured = np.einsum("nij,nj->ni", invert_T(at)[:, :3, :3], world) + invert_T(at)[:, :3, 3]
+    f = Frame(0, 0.0, np.zeros((4, 4, 3), np.uint8), np.eye(3), T_cl, measured.astype(np.float64), times)
+    np.testing.assert_allclose(deskew_frame(f, motion, 0.1).points, world, atol=1e-9)
+    assert np.abs(measured - world).max() > 0.5
+
+
+def test_ring_ids_unchanged_when_deskewing_moves_returns_across_the_seam():
+    scan = ring_scan()  # 360 returns a ring, azimuth rising from -180 degrees
+    moved = scan.copy()
+    second = np.arange(64) * 360 + 1  # each ring's second return (-179 degrees), carried back over the seam
+    r = np.hypot(scan[second, 0], scan[second, 1])
+    moved[second, 0], moved[second, 1] = r * np.cos(np.radians(179.9)), r * np.sin(np.radians(179.9))
+    assert (np.diff(np.arctan2(moved[:, 1], moved[:, 0])) > np.pi).sum() == 64  # the scan crosses back over the seam
+    np.testing.assert_array_equal(ring_ids(moved), ring_ids(scan))
 
 
 def test_deskew_recovers_static_world_under_motion():

@@ -12,7 +12,7 @@ from leovr.data.io import check_timestamps, read_matrix_rows
 from leovr.data.kitti_common import KITTI_CAMERA_HEIGHT_M, split_projection
 from leovr.data.sequence import FileSequence
 from leovr.errors import DataError, brief
-from leovr.geometry import invert_T, make_T
+from leovr.geometry import invert_T, make_T, poses_at
 
 EARTH_RADIUS_M = 6378137.0
 
@@ -35,7 +35,7 @@ def _calib_file(drive: Path, name: str) -> Path:
 
 
 def _read_kitti_time(path: Path) -> np.ndarray:
-    """KITTI raw timestamps ('2011-09-26 13:02:25.964389445') as seconds from the first."""
+    """KITTI raw timestamps ('2011-09-26 13:02:25.964389445') as seconds of the recording's clock."""
     try:
         lines = [ln.strip() for ln in path.read_text().splitlines() if ln.strip()]
         secs = []
@@ -45,8 +45,17 @@ def _read_kitti_time(path: Path) -> np.ndarray:
             secs.append(base + (float("0." + frac) if frac else 0.0))
     except (OSError, ValueError) as exc:
         raise DataError(path, f"unreadable timestamps: {exc}") from exc
-    t = np.array(secs)
-    return t - t[0] if len(t) else t
+    return np.array(secs)
+
+
+def _stamps_for(path: Path, numbers: list[int], what: str) -> np.ndarray | None:
+    """The lines of a KITTI timestamp file for the given frame numbers; None when the file is absent."""
+    if not path.is_file():
+        return None
+    t = _read_kitti_time(path)
+    if len(t) <= numbers[-1]:
+        raise DataError(path, f"{len(t)} {what} timestamps, but frame number {numbers[-1]} needs line {numbers[-1] + 1}")
+    return t[numbers]
 
 
 def oxts_poses(files: list[Path]) -> np.ndarray:
@@ -119,13 +128,20 @@ class KittiRawSequence(FileSequence):
         self.scan_files = [scans[n] for n in numbers] if self.has_lidar else []
         self.K, self.T_cam_lidar, T_cam_imu = self._read_calibration(drive)
         ts_file = drive / "image_02" / "timestamps.txt"
-        if ts_file.is_file():
-            times = _read_kitti_time(ts_file)
-            if len(times) <= numbers[-1]:
-                raise DataError(ts_file, f"{len(times)} timestamps, but frame number {numbers[-1]} needs line {numbers[-1] + 1}")
-            self._times = check_timestamps(times[numbers], ts_file)
+        camera_t = _stamps_for(ts_file, numbers, "image")
+        if camera_t is not None:
+            self._times = check_timestamps(camera_t - camera_t[0], ts_file)
         else:  # frame numbers at the camera rate: a gap in the numbering stays a gap in time
             self._times = (np.array(numbers, float) - numbers[0]) / self.rate_hz
+        self.sweeps = None
+        velo = drive / "velodyne_points"
+        starts = _stamps_for(velo / "timestamps_start.txt", numbers, "scan start") if self.has_lidar else None
+        ends = _stamps_for(velo / "timestamps_end.txt", numbers, "scan end") if self.has_lidar else None
+        if starts is not None and ends is not None and camera_t is not None:
+            sweeps = np.stack([starts, ends], 1) - camera_t[:, None]
+            if not (np.isfinite(sweeps).all() and (np.diff(sweeps, axis=1) > 0).all()):
+                raise DataError(velo / "timestamps_end.txt", "a scan ends before it starts")
+            self.sweeps = sweeps
         oxts = _numbered(drive / "oxts" / "data", "*.txt") if (drive / "oxts" / "data").is_dir() else {}
         self._poses = None
         if oxts and T_cam_imu is not None:
@@ -133,6 +149,11 @@ class KittiRawSequence(FileSequence):
             if missing:
                 raise DataError(drive / "oxts" / "data", f"no OXTS packet for {_frames(missing)}")
             T_w_imu = oxts_poses([oxts[n] for n in numbers])
+            oxts_t = _stamps_for(drive / "oxts" / "timestamps.txt", numbers, "OXTS")
+            if oxts_t is not None and camera_t is not None:
+                # each packet is stamped by the GPS/IMU's own clock tick, 2-14 ms off the camera's (11-12 m/s:
+                # up to 0.15 m): the poses at the images' times, interpolated between the packets
+                T_w_imu = poses_at(check_timestamps(oxts_t, drive / "oxts" / "timestamps.txt"), T_w_imu, camera_t)
             T_imu_cam = invert_T(T_cam_imu)
             # world = first camera frame
             self._poses = invert_T(T_w_imu[0] @ T_imu_cam) @ T_w_imu @ T_imu_cam

@@ -11,6 +11,7 @@ import numpy as np
 from leovr.data.io import read_image, read_point_file
 from leovr.data.records import Frame, SequenceInfo
 from leovr.errors import DataError
+from leovr.lidar.sweep import azimuth_times
 
 
 class Sequence(ABC):
@@ -107,8 +108,12 @@ class FileSequence(Sequence):
     """A sequence backed by per-frame image and scan files, timestamps and optional poses.
 
     Readers fill `image_files`, `scan_files` (empty without LiDAR), `_times`, `_poses` (F x 4 x 4 or
-    None), `K` and `T_cam_lidar`; loading a frame is then the same for all of them.
+    None), `K` and `T_cam_lidar`, and `sweeps` where the recording stamps the start and end of each
+    spinning LiDAR's sweep (F x 2, seconds from the frame's image; each point's time then follows from its
+    azimuth); loading a frame is then the same for all of them.
     """
+
+    sweeps: np.ndarray | None = None
 
     image_files: list[Path]
     scan_files: list[Path]
@@ -127,13 +132,19 @@ class FileSequence(Sequence):
         return self.image_files[i]
 
     def _load(self, i: int) -> Frame:
+        points = read_point_file(self.scan_files[i], 4) if self.scan_files else None
+        times = None
+        if points is not None and self.sweeps is not None:
+            start, end = self.sweeps[i]
+            times = start + azimuth_times(points, end - start)
         return Frame(
             index=i,
             timestamp=float(self._times[i]),
             image=read_image(self.image_files[i]),
             K=self.K,
             T_cam_lidar=self.T_cam_lidar,
-            points=read_point_file(self.scan_files[i], 4) if self.scan_files else None,
+            points=points,
+            point_times=times,
             T_world_cam=None if self._poses is None else self._poses[i],
         )
 

@@ -6,7 +6,8 @@ from leovr.lidar.cheap_sensor import (
     parse_input,
     simulate_cheap_sensor,
 )
-from leovr.lidar.deskew import azimuth_times, deskew
+from leovr.lidar.deskew import deskew
+from leovr.lidar.sweep import azimuth_times
 from leovr.lidar.projection import Projection, project_points, sparse_depth
 
 __all__ = [

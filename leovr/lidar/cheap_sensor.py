@@ -66,11 +66,12 @@ def ring_ids(points: np.ndarray, n_rings: int = 64) -> np.ndarray:
     points are binned into `n_rings` equal-count elevation bins, top ring first.
     """
     az = np.arctan2(points[:, 1], points[:, 0])
-    wraps = np.nonzero(np.diff(az) < -np.pi)[0]
-    if n_rings // 2 <= len(wraps) <= 2 * n_rings:  # about one wrap per ring: stored ring after ring
-        ids = np.zeros(len(points), np.int64)
-        ids[wraps + 1] = 1
-        return np.cumsum(ids)
+    step = np.diff(az)
+    # a ring ends where the azimuth wraps forward; a deskewed scan can also cross the seam and come back
+    # (+179.9, -179.9, +179.95 degrees), a wrap undone by the next step: each cancels the other
+    turns = np.r_[0, (step < -np.pi).astype(np.int64) - (step > np.pi).astype(np.int64)]
+    if n_rings // 2 <= turns.sum() <= 2 * n_rings:  # about one wrap per ring: stored ring after ring
+        return np.maximum.accumulate(np.cumsum(turns))
     el = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
     rank = np.argsort(np.argsort(-el, kind="stable"), kind="stable")
     return rank * n_rings // max(len(points), 1)

@@ -11,13 +11,6 @@ from leovr.data.records import Frame
 from leovr.geometry import interpolate_poses, invert_T
 
 
-def azimuth_times(points: np.ndarray, sweep_s: float = 0.1, start_azimuth: float = -np.pi) -> np.ndarray:
-    """Per-point time within the sweep for a spinning LiDAR whose azimuth grows with time from
-    `start_azimuth` (KITTI's HDL-64 starts behind the car, at -pi)."""
-    az = np.arctan2(points[:, 1], points[:, 0])
-    return np.mod(az - start_azimuth, 2 * np.pi) / (2 * np.pi) * sweep_s
-
-
 def deskew(
     points: np.ndarray,
     times: np.ndarray,
@@ -49,12 +42,14 @@ def deskew(
 
 def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Frame:
     """The frame with its scan motion-compensated to the camera time (LeoVR Sec. III-C-2): each point
-    moved by the camera motion predicted over its offset in the sweep (constant velocity, the last
-    frame-to-frame motion `motion_cam`, linearly interpolated). Unchanged without point times or motion."""
+    moved by the camera motion predicted over its offset from the image's time (`point_times`, before or
+    after it), at constant velocity (`motion_cam`: the motion over one frame interval, interpolated and
+    extrapolated on the geodesic). Unchanged without point times or motion."""
     if f.points is None or f.point_times is None or motion_cam is None or not len(f.points):
         return f
     T_cl = f.T_cam_lidar
     motion_lidar = invert_T(T_cl) @ motion_cam @ T_cl  # per frame interval, LiDAR frame
-    sweep = max(float(np.max(f.point_times)), 1e-3)
-    T_end = interpolate_poses(np.eye(4), motion_lidar, np.array(sweep / frame_dt))
-    return replace(f, points=deskew(f.points, f.point_times, np.eye(4), T_end, sweep, t_ref=0.0))
+    M = interpolate_poses(np.eye(4), motion_lidar, np.asarray(f.point_times, np.float64) / frame_dt)
+    out = np.array(f.points, copy=True)
+    out[:, :3] = np.einsum("nij,nj->ni", M[:, :3, :3], f.points[:, :3]) + M[:, :3, 3]
+    return replace(f, points=out)

@@ -4,7 +4,7 @@ frame by frame as a live system would see them; refined depth, poses, metrics an
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 256, the KITTI
 depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
 `depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP alone on the same input, with
-ground-truth poses or `--compare`), `poses_mono_vo_kitti.txt` (`--compare`), `metrics.json` (when the sequence has ground
+ground-truth poses or `--compare`; `poses_kiss_icp_no_deskew_kitti.txt` beside it when the scans carry point times), `poses_mono_vo_kitti.txt` (`--compare`), `metrics.json` (when the sequence has ground
 truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
 continues from. A resumed run replays its finished frames through the front end and the window without
 rewriting their outputs, so that it ends as the uninterrupted run would: resuming saves the writing and
@@ -536,6 +536,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if icp is not None:
             baselines["kiss_icp"] = icp, "se3"
             write_kitti_poses(out / "poses_kiss_icp_kitti.txt", icp)
+        if icp is not None and first.point_times is not None:  # KISS-ICP without its deskew, the other way to run it
+            baselines["kiss_icp_no_deskew"] = kiss_icp_trajectory(seq, indices, ccfg, progress, deskew=False), "se3"
+            write_kitti_poses(out / "poses_kiss_icp_no_deskew_kitti.txt", baselines["kiss_icp_no_deskew"][0])
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
 
