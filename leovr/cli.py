@@ -408,16 +408,23 @@ def bench_batch(
 @bench_app.command("real")
 def bench_real(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
-    quick: bool = typer.Option(False, help="First 12 frames, one adaptation epoch."),
+    quick: bool = typer.Option(False, help="First 12 frames of each clip, one adaptation epoch."),
+    adapt: Optional[bool] = typer.Option(None, "--adapt/--no-adapt", help="Also adapt the generator to each clip (default: the config's)."),
+    clips: Optional[str] = typer.Option(None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
-    """Real KITTI clip: nearest, IP-Basic, prior, shipped generator / refined, adapted / adapted + refined,
-    inductive and transductive protocols, all on the same held-out pixels."""
+    """Real KITTI raw drives: nearest, IP-Basic, prior, shipped generator / refined (adapted / adapted + refined
+    with --adapt) on the same held-out pixels; leovr's ATE against KISS-ICP's where a drive has poses."""
     from leovr.bench.real import run_real_bench
 
-    doc = run_real_bench(out, load_config(config).bench_real, quick=quick)
-    for key, r in doc["results"].items():
-        typer.echo(key + ": " + ", ".join(f"{m} {v['mae_m']:.3f}" for m, v in r.items() if v.get("mae_m") is not None))
+    cfg = override(load_config(config).bench_real, adapt=adapt, clips=[c.strip() for c in clips.split(",")] if clips else None)
+    doc = run_real_bench(out, cfg, quick=quick)
+    for name, entry in [*doc["clips"].items(), ("pooled", doc["pooled"])]:
+        for key, r in entry["results"].items():
+            typer.echo(f"{name} {key}: " + ", ".join(f"{m} {v['mae_m']:.3f}" for m, v in r.items() if v.get("mae_m") is not None))
+        for inp, t in entry.get("trajectory", {}).items():
+            typer.echo(f"{name} {inp} ATE (m): " + "  ".join(f"{k} {v['ate_m']:.3f}" for k, v in t.items() if isinstance(v, dict))
+                       + f"  (leovr / KISS-ICP {t['leovr_vs_kiss_icp']:.2f}x)")
     typer.echo(f"-> {out}")
 
 

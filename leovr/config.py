@@ -441,14 +441,16 @@ class AdaptConfig(_Model):
 
 
 class BenchRealConfig(_Model):
-    """`leovr bench real`: every depth method on the real KITTI raw clip, same held-out pixels, with
-    adaptation under the inductive and transductive protocols."""
+    """`leovr bench real`: every depth method on each real KITTI raw drive, same held-out pixels, leovr's
+    trajectory beside KISS-ICP's where the drive has ground-truth poses, and (optionally) adaptation under
+    the inductive and transductive protocols."""
 
-    kitti_raw: str | None = None  # None = ../shared/data/kitti_raw
+    clips: list[str] | None = None  # KITTI raw drives; None = every one under ../shared/data (development data)
     inputs: list[str] = ["vlp16", "mid40"]
     checkpoint: str | None = None  # generator to start from (None = the shipped one)
     window: int = Field(4, ge=2)
-    inductive_train_frames: int = Field(38, ge=1)  # adapt on frames [0, 38), score [38, 48)
+    adapt: bool = True  # also adapt the generator to each clip (minutes per input and protocol)
+    inductive_train_fraction: float = Field(0.8, gt=0, lt=1)  # adapt on the first 80 % of a clip's frames, score the rest
     adapt_epochs: int = Field(40, ge=1)  # at most; early stopping on the validation frames usually ends sooner
     quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames ...
     quick_train_frames: int = Field(8, ge=1)  # ... adapted on the first 8

@@ -24,6 +24,14 @@ def kitti_raw_dir() -> Path:
     return shared_data_dir() / "kitti_raw"
 
 
+def kitti_raw_clips() -> list[Path]:
+    """Every KITTI raw drive under the shared data folder (each a development clip), by folder name."""
+    from leovr.data.kitti_raw import find_drive
+
+    root = shared_data_dir()
+    return sorted(p for p in root.iterdir() if p.is_dir() and find_drive(p) is not None) if root.is_dir() else []
+
+
 def kitti_odometry_dir() -> Path:
     return shared_data_dir() / "kitti_odometry" / "sequences" / "06"
 

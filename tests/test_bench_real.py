@@ -1,4 +1,4 @@
-"""`leovr bench real` contract on a small configuration of the shared KITTI raw clip."""
+"""`leovr bench real` contract on a small configuration of the shared KITTI raw drives."""
 
 from __future__ import annotations
 
@@ -6,16 +6,18 @@ import json
 
 from leovr.bench.real import METHODS, run_real_bench
 from leovr.config import BenchRealConfig
-from tests.conftest import KITTI_RAW, needs_shared
+from tests.conftest import KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_shared
 
 
 @needs_shared
 def test_bench_real_contract(tmp_path):
-    cfg = BenchRealConfig(kitti_raw=str(KITTI_RAW), inputs=["vlp16"], quick_frames=5, quick_train_frames=3)
+    cfg = BenchRealConfig(clips=[str(KITTI_RAW)], inputs=["vlp16"], quick_frames=5, quick_train_frames=3)
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     assert json.loads((tmp_path / "real.json").read_text())["benchmark"] == "real"
-    assert set(doc["results"]) == {"inductive_vlp16", "transductive_vlp16"}
-    ind, trans = doc["results"]["inductive_vlp16"], doc["results"]["transductive_vlp16"]
+    clip = doc["clips"]["kitti_raw"]
+    assert clip["development"] and not clip["has_poses"] and clip["trajectory"] == {}
+    assert set(clip["results"]) == {"inductive_vlp16", "transductive_vlp16"}
+    ind, trans = clip["results"]["inductive_vlp16"], clip["results"]["transductive_vlp16"]
     # VLP-16-like input spins: no earlier scans join the generator's, so no separate single-frame row
     assert set(ind) == set(METHODS) - {"generator_frame"} == {"nearest", "ipbasic", "interp", "generator", "refined",
                                                               "adapted", "adapted_refined"}
@@ -25,5 +27,22 @@ def test_bench_real_contract(tmp_path):
         for v in r.values():
             assert {"mae_m", "rmse_m", "absrel", "delta1", "n", "bins"} <= set(v) and v["mae_m"] > 0
     assert trans["nearest"]["n"] > ind["nearest"]["n"]  # 5 frames scored vs 2
-    assert set(doc["adapt_minutes"]) == {"inductive_vlp16", "transductive_vlp16"}
+    assert set(clip["adapt_minutes"]) == {"inductive_vlp16", "transductive_vlp16"}
+    assert doc["pooled"]["results"]["inductive_vlp16"]["nearest"]["n"] == ind["nearest"]["n"]  # one clip: pooled = it
     assert "held-out LiDAR points" in doc["ground_truth"]
+
+
+@needs_shared
+@needs_posed_drive
+def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_path):
+    cfg = BenchRealConfig(clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], adapt=False, quick_frames=5)
+    doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
+    one, two = doc["clips"]["kitti_raw"], doc["clips"]["kitti_raw_0013"]
+    assert set(one["results"]) == set(two["results"]) == {"shipped_vlp16"} and "adapt_minutes" not in one
+    n = [c["results"]["shipped_vlp16"]["nearest"]["n"] for c in (one, two)]
+    assert doc["pooled"]["results"]["shipped_vlp16"]["nearest"]["n"] == sum(n)  # every scored pixel of both clips
+    t = two["trajectory"]["vlp16"]
+    assert {"leovr", "kiss_icp", "kiss_icp_no_deskew"} <= set(t) and t["leovr"]["ate_m"] > 0
+    best = min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"])
+    assert abs(t["leovr_vs_kiss_icp"] - t["leovr"]["ate_m"] / best) < 1e-9
+    assert doc["pooled"]["trajectory_vs_kiss_icp"]["vlp16"] == t["leovr_vs_kiss_icp"]  # the one clip with poses

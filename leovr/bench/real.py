@@ -1,15 +1,18 @@
-"""`leovr bench real`: depth on the real KITTI raw clip against the classical fills, on the same pixels.
+"""`leovr bench real`: depth on each real KITTI raw drive against the classical fills, on the same
+pixels, and leovr's trajectory against KISS-ICP's on the same input where the drive has ground-truth poses.
 
-Each cheap input (VLP-16-like, Mid-40-like) is simulated from the clip's HDL-64 scan; the held-out
+Each cheap input (VLP-16-like, Mid-40-like) is simulated from the drive's HDL-64 scan; the held-out
 returns, parallax-filtered, are the ground truth. Methods, all scored on the very same pixels:
 `nearest` and `ipbasic` (classical fills), `interp` (the generator's classical prior alone),
-`generator` and `refined` (the shipped generator and the graph over it), `adapted` and
-`adapted_refined` (after `leovr adapt` on the clip's own cheap input). Protocols:
-- `inductive`: adapt on frames [0, inductive_train_frames), score the frames after;
+`generator` and `refined` (the shipped generator and the graph over it), and with adaptation on,
+`adapted` and `adapted_refined` (after `leovr adapt` on the clip's own cheap input). Protocols:
+- `inductive`: adapt on the first `inductive_train_fraction` of the frames, score the frames after;
 - `transductive`: adapt on every frame, using only its cheap input, score every frame (what a user
   does with a recording: adaptation never sees the held-out returns).
-Refinement runs over the whole clip in both protocols (it reads no ground truth); only the scored
-frames differ. Runs are kept in `<stem>_work/` and resumed when the settings are unchanged.
+Without adaptation every frame is scored (`shipped_<input>`). Refinement runs over the whole clip (it
+reads no ground truth); only the scored frames differ. Each clip is reported alone and all clips pooled
+(every scored pixel of every clip), with whether it is development data (under ../shared/data). Runs are
+kept in `<stem>_work/` and resumed when the settings are unchanged.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ import json
 import shutil
 import time
 from pathlib import Path
+
+import numpy as np
 
 from leovr.bench.common import depth_entry, write_bench
 from leovr.config import AdaptConfig, BenchRealConfig, RefineConfig
@@ -68,30 +73,96 @@ def pooled(frames: dict[int, FrameScore], indices: list[int], bins: list[float])
     return out
 
 
+def clip_name(path: Path) -> str:
+    return Path(path).name
+
+
 def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progress: bool = True) -> dict:
     started = time.time()
-    from leovr.paths import kitti_raw_dir
+    from leovr.paths import kitti_raw_clips, shared_data_dir
 
-    clip = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
-    if not clip.exists():
-        raise DataError(clip, "KITTI raw clip not found (set LEOVR_SHARED_DATA or bench_real.kitti_raw)")
-    seq = open_sequence(clip)
-    n = min(len(seq), cfg.quick_frames) if quick else len(seq)
-    split = cfg.quick_train_frames if quick else cfg.inductive_train_frames
-    if not 0 < split < n:
-        raise DataError(clip, f"{n} frames cannot be split at frame {split} for the inductive protocol")
-    epochs = cfg.quick_epochs if quick else cfg.adapt_epochs
-    settings = {**cfg.model_dump(), "quick": quick, "frames": n, "clip": str(clip)}
+    clips = [Path(c) for c in cfg.clips] if cfg.clips else kitti_raw_clips()
+    if not clips:
+        raise DataError(shared_data_dir(), "no KITTI raw drive found (set LEOVR_SHARED_DATA or bench_real.clips)")
+    for clip in clips:
+        if not clip.exists():
+            raise DataError(clip, "KITTI raw drive not found")
+    settings = {**cfg.model_dump(), "quick": quick, "clips": [str(c) for c in clips]}
     work = Path(out).with_name(Path(out).stem + "_work")
     prepared_work(work, settings)
+    shared = shared_data_dir().resolve()
+    per_clip, notes = {}, set()
+    pool: dict[str, dict[str, DepthMetricAccumulator]] = {}
+    for clip in clips:
+        entry, scored = clip_bench(clip, cfg, quick, progress, work / clip_name(clip))
+        entry["development"] = shared in clip.resolve().parents
+        per_clip[clip_name(clip)] = entry
+        for key, (frames, indices) in scored.items():
+            notes |= {fs.kind for fs in frames.values()}
+            accs = pool.setdefault(key, {m: DepthMetricAccumulator(list(RefineConfig().bins)) for m in METHODS})
+            for i in indices:
+                for method, pred in frames[i].pred.items():
+                    if method in accs:
+                        accs[method].add(pred, frames[i].gt)
+    pooled_results = {key: {m: {k: v for k, v in depth_entry(a.result()).items() if k != "ms_per_frame"}
+                            for m, a in accs.items() if not a.empty} for key, accs in pool.items()}
+    body = {
+        "quick": quick,
+        "clips": per_clip,
+        "pooled": {"clips": list(per_clip), "results": pooled_results, "summary": summary_of(pooled_results),
+                   "trajectory_vs_kiss_icp": {inp: float(np.mean(r)) for inp, r in trajectory_ratios(per_clip).items()}},
+        "ground_truth": "; ".join(ground_truth_note(k, completion_config(RefineConfig())) for k in sorted(notes)),
+    }
+    return write_bench(out, "real", body, started)
+
+
+def trajectory_ratios(per_clip: dict) -> dict[str, list[float]]:
+    """Per input: leovr's ATE over KISS-ICP's on the same input (the better of its two deskew settings), one
+    per clip with ground-truth poses."""
+    out: dict[str, list[float]] = {}
+    for entry in per_clip.values():
+        for inp, t in entry.get("trajectory", {}).items():
+            out.setdefault(inp, []).append(t["leovr_vs_kiss_icp"])
+    return out
+
+
+def summary_of(results: dict) -> dict:
+    """Each method's MAE over the nearest fill's, and the methods worse than it within 20 m."""
+    summary = {}
+    for key, r in results.items():
+        near = r["nearest"]["mae_m"]
+        summary[key] = {f"{m}_vs_nearest": r[m]["mae_m"] / near for m in r if m != "nearest" and r[m]["mae_m"]}
+        summary[key]["worse_than_nearest_0_20m"] = [
+            m for m in r if (r[m]["bins"].get("0-20") or {}).get("mae_m", 0) > r["nearest"]["bins"]["0-20"]["mae_m"]]
+    return summary
+
+
+def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, work: Path
+               ) -> tuple[dict, dict[str, tuple[dict[int, FrameScore], list[int]]]]:
+    """One drive: its results and summary per protocol and input, leovr's and KISS-ICP's trajectories where
+    it has poses, adaptation minutes; and each protocol's frame scores with the frames it scores (to pool)."""
+    seq = open_sequence(clip)
+    n = min(len(seq), cfg.quick_frames) if quick else len(seq)
+    split = cfg.quick_train_frames if quick else int(round(cfg.inductive_train_fraction * n))
+    if cfg.adapt and not 0 < split < n:
+        raise DataError(clip, f"{n} frames cannot be split at frame {split} for the inductive protocol")
+    epochs = cfg.quick_epochs if quick else cfg.adapt_epochs
     protocols = {"inductive": (split, list(range(split, n))), "transductive": (None, list(range(n)))}
-    results, minutes, blends, notes = {}, {}, {}, set()
+    results, minutes, blends, trajectory = {}, {}, {}, {}
+    scored_sets: dict[str, tuple[dict[int, FrameScore], list[int]]] = {}
     for inp in cfg.inputs:
         base = RefineConfig(input=inp, end=n, window=cfg.window, checkpoint=cfg.checkpoint)
         shipped: dict[int, FrameScore] = {}
-        run_refine(seq, base, work / f"{inp}_shipped", resume=True, progress=progress, collect=shipped)
+        m = run_refine(seq, base, work / f"{inp}_shipped", resume=True, progress=progress, collect=shipped)
         interp_scores(seq, base, shipped)
-        notes |= {fs.kind for fs in shipped.values()}
+        if "trajectory" in m:
+            t = {k: {key: v[key] for key in ("ate_m", "rpe_m")} for k, v in m["trajectory"].items()}
+            kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
+            trajectory[inp] = t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
+        if not cfg.adapt:
+            results[f"shipped_{inp}"] = pooled(shipped, list(range(n)), list(base.bins))
+            scored_sets[f"shipped_{inp}"] = shipped, list(range(n))
+            continue
         for protocol, (adapt_end, scored) in protocols.items():
             acfg = AdaptConfig(input=inp, end=adapt_end if adapt_end is not None else n, epochs=epochs,
                                init_checkpoint=cfg.checkpoint, seed=cfg.seed)
@@ -110,23 +181,12 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
                     shipped[i].pred["adapted"] = fs.pred["generator"]
                     shipped[i].pred["adapted_refined"] = fs.pred["refined"]
             results[f"{protocol}_{inp}"] = pooled(shipped, scored, list(base.bins))
-    summary = {}
-    for key, r in results.items():
-        near = r["nearest"]["mae_m"]
-        summary[key] = {f"{m}_vs_nearest": r[m]["mae_m"] / near for m in r if m != "nearest" and r[m]["mae_m"]}
-        summary[key]["worse_than_nearest_0_20m"] = [
-            m for m in r if (r[m]["bins"].get("0-20") or {}).get("mae_m", 0) > r["nearest"]["bins"]["0-20"]["mae_m"]]
-    body = {
-        "quick": quick,
-        "clip": str(clip),
-        "frames": n,
-        "protocols": {"inductive": f"adapt on frames 0-{split - 1}, score frames {split}-{n - 1}",
-                      "transductive": f"adapt on frames 0-{n - 1} (their cheap input only), score all of them"},
-        "ground_truth": "; ".join(ground_truth_note(k, completion_config(RefineConfig())) for k in sorted(notes)),
-        "adapt_epochs": epochs,
-        "adapt_minutes": minutes,
-        "adapt_blend": blends,  # the adapted network's weight against its prior, chosen on validation frames
-        "results": results,
-        "summary": summary,
-    }
-    return write_bench(out, "real", body, started)
+            scored_sets[f"{protocol}_{inp}"] = shipped, scored
+    entry = {"path": str(clip), "frames": n, "has_poses": seq.has_poses, "results": results,
+             "summary": summary_of(results), "trajectory": trajectory}
+    if cfg.adapt:
+        entry |= {"protocols": {"inductive": f"adapt on frames 0-{split - 1}, score frames {split}-{n - 1}",
+                                "transductive": f"adapt on frames 0-{n - 1} (their cheap input only), score all of them"},
+                  "adapt_epochs": epochs, "adapt_minutes": minutes,
+                  "adapt_blend": blends}  # the adapted network's weight against its prior, chosen on validation frames
+    return entry, scored_sets
