@@ -288,7 +288,7 @@ class BenchRefineConfig(_Model):
     """`leovr bench refine`: depth, trajectory and timing of the refinement on simulator and KITTI clips."""
 
     dataset: str | None = None  # simulator dataset with a test split; None = the cached default recipe
-    kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
+    kitti_raw_clips: list[str] | None = None  # KITTI raw drives; None = every one under ../shared/data ([]: none)
     kitti_odometry: str | None = None  # None = the shared KITTI odometry clip (skipped when absent)
     checkpoint: str | None = None
     window: int = Field(4, ge=2)

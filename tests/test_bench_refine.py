@@ -9,12 +9,14 @@ from leovr.config import BenchRefineConfig
 
 
 def test_bench_refine_contract(tmp_path):
-    cfg = BenchRefineConfig(dataset=str(tmp_path / "data"), synthetic_lidars=["mid40"], kitti_inputs=[], windows=[2, 3],
+    cfg = BenchRefineConfig(dataset=str(tmp_path / "data"), synthetic_lidars=["mid40"], kitti_raw_clips=[], windows=[2, 3],
                             kitti_odometry=str(tmp_path / "absent"), quick_frames=4)
     doc = run_refine_bench(tmp_path / "r.json", cfg, quick=True, progress=False)
     assert json.loads((tmp_path / "r.json").read_text())["benchmark"] == "refine"
     res = doc["results"]["synthetic_mid40"]
-    assert set(res) == {"nearest", "ipbasic", "generator", "generator_frame", "refined"}  # Mid-40: earlier scans in the generator input
+    # Mid-40: earlier scans in the generator input, and the fills of the same frames' returns beside it
+    assert set(res) == {"nearest", "ipbasic", "nearest_accumulated", "ipbasic_accumulated", "generator", "generator_frame",
+                        "refined"}
     for r in res.values():
         assert r["n"] > 3 * 4 * 100_000 and set(r["bins"]) and len(r["per_sequence_mae_m"]) == 3  # 3 scenarios
     traj = doc["trajectory"]["synthetic_mid40"]

@@ -182,7 +182,8 @@ def test_demo_on_generated_default(tmp_path):
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ground_truth"].startswith("dense") and m["frames"] == 3
-    assert list(m["depth"]) == ["raw", "nearest", "ipbasic", "generator", "generator_frame", "refined"]
+    assert list(m["depth"]) == ["raw", "nearest", "ipbasic", "nearest_accumulated", "ipbasic_accumulated", "generator",
+                                "generator_frame", "refined"]
     assert m["depth"]["refined"]["n"] > 150_000  # dense ground truth: most of 3 x 448 x 256 pixels
     # city loop: loop closure on; the rendered scans carry point times, so KISS-ICP runs with and without its deskew
     assert set(m["trajectory"]) == {"leovr", "leovr_no_loop", "kiss_icp", "kiss_icp_no_deskew"}

@@ -1,7 +1,7 @@
 """`leovr bench refine`: IP-Basic, the generator and the refined depth, LeoVR's trajectory against
 KISS-ICP's, the time per stage and a window-length ablation, on simulator test sequences (Mid-40 and
-VLP-16, city loop, straight avenue and the dynamic scenario), the shared KITTI raw clip (simulated
-cheap inputs) and the KITTI odometry clip (no LiDAR: ATE after Sim(3) alignment). Every trajectory is
+VLP-16, city loop, straight avenue and the dynamic scenario), every KITTI raw drive under ../shared/data
+(simulated cheap inputs; trajectories where a drive has poses) and the KITTI odometry clip (no LiDAR: ATE after Sim(3) alignment). Every trajectory is
 scored beside the textbook monocular VO of the same frames (`mono_vo`, Sim(3)-aligned), and every ATE
 carries its alignment scale (1.0 under SE(3); near 1.0 under Sim(3) when the metric scale is right)."""
 
@@ -18,12 +18,13 @@ from leovr.config import BenchRefineConfig, RefineConfig
 from leovr.data import open_sequence
 from leovr.depth.dataset import split_entries
 from leovr.eval.depth_metrics import DepthMetricAccumulator
-from leovr.paths import kitti_odometry_dir, kitti_raw_dir
+from leovr.paths import kitti_odometry_dir, kitti_raw_clips, shared_data_dir
 from leovr.pipeline.refine import TIMED, run_refine
 from leovr.sim.dataset import Recipe, default_root, make_dataset
 
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
-DEPTH_METHODS = ("nearest", "ipbasic", "generator", "generator_frame", "refined")  # generator_frame: cone LiDARs only
+DEPTH_METHODS = ("nearest", "ipbasic", "nearest_accumulated", "ipbasic_accumulated", "generator", "generator_frame",
+                 "refined")  # generator_frame and the accumulated fills: cone LiDARs only
 TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
 
 
@@ -47,6 +48,7 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
         root = Path(cfg.dataset) if cfg.dataset else default_root() / "default"
     frames = cfg.quick_frames if quick else cfg.frames
     results, trajectory, timing, windows = {}, {}, {}, {}
+    development: dict[str, bool] = {}  # KITTI raw drive -> whether it is development data (under ../shared/data)
     all_runs: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -73,11 +75,15 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
             m = refine(ablate["path"], base.model_copy(update={"input": "full", "window": w}), f"window{w}")
             windows[str(w)] = {"refined_mae_m": m["depth"]["refined"]["mae_m"], "generator_mae_m": m["depth"]["generator"]["mae_m"],
                                "ate_m": m["trajectory"]["leovr"]["ate_m"], "graph_ms": m["timing"]["graph_ms"]}
-        raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
-        if raw.exists():
+        shared = shared_data_dir().resolve()
+        clips = [Path(c) for c in cfg.kitti_raw_clips] if cfg.kitti_raw_clips is not None else kitti_raw_clips()
+        for raw in [c for c in clips if c.exists()]:
+            development[raw.name] = shared in raw.resolve().parents
             for inp in cfg.kitti_inputs:
-                m = refine(raw, base.model_copy(update={"input": inp}), f"kitti_{inp}")
-                results[f"kitti_{inp}"] = {k: depth_entry({**v, "ms_per_frame": None}) for k, v in m["depth"].items()}
+                m = refine(raw, base.model_copy(update={"input": inp}), f"{raw.name}_{inp}")
+                results[f"{raw.name}_{inp}"] = {k: depth_entry({**v, "ms_per_frame": None}) for k, v in m["depth"].items()}
+                if "trajectory" in m:  # a drive with poses: leovr and KISS-ICP on the same input
+                    trajectory[f"{raw.name}_{inp}"] = {k: {kk: v[kk] for kk in TRAJ_KEYS} for k, v in m["trajectory"].items()}
         odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
         if odo.exists():
             m = refine(odo, base, "kitti_odometry")
@@ -87,7 +93,7 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
     for k in TIMED:
         timing[k] = float(np.mean([r["timing"][k] for r in all_runs]))
     body = {"quick": quick, "synthetic_dataset": str(root), "frames_per_sequence": frames, "window": cfg.window,
-            "results": results, "trajectory": trajectory, "timing": timing,
+            "results": results, "trajectory": trajectory, "timing": timing, "kitti_raw_development": development,
             "window_ablation": {"sequence": str(ablate["path"]), "results": windows}}
     return write_bench(out, "refine", body, started)
 

@@ -5,7 +5,8 @@ Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 2
 depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
 `depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP alone on the same input, with
 ground-truth poses or `--compare`; `poses_kiss_icp_no_deskew_kitti.txt` beside it when the scans carry point times), `poses_mono_vo_kitti.txt` (`--compare`), `metrics.json` (when the sequence has ground
-truth depth or LiDAR to hold out, and poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
+truth depth or LiDAR to hold out, and poses; with a cone LiDAR also `nearest_accumulated` / `ipbasic_accumulated`,
+the fills of the same frames' returns placed with KISS-ICP's poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
 continues from. A resumed run replays its finished frames through the front end and the window without
 rewriting their outputs, so that it ends as the uninterrupted run would: resuming saves the writing and
 scoring of finished frames, not their computation.
@@ -49,6 +50,7 @@ from leovr.pipeline.completion import (
     warn_empty_input,
     with_truth,
 )
+from leovr.pipeline.accumulated_baseline import ACCUMULATED, accumulated_fills
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
 from leovr.threads import single_threaded_blas
 
@@ -121,8 +123,9 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
 # because the generator of the next frame runs while the graph updates
 TIMED = ("generator_ms", "frontend_ms", "graph_ms", "output_ms")
 WALL = "wall_ms"
-SCORED = ("nearest", "ipbasic", "generator", "generator_frame", "refined")  # depth methods in metrics.json, same pixels
-# generator: as it ran in the graph (with earlier scans for a cone LiDAR); generator_frame: on the frame's own scan alone
+SCORED = ("nearest", "ipbasic", *ACCUMULATED, "generator", "generator_frame", "refined")  # depth methods in metrics.json, same pixels
+# generator: as it ran in the graph (with earlier scans for a cone LiDAR); generator_frame: on the frame's own scan alone;
+# nearest / ipbasic_accumulated: the fills of the same frames' returns placed with KISS-ICP's poses (cone LiDAR only)
 PNG_FOLDER = {"ipbasic": "depth_ipbasic", "generator": "depth_generator", "refined": "depth"}
 
 
@@ -487,6 +490,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if reader is not None:
             reader.shutdown(wait=True, cancel_futures=True)
     finish(graph.flush())
+    several = [i for i, fs in scored.items() if fs.own_input is not None]  # earlier scans joined the generator's input
     single_frame_generator(seq, scored, generator, progress)
     if empty:
         warn_empty_input(seq, empty)
@@ -531,7 +535,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
     if textbook is not None:
         baselines["mono_vo"] = np.stack(textbook.poses), "sim3"
         write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"][0])
-    if has_lidar and (cfg.compare or score and first.T_world_cam is not None):
+    icp = None
+    if has_lidar and (cfg.compare or several or score and first.T_world_cam is not None):
         icp = kiss_icp_trajectory(seq, indices, ccfg, progress)
         if icp is not None:
             baselines["kiss_icp"] = icp, "se3"
@@ -539,6 +544,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         if icp is not None and first.point_times is not None:  # KISS-ICP without its deskew, the other way to run it
             baselines["kiss_icp_no_deskew"] = kiss_icp_trajectory(seq, indices, ccfg, progress, deskew=False), "se3"
             write_kitti_poses(out / "poses_kiss_icp_no_deskew_kitti.txt", baselines["kiss_icp_no_deskew"][0])
+    if several and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
+        accumulated_fills(seq, indices, ccfg, icp, scored, several, cfg.accumulate_frames, frame_dt=frame_dt,
+                          progress=progress)
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
 
