@@ -129,7 +129,9 @@ def report(m: dict, source: str, inp: str) -> str:
            "frames added (a Mid-40 cone: `refine.accumulate_frames`) and was moved towards image corners triangulated over "
            "the frames around it (`refine.motion_stereo`, on for a cone by default), as the graph used it; `refined` "
            "is also moved, where no return lies, by a photometric plane sweep against the frames +-1..3 when the "
-           "poses pass its check (`refine.photometric_field`)."] if "generator_frame" in depth else []),
+           "poses pass its check (`refine.photometric_field`). `nearest_accumulated` and `ipbasic_accumulated` fill the "
+           "cheap returns of the same frames (16 before and after), placed with KISS-ICP's poses: the fair yardstick for "
+           "a refinement that sees several frames."] if "generator_frame" in depth else []),
         "",
         "| method | MAE (m) | RMSE (m) | AbsRel | delta<1.25 | " + " | ".join(f"MAE {b} m" for b in bins) + " |",
         "|---" * (5 + len(bins)) + "|",
@@ -143,7 +145,8 @@ def report(m: dict, source: str, inp: str) -> str:
             lines.append(f"| {name} | {t['ate_m']:.3f} | {t['rpe_m']:.3f} | {t['align']} |")
         if "kiss_icp" in m["trajectory"]:
             lines += ["", "`kiss_icp` is KISS-ICP alone on the same LiDAR input, deskewing the raw scans itself from their "
-                          "point times (`refine/poses_kiss_icp_kitti.txt`); a Mid-40's 38-degree cone constrains it poorly."]
+                          "point times (`refine/poses_kiss_icp_kitti.txt`); a Mid-40's 38-degree cone constrains it poorly."
+                          + (" `kiss_icp_no_deskew`: the same without its deskew." if "kiss_icp_no_deskew" in m["trajectory"] else "")]
     if (Path(m["sequence"]).parent / "refine" / "loops.json").is_file():
         loops = json.loads((Path(m["sequence"]).parent / "refine" / "loops.json").read_text())["loops"]
         lines += ["", f"Loop closure: {sum(r['accepted'] for r in loops)} loops accepted of {len(loops)} candidates "
