@@ -409,7 +409,7 @@ def bench_batch(
 def bench_real(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
     quick: bool = typer.Option(False, help="First 12 frames of each clip, one adaptation epoch."),
-    adapt: Optional[bool] = typer.Option(None, "--adapt/--no-adapt", help="Also adapt the generator to each clip (default: the config's)."),
+    adapt: Optional[bool] = typer.Option(None, "--adapt/--no-adapt", help="Adapt the generator to each clip for every input / none (default: the config's adapt_inputs)."),
     clips: Optional[str] = typer.Option(None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
@@ -417,7 +417,9 @@ def bench_real(
     with --adapt) on the same held-out pixels; leovr's ATE against KISS-ICP's where a drive has poses."""
     from leovr.bench.real import run_real_bench
 
-    cfg = override(load_config(config).bench_real, adapt=adapt, clips=[c.strip() for c in clips.split(",")] if clips else None)
+    cfg = load_config(config).bench_real
+    inputs = None if adapt is None else (list(cfg.inputs) if adapt else [])
+    cfg = override(cfg, adapt_inputs=inputs, clips=[c.strip() for c in clips.split(",")] if clips else None)
     doc = run_real_bench(out, cfg, quick=quick)
     for name, entry in [*doc["clips"].items(), ("pooled", doc["pooled"])]:
         for key, r in entry["results"].items():

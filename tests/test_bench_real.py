@@ -11,7 +11,8 @@ from tests.conftest import KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_
 
 @needs_shared
 def test_bench_real_contract(tmp_path):
-    cfg = BenchRealConfig(clips=[str(KITTI_RAW)], inputs=["vlp16"], quick_frames=5, quick_train_frames=3)
+    cfg = BenchRealConfig(clips=[str(KITTI_RAW)], inputs=["vlp16"], adapt_inputs=["vlp16"], quick_frames=5,
+                          quick_train_frames=3)
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     assert json.loads((tmp_path / "real.json").read_text())["benchmark"] == "real"
     clip = doc["clips"]["kitti_raw"]
@@ -35,7 +36,7 @@ def test_bench_real_contract(tmp_path):
 @needs_shared
 @needs_posed_drive
 def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_path):
-    cfg = BenchRealConfig(clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], adapt=False, quick_frames=5)
+    cfg = BenchRealConfig(clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], adapt_inputs=[], quick_frames=5)
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     one, two = doc["clips"]["kitti_raw"], doc["clips"]["kitti_raw_0013"]
     assert set(one["results"]) == set(two["results"]) == {"shipped_vlp16"} and "adapt_minutes" not in one

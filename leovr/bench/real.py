@@ -10,7 +10,7 @@ the same frames' returns placed with KISS-ICP's poses and filled), `interp` (the
 - `inductive`: adapt on the first `inductive_train_fraction` of the frames, score the frames after;
 - `transductive`: adapt on every frame, using only its cheap input, score every frame (what a user
   does with a recording: adaptation never sees the held-out returns).
-Without adaptation every frame is scored (`shipped_<input>`). Refinement runs over the whole clip (it
+An input not in `adapt_inputs` is scored on every frame without adaptation (`shipped_<input>`). Refinement runs over the whole clip (it
 reads no ground truth); only the scored frames differ. Each clip is reported alone and all clips pooled
 (every scored pixel of every clip), with whether it is development data (under ../shared/data). Runs are
 kept in `<stem>_work/` and resumed when the settings are unchanged.
@@ -149,7 +149,7 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
     seq = open_sequence(clip)
     n = min(len(seq), cfg.quick_frames) if quick else len(seq)
     split = cfg.quick_train_frames if quick else int(round(cfg.inductive_train_fraction * n))
-    if cfg.adapt and not 0 < split < n:
+    if cfg.adapt_inputs and not 0 < split < n:
         raise DataError(clip, f"{n} frames cannot be split at frame {split} for the inductive protocol")
     epochs = cfg.quick_epochs if quick else cfg.adapt_epochs
     protocols = {"inductive": (split, list(range(split, n))), "transductive": (None, list(range(n)))}
@@ -164,7 +164,7 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
             t = {k: {key: v[key] for key in ("ate_m", "rpe_m")} for k, v in m["trajectory"].items()}
             kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
             trajectory[inp] = t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
-        if not cfg.adapt:
+        if inp not in cfg.adapt_inputs:
             results[f"shipped_{inp}"] = pooled(shipped, list(range(n)), list(base.bins))
             scored_sets[f"shipped_{inp}"] = shipped, list(range(n))
             continue
@@ -189,7 +189,7 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
             scored_sets[f"{protocol}_{inp}"] = shipped, scored
     entry = {"path": str(clip), "frames": n, "has_poses": seq.has_poses, "results": results,
              "summary": summary_of(results), "trajectory": trajectory}
-    if cfg.adapt:
+    if minutes:
         entry |= {"protocols": {"inductive": f"adapt on frames 0-{split - 1}, score frames {split}-{n - 1}",
                                 "transductive": f"adapt on frames 0-{n - 1} (their cheap input only), score all of them"},
                   "adapt_epochs": epochs, "adapt_minutes": minutes,
