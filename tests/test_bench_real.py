@@ -47,3 +47,28 @@ def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_pa
     best = min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"])
     assert abs(t["leovr_vs_kiss_icp"] - t["leovr"]["ate_m"] / best) < 1e-9
     assert doc["pooled"]["trajectory_vs_kiss_icp"]["vlp16"] == t["leovr_vs_kiss_icp"]  # the one clip with poses
+
+
+def test_adapted_scores_join_on_the_pixels_both_runs_hold():
+    """Each run deskews the held-out returns with its own motion, so two runs' truth can cover a few different
+    pixels: the adapted run's depth joins the shipped run's methods on the pixels both hold, all on the same."""
+    import numpy as np
+
+    from leovr.bench.real import add_adapted
+    from leovr.pipeline.completion import EvalSample
+    from leovr.pipeline.refine import FrameScore
+
+    def score(points: dict[tuple[int, int], float]) -> FrameScore:
+        gt = np.zeros((5, 6), np.float32)
+        for (r, c), z in points.items():
+            gt[r, c] = z
+        return FrameScore.of(EvalSample(None, gt, gt, "heldout", None))
+
+    shipped, adapted = score({(1, 2): 5.0, (3, 4): 7.0, (4, 0): 9.0}), score({(0, 1): 3.0, (1, 2): 5.1, (3, 4): 7.1})
+    shipped.add("nearest", np.full((5, 6), 1.0))
+    adapted.add("generator", np.arange(30.0).reshape(5, 6))
+    adapted.add("refined", 2 * np.arange(30.0).reshape(5, 6))
+    add_adapted(shipped, adapted)
+    np.testing.assert_array_equal(shipped.gt, [5.0, 7.0])  # the shipped run's truth on the common pixels
+    assert {m: list(p) for m, p in shipped.pred.items()} == {"nearest": [1.0, 1.0], "adapted": [8.0, 22.0],
+                                                             "adapted_refined": [16.0, 44.0]}

@@ -119,6 +119,20 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     return write_bench(out, "real", body, started)
 
 
+def add_adapted(shipped: FrameScore, adapted: FrameScore) -> None:
+    """The adapted run's generator and refined depth beside the shipped run's methods, on the pixels both runs
+    hold: with point times each run deskews the held-out returns with its own motion, so a few returns can land
+    on other pixels; every method keeps the same pixels (the shipped run's truth there)."""
+    key = lambda fs: fs.pick[0].astype(np.int64) * 1_000_000 + fs.pick[1]  # noqa: E731  (row-major, sorted)
+    _, ia, ib = np.intersect1d(key(shipped), key(adapted), assume_unique=True, return_indices=True)
+    if len(ia) < len(shipped.gt):
+        shipped.pick = (shipped.pick[0][ia], shipped.pick[1][ia])
+        shipped.gt = shipped.gt[ia]
+        shipped.pred = {m: p[ia] for m, p in shipped.pred.items()}
+    shipped.pred["adapted"] = adapted.pred["generator"][ib]
+    shipped.pred["adapted_refined"] = adapted.pred["refined"][ib]
+
+
 def trajectory_ratios(per_clip: dict) -> dict[str, list[float]]:
     """Per input: leovr's ATE over KISS-ICP's on the same input (the better of its two deskew settings), one
     per clip with ground-truth poses."""
@@ -181,10 +195,9 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
             ck = work / f"{inp}_{protocol}_adapt" / "generator.pt"
             run_refine(seq, base.model_copy(update={"checkpoint": str(ck)}), work / f"{inp}_{protocol}_refine",
                        resume=True, progress=progress, collect=adapted)
-            for i, fs in adapted.items():  # same frames, same input, same held-out pixels
+            for i, fs in adapted.items():  # same frames, same input
                 if i in shipped:
-                    shipped[i].pred["adapted"] = fs.pred["generator"]
-                    shipped[i].pred["adapted_refined"] = fs.pred["refined"]
+                    add_adapted(shipped[i], fs)
             results[f"{protocol}_{inp}"] = pooled(shipped, scored, list(base.bins))
             scored_sets[f"{protocol}_{inp}"] = shipped, scored
     entry = {"path": str(clip), "frames": n, "has_poses": seq.has_poses, "results": results,
