@@ -453,9 +453,10 @@ class BenchRealConfig(_Model):
     inputs: list[str] = ["vlp16", "mid40"]
     checkpoint: str | None = None  # generator to start from (None = the shipped one)
     window: int = Field(4, ge=2)
-    # the inputs the generator is also adapted to each clip for (minutes per input and protocol). VLP-16-like: off,
-    # adaptation gained 0.1 % on unseen real frames for 8-11 minutes of training; Mid-40-like: 10 % in 2-3 minutes
-    adapt_inputs: list[str] = ["mid40"]
+    # the inputs the generator is also adapted to each clip for (minutes per input and protocol). None by default:
+    # on the development drives adaptation gained under 5 % (VLP-16-like 0.1 % for 8-11 minutes; Mid-40-like +6.6 %
+    # inductive on kitti_raw, -3.5 % on kitti_raw_0013, transductive +-0.3 %; docs/benchmarks.md)
+    adapt_inputs: list[str] = []
     inductive_train_fraction: float = Field(0.8, gt=0, lt=1)  # adapt on the first 80 % of a clip's frames, score the rest
     adapt_epochs: int = Field(40, ge=1)  # at most; early stopping on the validation frames usually ends sooner
     quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames ...
