@@ -61,23 +61,21 @@ def interp_scores(seq, rcfg: RefineConfig, frames: dict[int, FrameScore]) -> Non
         fs.add("interp", complete_depth(s.sparse, "interp", s.frame.image if ccfg.prior_edges == "image" else None))
 
 
-def pooled(frames: dict[int, FrameScore], indices: list[int], bins: list[float]) -> dict:
-    """Metrics per method pooled over the frames `indices` (no timing: runs differ per method)."""
+def pooled(sets: list[tuple[dict[int, FrameScore], list[int]]], bins: list[float]) -> dict:
+    """Metrics per method pooled over every scored pixel of the frames `indices` of each (frames, indices) set:
+    one clip's, or every clip's (no timing: runs differ per method)."""
     out = {}
     for method in METHODS:
         acc = DepthMetricAccumulator(bins)
-        for i in indices:
-            if i in frames and method in frames[i].pred:
-                acc.add(frames[i].pred[method], frames[i].gt)
+        for frames, indices in sets:
+            for i in indices:
+                if i in frames and method in frames[i].pred:
+                    acc.add(frames[i].pred[method], frames[i].gt)
         if acc.empty:
             continue
         out[method] = depth_entry(acc.result())
         out[method].pop("ms_per_frame")
     return out
-
-
-def clip_name(path: Path) -> str:
-    return Path(path).name
 
 
 def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progress: bool = True) -> dict:
@@ -95,20 +93,15 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     prepared_work(work, settings)
     shared = shared_data_dir().resolve()
     per_clip, notes = {}, set()
-    pool: dict[str, dict[str, DepthMetricAccumulator]] = {}
+    every: dict[str, list[tuple[dict[int, FrameScore], list[int]]]] = {}  # protocol_input -> each clip's scored set
     for clip in clips:
-        entry, scored = clip_bench(clip, cfg, quick, progress, work / clip_name(clip))
+        entry, scored = clip_bench(clip, cfg, quick, progress, work / clip.name)
         entry["development"] = shared in clip.resolve().parents
-        per_clip[clip_name(clip)] = entry
+        per_clip[clip.name] = entry
         for key, (frames, indices) in scored.items():
             notes |= {fs.kind for fs in frames.values()}
-            accs = pool.setdefault(key, {m: DepthMetricAccumulator(list(RefineConfig().bins)) for m in METHODS})
-            for i in indices:
-                for method, pred in frames[i].pred.items():
-                    if method in accs:
-                        accs[method].add(pred, frames[i].gt)
-    pooled_results = {key: {m: {k: v for k, v in depth_entry(a.result()).items() if k != "ms_per_frame"}
-                            for m, a in accs.items() if not a.empty} for key, accs in pool.items()}
+            every.setdefault(key, []).append((frames, indices))
+    pooled_results = {key: pooled(sets, list(RefineConfig().bins)) for key, sets in every.items()}
     body = {
         "quick": quick,
         "clips": per_clip,
@@ -179,7 +172,7 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
             kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
             trajectory[inp] = t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
         if inp not in cfg.adapt_inputs:
-            results[f"shipped_{inp}"] = pooled(shipped, list(range(n)), list(base.bins))
+            results[f"shipped_{inp}"] = pooled([(shipped, list(range(n)))], list(base.bins))
             scored_sets[f"shipped_{inp}"] = shipped, list(range(n))
             continue
         for protocol, (adapt_end, scored) in protocols.items():
@@ -198,7 +191,7 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
             for i, fs in adapted.items():  # same frames, same input
                 if i in shipped:
                     add_adapted(shipped[i], fs)
-            results[f"{protocol}_{inp}"] = pooled(shipped, scored, list(base.bins))
+            results[f"{protocol}_{inp}"] = pooled([(shipped, scored)], list(base.bins))
             scored_sets[f"{protocol}_{inp}"] = shipped, scored
     entry = {"path": str(clip), "frames": n, "has_poses": seq.has_poses, "results": results,
              "summary": summary_of(results), "trajectory": trajectory}
