@@ -168,10 +168,11 @@ def refine(
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also write a Rerun recording of the run (.rrd)."),
     loop_closure: Optional[bool] = typer.Option(None, "--loop-closure/--no-loop-closure", help="Close loops afterwards."),
+    causal: Optional[bool] = typer.Option(None, "--causal/--no-causal", help="Live use: each frame's outputs from it and earlier frames only."),
 ) -> None:
     """Generator depth refined with poses and landmarks in the sliding-window factor graph."""
     cfg = override(load_config(config).refine, checkpoint=None if checkpoint is None else str(checkpoint),
-                   window=window, input=input, start=start, end=end, loop_closure=loop_closure)
+                   window=window, input=input, start=start, end=end, loop_closure=loop_closure, causal=causal)
     _run_refine(data, out, cfg, resume, rerun)
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from leovr.errors import ConfigError
 from leovr.eval.depth_metrics import LEOVR_BINS
@@ -122,6 +122,10 @@ class RefineConfig(FrameSelection):
 
     input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R simulate a cheaper sensor (evaluation); none: camera only
     window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
+    # live use: each frame's depth and pose as the graph had them when the frame was its newest, from that frame
+    # and earlier ones only (motion stereo and the photometric step look back only, scans are deskewed by the last
+    # step, no whole-recording pass); false: a frame's outputs are final when it leaves the window
+    causal: bool = False
     depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
     # the correction field's depth-consistency and LiDAR-depth factors; False: point factors only. auto: off
     # with a spinning LiDAR (on every development drive and the real clip's development frames they added
@@ -129,19 +133,10 @@ class RefineConfig(FrameSelection):
     # the sensor is judged on the first scan with 100 returns or more (frames before it keep the factors)
     depth_factors: bool | Literal["auto"] = "auto"
     deskew: bool = True  # motion-compensate scans with per-point times by the predicted camera motion
-    # the sweep's motion. "images": the first two sweeps take the first two scans' own motion (KISS-ICP), and
-    # every sweep the rotation and direction read from its frame's and the next frame's images where 1.5x
-    # as many matches agree with them as with the last step (odometry.sweep_motion: the start and end of
-    # turns). "constant_velocity": the last estimated step, the first two sweeps as if standing (before s43)
-    deskew_motion: Literal["images", "constant_velocity"] = "images"
-    # KISS-ICP's prediction of the next scan (spinning LiDAR only; a cone keeps constant velocity). "images":
-    # the sweep's motion read from the images where it overruled the last step (deskew_motion "images": the
-    # start and end of turns), else KISS-ICP's own constant velocity, which at 80 km/h misses a turn's start
-    # by its whole rate (tuning lap 3001: one step 16 degrees off); its adaptive threshold still measures its
-    # own prediction's error, so the match distance and covariance stay as calibrated (chosen on tuning laps
-    # 3000-3001 and the validation drives, session 53, docs/benchmarks.md). "constant_velocity": KISS-ICP's
-    # own (before session 53)
-    icp_guess: Literal["images", "constant_velocity"] = "images"
+    # scans are deskewed by the sweep's motion: the first two scans' own motion (KISS-ICP) for the first two sweeps,
+    # then the last step, or the rotation and direction read from the frame's and the next frame's images where 1.5x
+    # as many matches agree with them (the start and end of turns; odometry.sweep_motion). With a spinning LiDAR
+    # that motion also starts KISS-ICP's registration where it overruled the last step (causal: the last step only)
     # a non-spinning LiDAR (Mid-40 cone): the cheap input of this many earlier frames, placed with the graph's
     # poses, fills the generator's input where this frame's scan has no return (0 = off; spinning sensors: off,
     # their accumulated returns made the generator worse on the development drives; docs/benchmarks.md)
@@ -183,10 +178,7 @@ class RefineConfig(FrameSelection):
     photometric_min_gain: float = Field(0.05, ge=0)
     loop_closure: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
-    # the loop pose graph's odometry factors under a Cauchy kernel of this constant (in sigmas; null: Gaussian, as
-    # before session 54): a step the front end got grossly wrong gives way to the validated loops (Mid-40 tuning
-    # laps 3000-3003 with loops 1.975 / 0.476 / 0.598 / 0.635 -> 0.242 / 0.483 / 0.438 / 0.592 m; docs/benchmarks.md)
-    loop_odometry_cauchy: float | None = Field(1.0, gt=0)
+    loop_odometry_cauchy: float = Field(1.0, gt=0)  # loop pose graph: odometry factors under a Cauchy kernel (sigmas)
     compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and KISS-ICP alone (`kiss_icp`, with LiDAR; always with ground-truth poses)
     vocabulary: str | None = None  # ORB vocabulary (.npz); None = the shipped one
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows x cols log-depth offsets
@@ -201,9 +193,6 @@ class RefineConfig(FrameSelection):
     # level without them (docs/benchmarks.md, "Refinement speed", session 55). Session 36 had cut the cap from 1e-2
     # the same way.
     lm_lambda_upper_bound: float = Field(1e-10, gt=0)
-    # a frame leaving the window: its observations of landmarks that stay become factors on those landmarks alone
-    # (conditioned on its pose); marginalised, they tied all those landmarks in one dense factor (issue 17)
-    condition_leaving_observations: bool = True
     n_features: int = Field(1000, ge=50)  # ORB features per frame
     assoc_radius_px: float = 5.0  # feature <-> projected LiDAR point (eq. 10)
     assoc_max_rel_spread: float = 0.1  # reject when depths within the radius spread more than this
@@ -214,7 +203,6 @@ class RefineConfig(FrameSelection):
     landmark_prior_rel: float = 0.3  # landmark prior from the depth it was initialised with, sigma / depth
     odometry_sigma_rad: float = 0.05  # front-end motion between consecutive frames (weak)
     odometry_sigma_m: float = 0.3
-    icp_prior: Literal["off", "pose", "window"] = "window"  # KISS-ICP as pose prior: motions within the window, absolute poses, or none
     # KISS-ICP's point-to-point registration covariance x this. Its own frame-to-frame errors on the real drive with
     # poses (kitti_raw_0013, tools/icp_covariance_dev.py) call for 24 (VLP-16-like) to 40 (full scan), but the graph's
     # visual factors count hundreds of correlated observations as independent: at 60 the graph's ATE there was
@@ -238,11 +226,6 @@ class RefineConfig(FrameSelection):
     # frame (metres; 0.005 at 10 Hz is 0.5 m/s^2; chosen on the development clips, tools/step_length_dev.py)
     mono_length_smoothing: bool = True
     mono_length_change_sigma_m: float = Field(0.005, gt=0)
-    # ... then each step's direction of travel across the car's up axis from a rigid vehicle (the camera at a fitted
-    # offset from a point that moves along its chord; odometry/vehicle_motion.py), fitted over the whole recording.
-    # Off: better or level on all six development clips (simulator turns 12-54 %), but on the real KITTI odometry
-    # clip the ATE rose 0.059 -> 0.068 m (RPE fell 0.022 -> 0.017); docs/benchmarks.md, session 56
-    mono_vehicle_directions: bool = False
     mono_odometry_sigma_rad: float = 0.005  # no LiDAR: the epipolar motion's weight in the graph
     mono_odometry_sigma_rel: float = 0.05  # no LiDAR: its translation sigma per metre of step
     # no LiDAR: the camera's height above the road (m); the road plane then gives the metric scale and
@@ -252,9 +235,6 @@ class RefineConfig(FrameSelection):
     # no LiDAR: the epipolar motion's translation sigma per metre of step where the road gave its length
     # (chosen on development clips, tools/mono_dev.py: 0.01 against 0.05)
     mono_ground_odometry_sigma_rel: float = Field(0.01, gt=0)
-    # no LiDAR: `condition_leaving_observations` for camera-only runs (off: mean ATE 0.159 against 0.170 m on
-    # the development clips, better on 5 of 6; tools/mono_dev.py)
-    mono_condition_leaving_observations: bool = False
     # no LiDAR, road scale: landmarks are triangulated from the metric motion where the rays part by at least
     # this angle (else seeded from the generator's depth, which tilts the structure), with a loose depth prior
     # (sigma per metre of depth); chosen on development clips (tools/mono_dev.py): 0.3 deg and 1.0 against 1 deg, 0.3.
@@ -272,6 +252,12 @@ class RefineConfig(FrameSelection):
     # (tools/mono_dev.py): 10 and 0.3 against 0.3 and 0.05 (docs/benchmarks.md)
     mono_landmark_prior_rel: float = Field(10.0, gt=0)
     mono_consistency_sigma_log: float = Field(0.3, gt=0)
+
+    @model_validator(mode="after")
+    def _check_causal(self) -> "RefineConfig":
+        if self.causal and self.loop_closure:
+            raise ValueError("loop_closure corrects the whole recording afterwards; a causal run cannot have it")
+        return self
 
     @field_validator("input")
     @classmethod
@@ -457,6 +443,7 @@ class BenchRealConfig(_Model):
     # on the development drives adaptation gained under 5 % (VLP-16-like 0.1 % for 8-11 minutes; Mid-40-like +6.6 %
     # inductive on kitti_raw, -3.5 % on kitti_raw_0013, transductive +-0.3 %; docs/benchmarks.md)
     adapt_inputs: list[str] = []
+    causal: bool = True  # also run each input in refine's causal mode (live use) and report it beside
     inductive_train_fraction: float = Field(0.8, gt=0, lt=1)  # adapt on the first 80 % of a clip's frames, score the rest
     adapt_epochs: int = Field(40, ge=1)  # at most; early stopping on the validation frames usually ends sooner
     quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames ...

@@ -315,10 +315,10 @@ def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np
     return out
 
 
-def neighbour_frames(i: int, selected: list[int], offsets: tuple[int, ...]) -> list[int]:
-    """The frames i - o and i + o of the run's selection, nearest first."""
+def neighbour_frames(i: int, selected: list[int], offsets: tuple[int, ...], causal: bool = False) -> list[int]:
+    """The frames i - o and i + o of the run's selection (i - o only, `causal`), nearest first."""
     have = set(selected)
-    return [j for o in offsets for j in (i - o, i + o) if j in have]
+    return [j for o in offsets for j in ((i - o,) if causal else (i - o, i + o)) if j in have]
 
 
 def corner_reference(log_depth: np.ndarray, v: np.ndarray, u: np.ndarray, log_z: np.ndarray, radius_px: int) -> np.ndarray:

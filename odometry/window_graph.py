@@ -111,6 +111,9 @@ class WindowGraph:
     K: np.ndarray
     shape: tuple[int, int]
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    # a leaving frame's observations of landmarks that stay: conditioned on its pose (with LiDAR), else marginalised
+    # (camera only: conditioning carried the leaving pose's pitch error on to the landmarks that stay)
+    condition_leaving: bool = True
 
     def __post_init__(self) -> None:
         self.smoother = gtsam.BatchFixedLagSmoother(self.cfg.window - 0.5, lm_params(self.cfg))
@@ -231,19 +234,15 @@ class WindowGraph:
         return rotation_angle_deg(R_pair.T @ R_ref) <= gate
 
     def _icp_factors(self, i: int, T: np.ndarray, cov: np.ndarray, graph: gtsam.NonlinearFactorGraph) -> None:
-        """KISS-ICP as the pose prior. `window`: its motion from every frame still in the window to this
-        one (KISS-ICP registers against a local map, so its motion over several frames is as precise
-        as over one: chaining only consecutive motions would lose that and drift); `pose`: its absolute
-        pose; covariances from the registration (`LidarOdometry.covariance`)."""
-        mode = self.cfg.icp_prior
-        if mode == "pose" and self.last is not None:
-            graph.add(gtsam.PriorFactorPose3(X(i), gtsam.Pose3(T), gtsam.noiseModel.Gaussian.Covariance(cov)))
-        if mode == "window":
-            self.icp_poses = {j: v for j, v in self.icp_poses.items() if j in self.poses}
-            for j, (Tj, cov_j) in self.icp_poses.items():
-                graph.add(gtsam.BetweenFactorPose3(X(j), X(i), gtsam.Pose3(invert_T(Tj) @ T),
-                                                   gtsam.noiseModel.Gaussian.Covariance(cov + cov_j)))
-            self.icp_poses[i] = (T, cov)
+        """KISS-ICP as the pose prior: its motion from every frame still in the window to this one
+        (KISS-ICP registers against a local map, so its motion over several frames is as precise as over
+        one: chaining only consecutive motions would lose that and drift); covariances from the
+        registration (`LidarOdometry.covariance`)."""
+        self.icp_poses = {j: v for j, v in self.icp_poses.items() if j in self.poses}
+        for j, (Tj, cov_j) in self.icp_poses.items():
+            graph.add(gtsam.BetweenFactorPose3(X(j), X(i), gtsam.Pose3(invert_T(Tj) @ T),
+                                               gtsam.noiseModel.Gaussian.Covariance(cov + cov_j)))
+        self.icp_poses[i] = (T, cov)
 
     def _resample(self, pair: _Pair) -> None:
         u, v = pair.trusted_uv
@@ -302,8 +301,8 @@ class WindowGraph:
         were, they tied every such landmark to every other in one dense factor (about 300 keys, 1000
         dimensions on a KITTI frame) that each later update linearised and eliminated again; conditioned,
         each landmark keeps the anchor the old frame gave it and the graph stays sparse. The leaving pose's
-        own uncertainty is what this leaves out. `condition_leaving_observations: false` marginalises."""
-        if not self.cfg.condition_leaving_observations:
+        own uncertainty is what this leaves out. `condition_leaving=False` marginalises."""
+        if not self.condition_leaving:
             return []
         cutoff = newest - (self.cfg.window - 0.5)  # the smoother marginalises keys stamped before this
         leaving = [i for i in self.poses if i < cutoff]
@@ -355,6 +354,10 @@ class WindowGraph:
         self.depths.pop(i, None)
         self.frame_landmarks.pop(i, None)
         return FrameResult(i, T, self.grid.upsample(c))
+
+    def current(self, i: int) -> FrameResult:
+        """Frame i's estimate now, the frame staying in the window (a causal run's output for its newest frame)."""
+        return FrameResult(i, self.poses[i].copy(), self.grid.upsample(self.fields[i]))
 
     def flush(self) -> list[FrameResult]:
         """Every frame still in the window, with its current estimate (end of sequence)."""

@@ -158,7 +158,7 @@ def test_icp_window_factors_make_the_graph_follow_the_lidar_motion():
     from leovr.config import RefineConfig
     from odometry.window_graph import FrameInput, WindowGraph
 
-    cfg = RefineConfig(window=4, depth_factors=False, icp_prior="window")
+    cfg = RefineConfig(window=4, depth_factors=False)
     graph = WindowGraph(cfg, K, SHAPE)
     truth = [make_T(Rotation.from_rotvec([0, 0.01 * i, 0]).as_matrix(), [0.1 * i, 0, 1.0 * i]) for i in range(8)]
     cov = np.diag(np.r_[np.full(3, 1e-3), np.full(3, 0.02)] ** 2)
@@ -194,8 +194,8 @@ def _window_run(condition: bool, frames: int = 7) -> tuple[list[np.ndarray], int
 
     rng = np.random.default_rng(3)
     pts = np.c_[rng.uniform(-6, 6, 60), rng.uniform(-3, 3, 60), rng.uniform(15, 40, 60)]
-    cfg = RefineConfig(window=3, depth_factors=False, icp_prior="off", condition_leaving_observations=condition)
-    g = WindowGraph(cfg, K, SHAPE, rng=np.random.default_rng(0))
+    cfg = RefineConfig(window=3, depth_factors=False)
+    g = WindowGraph(cfg, K, SHAPE, rng=np.random.default_rng(0), condition_leaving=condition)
     truth, done, largest = [], [], 0
     for i in range(frames):
         T = make_T(t=[0.0, 0.0, 0.5 * i])

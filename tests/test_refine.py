@@ -242,6 +242,23 @@ def test_a_sequential_run_counts_the_generator_in_each_frames_wall_time(refined,
 
 
 @needs_posed_drive
+def test_a_causal_run_gives_each_frame_outputs_from_it_and_earlier_frames_only(refined, tmp_path):
+    """`refine.causal`: the same recording cut after frame 4 gives frames 0-4 the very same depth and poses, though
+    motion stereo, the photometric step and the deskew would otherwise read later images; the offline run's differ."""
+    seq_dir, offline, _ = refined
+    seq = open_sequence(seq_dir)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    m = run_refine(seq, RefineConfig(input="full", causal=True), whole, progress=False)
+    run_refine(seq, RefineConfig(input="full", causal=True, end=5), cut, progress=False)
+    assert m["causal"] and len(list((whole / "depth").glob("*.png"))) == 7
+    for name in sorted(p.name for p in (cut / "depth").glob("*.png")):
+        assert (whole / "depth" / name).read_bytes() == (cut / "depth" / name).read_bytes(), name
+    poses = lambda out: np.loadtxt(out / "poses_kitti.txt")  # noqa: E731
+    np.testing.assert_array_equal(poses(whole)[:5], poses(cut))
+    assert np.abs(poses(whole) - poses(offline)).max() > 1e-4
+    assert m["trajectory"]["leovr"]["ate_m"] < 1.0
+
+
 def test_visual_lidar_poses_beat_kiss_icp_on_the_real_drive_with_poses(tmp_path):
     """The real drive with GPS/IMU poses, VLP-16-like input: the graph's trajectory (KISS-ICP's motion as its
     pose prior, images and returns added) is at least as good as KISS-ICP alone on the same input, deskewed

@@ -1,33 +1,41 @@
 #!/usr/bin/env python3
-"""Print a depth benchmark JSON (`leovr bench ...`) as Markdown tables for docs/benchmarks.md."""
+"""Write docs/benchmarks.md from the benchmark JSON files in docs/results/ (`leovr.bench.report.render`).
+
+    python tools/bench_table.py           # rewrite docs/benchmarks.md
+    python tools/bench_table.py --check   # exit 1 if docs/benchmarks.md is not what it would write
+"""
 
 from __future__ import annotations
 
-import json
+import argparse
 import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from leovr.bench.report import render  # noqa: E402
+
+DOC = ROOT / "docs" / "benchmarks.md"
+RESULTS = ROOT / "docs" / "results"
 
 
-def fmt(v, d=3):
-    return "-" if v is None else f"{v:.{d}f}"
-
-
-def main(path: str) -> None:
-    doc = json.load(open(path))
-    print(f"Command: `{doc['command']}`  ({doc['date_utc']}, {doc['duration_s']} s)\n")
-    print("| dataset_input | method | MAE (m) | RMSE (m) | AbsRel | delta1 | p95 (m) | ms/frame | points |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for key, methods in doc["results"].items():
-        for m, r in methods.items():
-            print(f"| {key} | {m} | {fmt(r['mae_m'])} | {fmt(r['rmse_m'])} | {fmt(r['absrel'])} | "
-                  f"{fmt(r['delta1'])} | {fmt(r.get('p95_m'))} | {fmt(r.get('ms_per_frame'), 1)} | {r['n']} |")
-    bins = list(next(iter(next(iter(doc["results"].values())).values()))["bins"])
-    print("\nMAE (m) per distance bin:\n")
-    print("| dataset_input | method | " + " | ".join(bins) + " |")
-    print("|---|---|" + "---|" * len(bins))
-    for key, methods in doc["results"].items():
-        for m, r in methods.items():
-            print(f"| {key} | {m} | " + " | ".join(fmt(r["bins"][b]["mae_m"]) for b in bins) + " |")
+def main(argv: list[str] | None = None) -> int:
+    """Write the file, or with --check compare it with what would be written."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="only check that docs/benchmarks.md is up to date")
+    args = parser.parse_args(argv)
+    text = render(RESULTS)
+    if args.check:
+        if DOC.is_file() and DOC.read_text() == text:
+            return 0
+        print(f"{DOC.relative_to(ROOT)} is out of date with docs/results/*.json: run `python tools/bench_table.py` "
+              "and commit the result.", file=sys.stderr)
+        return 1
+    DOC.write_text(text)
+    print(f"wrote {DOC.relative_to(ROOT)} ({len(text.splitlines())} lines)")
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    sys.exit(main())

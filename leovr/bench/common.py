@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import platform
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -21,6 +22,22 @@ def depth_entry(metrics: dict) -> dict:
     return entry
 
 
+def _git(repo: Path, *args: str) -> str:
+    """Stdout of `git ARGS` run in `repo`; raises when git is missing or fails."""
+    done = subprocess.run(["git", *args], cwd=repo, capture_output=True, text=True, timeout=10, check=True)
+    return done.stdout.strip()
+
+
+def git_commit() -> str | None:
+    """Short hash of the checkout holding this package, "-dirty" if it has changes; None without git."""
+    repo = Path(__file__).resolve().parent
+    try:
+        head = _git(repo, "rev-parse", "--short", "HEAD")
+        return (head + ("-dirty" if _git(repo, "status", "--porcelain") else "")) if head else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 def write_bench(out: Path, name: str, body: dict, started: float, argv: list[str] | None = None) -> dict:
     """Wrap results with provenance (command, machine, duration) and write them atomically."""
     doc = {
@@ -29,6 +46,7 @@ def write_bench(out: Path, name: str, body: dict, started: float, argv: list[str
         "command": " ".join(argv if argv is not None else sys.argv),
         "machine": {"platform": platform.platform(), "python": platform.python_version(), "processor": platform.processor()},
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "commit": git_commit(),
         "duration_s": round(time.time() - started, 2),
         **body,
     }

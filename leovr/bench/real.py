@@ -10,7 +10,9 @@ the same frames' returns placed with KISS-ICP's poses and filled), `interp` (the
 - `inductive`: adapt on the first `inductive_train_fraction` of the frames, score the frames after;
 - `transductive`: adapt on every frame, using only its cheap input, score every frame (what a user
   does with a recording: adaptation never sees the held-out returns).
-An input not in `adapt_inputs` is scored on every frame without adaptation (`shipped_<input>`). Refinement runs over the whole clip (it
+An input not in `adapt_inputs` is scored on every frame without adaptation (`shipped_<input>`); with
+`causal` each input also runs in refine's causal mode (`causal_<input>`: every output from its frame and
+earlier ones, the accumulated fills too; the run's own held-out pixels). Refinement runs over the whole clip (it
 reads no ground truth); only the scored frames differ. Each clip is reported alone and all clips pooled
 (every scored pixel of every clip), with whether it is development data (under ../shared/data). Runs are
 kept in `<stem>_work/` and resumed when the settings are unchanged.
@@ -126,6 +128,14 @@ def add_adapted(shipped: FrameScore, adapted: FrameScore) -> None:
     shipped.pred["adapted_refined"] = adapted.pred["refined"][ib]
 
 
+def trajectory_entry(metrics: dict) -> dict:
+    """ATE and RPE of leovr and the baselines of one refine run, and leovr's ATE over KISS-ICP's (the
+    better of its two deskew settings)."""
+    t = {k: {key: v[key] for key in ("ate_m", "rpe_m")} for k, v in metrics["trajectory"].items()}
+    kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
+    return t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
+
+
 def trajectory_ratios(per_clip: dict) -> dict[str, list[float]]:
     """Per input: leovr's ATE over KISS-ICP's on the same input (the better of its two deskew settings), one
     per clip with ground-truth poses."""
@@ -168,9 +178,15 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
         m = run_refine(seq, base, work / f"{inp}_shipped", resume=True, progress=progress, collect=shipped)
         interp_scores(seq, base, shipped)
         if "trajectory" in m:
-            t = {k: {key: v[key] for key in ("ate_m", "rpe_m")} for k, v in m["trajectory"].items()}
-            kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
-            trajectory[inp] = t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
+            trajectory[inp] = trajectory_entry(m)
+        if cfg.causal:  # live use: every output from its frame and earlier ones (baselines too)
+            live: dict[int, FrameScore] = {}
+            mc = run_refine(seq, base.model_copy(update={"causal": True}), work / f"{inp}_causal", resume=True,
+                            progress=progress, collect=live)
+            results[f"causal_{inp}"] = pooled([(live, list(range(n)))], list(base.bins))
+            scored_sets[f"causal_{inp}"] = live, list(range(n))
+            if "trajectory" in mc:
+                trajectory[f"causal_{inp}"] = trajectory_entry(mc)
         if inp not in cfg.adapt_inputs:
             results[f"shipped_{inp}"] = pooled([(shipped, list(range(n)))], list(base.bins))
             scored_sets[f"shipped_{inp}"] = shipped, list(range(n))

@@ -36,7 +36,7 @@ def feature_points(feats, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, min_gap: int = 30,
-              vocabulary: str | Path | None = None, odo_cauchy: float | None = 1.0) -> tuple[np.ndarray, list[dict], float]:
+              vocabulary: str | Path | None = None, odo_cauchy: float = 1.0) -> tuple[np.ndarray, list[dict], float]:
     """Detect, validate and close loops; returns (corrected poses, loop records, ms per query)."""
     voc = Vocabulary.load(vocabulary or shipped_vocabulary())
     det = LoopDetector(min_gap=min_gap)

@@ -225,7 +225,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                      camera_height=None if has_lidar else road_height(seq, cfg))
     textbook = MonoVO(K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
     gcfg = cfg if has_lidar else camera_only_graph_config(cfg)
-    graph = WindowGraph(gcfg, K, shape, rng=np.random.default_rng(cfg.seed))
+    graph = WindowGraph(gcfg, K, shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar)
     pending: dict[int, tuple[np.ndarray, float]] = {}  # generator depth, and the road's scale for it (camera only)
     replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
     empty: list[int] = []  # frames whose LiDAR input has no return inside the image
@@ -286,8 +286,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         before and after it (the poses they have now: final before i, the window's after it; `leaving`: the
         poses of the frames leaving with i)."""
         free = photo_free.pop(i)
-        near = [indices[position[i] + o] for o in cfg.photometric_offsets + [-o for o in cfg.photometric_offsets]
-                if 0 <= position[i] + o < len(indices)]
+        offsets = [-o for o in cfg.photometric_offsets] + ([] if cfg.causal else cfg.photometric_offsets)
+        near = [indices[position[i] + o] for o in offsets if 0 <= position[i] + o < len(indices)]
         poses = latest_poses(near) | {j: leaving[j] for j in near if j in leaving}
         gray = photo_images[i]
         pairs = [(photo_images[j], invert_T(poses[j]) @ T_i) for j in near if j in poses]
@@ -330,8 +330,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
 
     def sweep(i: int, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
         """The camera motion over frame i's sweep, to deskew it: the last step (`motion`, None before the
-        second frame), or with `deskew_motion: images` the motion read from this image and the next one."""
-        nxt_frame = next_frame(i, frame) if cfg.deskew_motion == "images" else None
+        second frame), or the motion read from this image and the next one (not in a causal run)."""
+        nxt_frame = None if cfg.causal else next_frame(i, frame)
         if nxt_frame is None:
             return motion
         return sweep_images(i, frame.image, i + 1, nxt_frame.image, frame.K, motion)
@@ -355,7 +355,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         predicted camera (the generator's input only)."""
         frame = reads.pop(i).result() if i in reads else seq[i]
         t_sweep = time.perf_counter()
-        if cfg.deskew and cfg.deskew_motion == "images" and has_lidar and i == indices[0]:
+        if cfg.deskew and has_lidar and i == indices[0] and not cfg.causal:
             motion = start_motion(i, frame)
         given = motion
         motion = sweep(i, frame, motion) if cfg.deskew else None
@@ -376,7 +376,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 stereo_images.put(i, frame.image)
             tracks = FrameTracks(i, stereo_images, sample.frame.K, sample.sparse, stereo)
         if with_stereo:
-            corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.offsets), stereo_images,
+            corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.offsets, cfg.causal), stereo_images,
                                           sample.frame.K, sample.sparse, seen.sparse, stereo, tracks)
         depth, log_sigma = generator(seen)
         if corners is not None:  # the generator's depth moved towards the corners around them
@@ -423,7 +423,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             guess = sweep_of.pop(prev_i, None)  # the previous sweep's motion, read from its images: to this frame
             # spinning LiDARs only: measured there (a cone's KISS-ICP pose only competes with PnP as the initial pose)
             spinning_now = sensor.get("spinning") is True
-            guess = guess if cfg.icp_guess == "images" and spinning_now else None
+            guess = guess if spinning_now else None
             fi = front.process(i, sample.frame.image, depth, log_sigma, sample.sparse if has_lidar else None,
                                sample.kept_points, graph, icp_guess=guess)
             fi.pair_motions = pairs
@@ -469,7 +469,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             t2b = time.perf_counter()
             left = graph.add_frame(fi)
             t3 = time.perf_counter()
-            finish(left)
+            finish([graph.current(i)] if cfg.causal else left)  # causal: the newest frame's estimate is its output
             t4 = time.perf_counter()
             if textbook is not None:
                 textbook.add(sample.frame.image)
@@ -489,7 +489,9 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             ahead.shutdown(wait=True)
         if reader is not None:
             reader.shutdown(wait=True, cancel_futures=True)
-    finish(graph.flush())
+    left = graph.flush()
+    if not cfg.causal:
+        finish(left)
     several = [i for i, fs in scored.items() if fs.own_input is not None]  # earlier scans joined the generator's input
     single_frame_generator(seq, scored, generator, progress)
     if empty:
@@ -510,14 +512,10 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
         D = moves[n[mine]]
         landmarks[mine] = np.einsum("nij,nj->ni", D[:, :3, :3], landmarks[mine]) + D[:, :3, 3]
 
-    if not has_lidar and front.camera_height and cfg.mono_length_smoothing and len(indices) > 2:
+    if not cfg.causal and not has_lidar and front.camera_height and cfg.mono_length_smoothing and len(indices) > 2:
         before = state.stacked("poses", indices)
         state.poses_window = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         after = smoothed_step_lengths(before, indices, front.length_readings, cfg)
-        if cfg.mono_vehicle_directions:  # off by default: worse on the real KITTI odometry clip (session 56)
-            from odometry.vehicle_motion import vehicle_directions
-
-            after = vehicle_directions(after)
         move_poses(before, after)
     if cfg.loop_closure:
         from leovr.pipeline.loops import loop_pass
@@ -545,8 +543,8 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
             baselines["kiss_icp_no_deskew"] = kiss_icp_trajectory(seq, indices, ccfg, progress, deskew=False), "se3"
             write_kitti_poses(out / "poses_kiss_icp_no_deskew_kitti.txt", baselines["kiss_icp_no_deskew"][0])
     if several and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
-        accumulated_fills(seq, indices, ccfg, icp, scored, several, cfg.accumulate_frames, frame_dt=frame_dt,
-                          progress=progress)
+        accumulated_fills(seq, indices, ccfg, icp, scored, several, cfg.accumulate_frames, causal=cfg.causal,
+                          frame_dt=frame_dt, progress=progress)
     return write_outputs(seq, cfg, ccfg, indices, state, out, has_lidar, progress, pool, score, scored, collect,
                          baselines)
 
@@ -561,12 +559,9 @@ def smoothed_step_lengths(poses: np.ndarray, indices: list[int], readings: dict,
 
 
 def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
-    """The graph's settings without LiDAR: a leaving frame's observations are marginalised (conditioning
-    them on its pose carried its pitch error on to the landmarks that stay), and the generator's depth, far
-    less sure without LiDAR, gets the camera-only landmark prior and depth-consistency sigma (development
-    clips, docs/benchmarks.md)."""
-    return cfg.model_copy(update={"condition_leaving_observations": cfg.mono_condition_leaving_observations,
-                                  "landmark_prior_rel": cfg.mono_landmark_prior_rel,
+    """The graph's settings without LiDAR: the generator's depth, far less sure without LiDAR, gets the
+    camera-only landmark prior and depth-consistency sigma."""
+    return cfg.model_copy(update={"landmark_prior_rel": cfg.mono_landmark_prior_rel,
                                   "consistency_sigma_log": cfg.mono_consistency_sigma_log})
 
 
@@ -686,7 +681,7 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     metrics: dict = {
         "sequence": str(Path(seq.path).resolve()), "reader": seq.name, "input": cfg.input if seq.has_lidar else "none (no LiDAR)",
         "input_note": input_label(cfg.input, has_lidar),
-        "frames": len(indices), "window": cfg.window,
+        "frames": len(indices), "window": cfg.window, "causal": cfg.causal,
         "mode": "visual-LiDAR" if has_lidar else input_label(cfg.input, has_lidar),
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),
         "depth": {m: a.result() for m, a in accs.items() if not a.empty},

@@ -44,15 +44,15 @@ def solve_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n:
 
 
 def optimise_pose_graph(poses: np.ndarray, loops: list[tuple[int, int, np.ndarray]], odo_sigma=(0.01, 0.05),
-                        loop_sigma=(0.02, 0.1), odo_cauchy: float | None = 1.0) -> np.ndarray:
+                        loop_sigma=(0.02, 0.1), odo_cauchy: float = 1.0) -> np.ndarray:
     """`poses` F x 4 x 4 camera-to-world; `loops` (i, j, T_j_i): camera i seen from camera j.
     Returns the corrected F x 4 x 4 poses.
 
-    `odo_cauchy`: the odometry factors' Cauchy constant (in sigmas; None: Gaussian, as before session 54). A
+    `odo_cauchy`: the odometry factors' Cauchy constant (in sigmas). A
     front-end step that failed grossly (a tuning lap's fast turn: one step 5 m off) then gives way to the
     validated loops instead of holding them back and spreading its error over the lap; the loops keep their
     Huber kernel, and `consistent_loops` has already asked each of them for a neighbour that agrees."""
     M = gtsam.noiseModel.mEstimator
-    odo = robust(None if odo_cauchy is None else M.Cauchy.Create(odo_cauchy), diagonal(*odo_sigma))
+    odo = robust(M.Cauchy.Create(odo_cauchy), diagonal(*odo_sigma))
     lc = robust(M.Huber.Create(1.345), diagonal(*loop_sigma))
     return solve_pose_graph(*build_pose_graph(poses, loops, lambda k: odo, lc), len(poses))
