@@ -81,7 +81,7 @@ class LidarOdometry:
         adaptive threshold is still fed the deviation from its own constant-velocity prediction: the
         threshold sets the match distance that the registration covariance is computed with (and that
         `icp_cov_inflation` was calibrated on), and a threshold shrunk by good predictions made the graph
-        trust KISS-ICP up to 5x more in turns than its errors there deserve (tuning lap 3000, session 53)."""
+        trust KISS-ICP up to 5x more in turns than its errors there deserve (tuning lap 3000)."""
         icp = self.icp
         frame = icp.preprocessor.preprocess(xyz, stamps, delta)
         source, frame_downsample = icp.voxelize(frame)

@@ -12,8 +12,8 @@ and neighbours that agree with it, and only where no LiDAR return lies near (the
 there). The generator's depth then moves towards the corners around them (`corrected_depth`). Given to
 the network as extra input instead, the corners helped the real clip more but made the simulator's
 drives worse: a few wrong corners move whole regions there. Settings were chosen on development data
-only, the clip's frames 0-37 and the simulator's Mid-40 validation drives (tools/motion_stereo_dev.py,
-docs/benchmarks.md).
+only, the clip's frames 0-37 and the simulator's Mid-40 validation drives; on with a cone LiDAR only
+(docs/decisions/0005-motion-stereo-cone-only.md).
 """
 
 from __future__ import annotations
@@ -31,6 +31,9 @@ from scipy.spatial import cKDTree
 @dataclass(frozen=True)
 class MotionStereoSettings:
     offsets: tuple[int, ...] = (2, 4, 8, 12, 16)  # frames before and after frame i that its corners are tracked into
+    # a causal run's frames before frame i: the previous frame too (without it a causal Mid-40-like run on
+    # kitti_raw_0013 lost its way, ATE 1.23 against 0.14 m; depth better on both real drives and a rendered one)
+    causal_offsets: tuple[int, ...] = (1, 2, 4, 8, 12, 16)
     max_corners: int = 4000
     corner_quality: float = 0.003
     corner_distance_px: int = 4
@@ -247,7 +250,7 @@ def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarra
     direction from the essential matrix of the tracked corners, length from the frame's own LiDAR returns
     (`pair_motion`). Neighbours where either fails are left out. For the window graph: on the simulator's
     Mid-40 validation drives the essential matrix's rotation is 5x nearer the truth than the graph's own
-    (median 0.03 against 0.14-0.34 degrees; docs/benchmarks.md). `tracks`: frame i's, to share with motion
+    (median 0.03 against 0.14-0.34 degrees; docs/decisions/0006-pair-factors-cone-only.md). `tracks`: frame i's, to share with motion
     stereo (built here when None)."""
     if not neighbours:
         return {}

@@ -13,9 +13,9 @@ the development drives), and they check the poses and the images: most of them (
 clear valley, and there they should choose no change; otherwise, or when their median choice is off by more than
 `max_bias_log`, the frame keeps the graph's depth (on the real KITTI clip a quarter of them had a clear valley,
 their choice read the depth 5-40 % too far, and the sweep made 35 of the 38 development frames worse). Run when a
-frame leaves the window, with the poses it leaves with (final before it, the window's after it). Settings chosen on development data only: the simulator's
-Mid-40 validation drives and the KITTI clip's frames 0-37 (docs/benchmarks.md, "Photometric correction
-outside the cone").
+frame leaves the window, with the poses it leaves with (final before it, the window's after it). Settings
+chosen on development data only: the simulator's Mid-40 validation drives and the KITTI clip's frames 0-37
+(docs/decisions/0007-photometric-field-cone-only.md).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ class PhotoFieldSettings:
     cols: int = 28
     # candidates: log offsets in [-span, span], 0.2 apart (odd count: 0 is one); a parabola through the best and
     # its neighbours refines it. 0.2 apart beat 0.1 on the development drives (span 0.5 / 11: 1.846 m, 0.8 / 9:
-    # 1.813, 1.0 / 11: 1.813, 0.6 / 7: 1.829, 0.8 / 11: 1.824, 1.0 / 21: 1.837; tools/photo_field_dev.py)
+    # 1.813, 1.0 / 11: 1.813, 0.6 / 7: 1.829, 0.8 / 11: 1.824, 1.0 / 21: 1.837)
     span_log: float = 0.8
     candidates: int = 9
     patch_px: int = 2  # ZNCC window half size, at the downsampled scale
@@ -51,7 +51,7 @@ class PhotoFieldSettings:
     # their median choice may be this far from 0 (a step length read wrong, a turn misread). Simulator validation
     # drives: 5-95 % -0.07 to 0.04; the sweep helped in every bias bin, so with the share test above in front of
     # it: 0.05: 1.813 m, 0.1: 1.785, 0.15: 1.772, off: 1.770 (0.1 kept as the safer). KITTI frames 0-37 (graph's
-    # poses): -0.51 to -0.05, refused by the share test already (before it, 0.05 alone let 1-2 frames through,
+    # poses): -0.51 to -0.05, refused by the share test already (without it, 0.05 alone lets 1-2 frames through,
     # each made worse)
     max_bias_log: float = 0.1
     # the sweep runs on images made smaller by the integer factor that brings them nearest this many pixels

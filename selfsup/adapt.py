@@ -235,7 +235,7 @@ def choose_blend(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0,
     """The weight of the network's log depth against its prior's (GeneratorConfig.blend) with the lowest
     MAE at the validation frames' hidden returns, and the MAE of each weight in BLENDS. The masked
     task ranks them as the held-out beams do: on the KITTI clip's development frames it picks the prior
-    alone for VLP-16-like input and 0.75 for Mid-40-like, the best weights there (docs/benchmarks.md)."""
+    alone for VLP-16-like input and 0.75 for Mid-40-like, the best weights there."""
     model.eval()
     chosen = model.cfg
     model.cfg = replace(chosen, blend=1.0)

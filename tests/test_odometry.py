@@ -438,8 +438,9 @@ def _failed_step_solves(cap: float) -> tuple[int, float]:
 
 
 def test_a_step_that_raises_the_error_ends_the_update_without_retries():
-    """The default LM cap: a failed step is not solved again at a damping too small to change it (those
-    retries were the graph's slowest frames, issue 17); a cap of 1e-2 retries it 3 times, to the same end."""
+    """The default LM cap: a failed step is not solved again at a damping too small to change it (such
+    retries make the graph's slowest frames; docs/decisions/0002-no-lm-retries.md); a cap of 1e-2 retries
+    it 3 times, to the same end."""
     from leovr.config import RefineConfig
 
     assert RefineConfig().lm_lambda_upper_bound <= 1e-10

@@ -50,9 +50,9 @@ def test_refine_writes_every_output(refined):
 def test_refine_tracks_the_camera_and_does_not_degrade_depth(refined):
     _, _, m = refined
     assert m["trajectory"]["leovr"]["ate_m"] < 0.5  # about 5 m driven
-    # the sweep's motion from the images (session 43) made the generator's input much better here (2.775 ->
-    # 2.060 m) and left the graph's correction little to add: refined 2.108 m, 2.3 % above it (the day
-    # validation cone drives: -2.6 to +0.7 %)
+    # with the sweep's motion read from the images the generator's input is already good here (2.060 m,
+    # 2.775 m without it) and leaves the graph's correction little to add: refined 2.108 m, 2.3 % above it
+    # (the day validation cone drives: -2.6 to +0.7 %)
     assert m["depth"]["refined"]["mae_m"] < 1.03 * m["depth"]["generator"]["mae_m"]
     assert m["depth"]["generator"]["mae_m"] < m["depth"]["ipbasic"]["mae_m"]
     assert m["depth"]["generator"]["mae_m"] < m["depth"]["generator_frame"]["mae_m"]  # the earlier scans help

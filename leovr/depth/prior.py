@@ -28,20 +28,20 @@ import numpy as np
 
 from leovr.depth.classical import nearest_fill
 
-# Chosen on the simulator's validation split (tools/prior_edge_ratio.py, never on the KITTI clip):
+# Chosen on the simulator's validation split (never on the KITTI clip):
 # lowest mean MAE relative to the nearest fill over Mid-40, VLP-16 and uniform-ratio inputs
 # (0.948 at 1.5, 0.951 at 2, 0.962 at 1.25; no edge test 0.993, worst on VLP-16 at 1.13x nearest).
 EDGE_RATIO = 1.5
 
 # The edge-aware interpolation's settings (neighbours, edge weight of the geodesic distance, weight decay),
-# chosen on the KITTI raw clip's development frames 0-37 (tools/prior_error_split.py; never the test frames
-# 38-47): edge-triangle MAE 5.18 -> 4.02 m (VLP-16-like), 4.44 -> 3.24 m (Mid-40-like).
+# chosen on the KITTI raw clip's development frames 0-37 (never the test frames 38-47): edge-triangle MAE
+# 5.18 -> 4.02 m (VLP-16-like), 4.44 -> 3.24 m (Mid-40-like).
 EDGE_AWARE_K = 64
 EDGE_AWARE_LAMBDA = 999.0
 EDGE_AWARE_SIGMA = 0.05
 # Chosen on development data (KITTI raw frames 0-36 step 2 and the simulator's day validation drives; the
-# KITTI test frames 38-47 never read; docs/benchmarks.md, "The guide's own depth inside moderate edges"):
-# among 2, 2.5, 3, 4 and no limit, 3 lowered the prior's MAE on all four sets (KITTI VLP-16-like -4.7 %).
+# KITTI test frames 38-47 never read): among 2, 2.5, 3, 4 and no limit, 3 lowered the prior's MAE on all
+# four sets (KITTI VLP-16-like -4.7 %).
 EDGE_GUIDE_MAX_RATIO = 3.0
 MIN_EDGE_AWARE_RETURNS = 16  # fewer returns than this: the nearest return (the fit needs neighbours)
 MAX_EDGE_AWARE_RETURNS = 32000  # OpenCV's interpolator takes fewer than 32767 matches: denser inputs are strided

@@ -4,15 +4,14 @@ A Livox Mid-40 sees a 38.4-degree cone, less than half a wide camera's view, and
 different directions from scan to scan. Driving forward moves what the cone saw a moment ago out to the
 sides of the image, so the returns of the last few frames, placed with the graph's poses, add depth where
 this frame's scan has none (LeoVR, Sec. V-C2, also accumulates the Mid-40's sampling points). A spinning LiDAR
-already spans the image; on the development drives its accumulated returns made the generator worse
-(docs/benchmarks.md), so `refine` keeps this for non-spinning sensors.
+already spans the image; on the development drives its accumulated returns made the generator worse,
+so `refine` keeps this for non-spinning sensors (docs/decisions/0004-earlier-scans-cone-only.md).
 
 Moving cars and trucks leave their earlier returns where they no longer are, and now hide surfaces that
 earlier scans saw. Each later scan therefore checks the stored returns against what it sees along their
 directions (`RangeImage`): a return clearly in front of the surface seen there now lies in free space (a
 mover that left), one clearly behind it is hidden now; both are dropped. On the real clip's development
-frames this removes about 60 % of the earlier returns that land wrong against 14 % of the right ones
-(docs/benchmarks.md).
+frames this removes about 60 % of the earlier returns that land wrong against 14 % of the right ones.
 """
 
 from __future__ import annotations

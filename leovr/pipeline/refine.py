@@ -376,7 +376,7 @@ def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False
                 stereo_images.put(i, frame.image)
             tracks = FrameTracks(i, stereo_images, sample.frame.K, sample.sparse, stereo)
         if with_stereo:
-            corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.offsets, cfg.causal), stereo_images,
+            corners = motion_stereo_depth(i, neighbour_frames(i, indices, stereo.causal_offsets if cfg.causal else stereo.offsets, cfg.causal), stereo_images,
                                           sample.frame.K, sample.sparse, seen.sparse, stereo, tracks)
         depth, log_sigma = generator(seen)
         if corners is not None:  # the generator's depth moved towards the corners around them

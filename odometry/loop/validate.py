@@ -88,9 +88,10 @@ def validate_loop(fi: Features, pts_i: np.ndarray, fj: Features, pts_j: np.ndarr
                   max_disagree_deg: float = 2.0) -> LoopCheck:
     """`pts_*` are the features' 3D points in their own camera (NaN rows where unknown).
 
-    `max_disagree_m`: on the tuning laps (seeds 3000-3001, `tools/loop_tuning_dev.py`) an accepted loop's
-    error against the truth grew with the two PnP poses' disagreement: up to 0.43 m below 0.1 m of it,
-    0.70 m at 0.1-0.2 m, 0.95 m (next to the 1 m that makes a loop false) above 0.2 m (4 of 65 loops).
+    `max_disagree_m`: on the tuning laps (seeds 3000-3001) an accepted loop's error against the truth
+    grew with the two PnP poses' disagreement: up to 0.43 m below 0.1 m of it, 0.70 m at 0.1-0.2 m,
+    0.95 m (next to the 1 m that makes a loop false) above 0.2 m (4 of 65 loops;
+    docs/decisions/0010-loop-validation-limits.md).
 
     Three steps: a rigid 3D-3D RANSAC (Umeyama) keeps geometrically consistent matches; the
     measurement is then PnP of frame j's points on frame i's pixels (depth errors along the viewing

@@ -1,0 +1,139 @@
+"""The configuration reference docs/config.md, rendered from the pydantic models in leovr/config.py.
+
+One section per top-level key of `LeovrConfig`, in its order; per setting its name, type, default and the
+comment it carries in the source. pydantic keeps no comments, so they are read from leovr/config.py itself
+(`tokenize`): the comment lines directly above a field and the comment at the end of its line.
+`tools/config_doc.py` writes the file; `tests/test_config_doc.py` checks it is current.
+"""
+
+from __future__ import annotations
+
+import ast
+import io
+import math
+import re
+import tokenize
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from leovr import config
+
+SOURCE = Path(config.__file__)
+DOC = Path(__file__).resolve().parents[1] / "docs" / "config.md"
+
+_BOUNDS = (("ge", ">="), ("gt", ">"), ("le", "<="), ("lt", "<"))
+
+
+def _comments(source: str) -> tuple[dict[int, str], set[int]]:
+    """Comment text by line number, and the lines that hold nothing but a comment."""
+    text: dict[int, str] = {}
+    alone: set[int] = set()
+    lines = source.splitlines()
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type == tokenize.COMMENT:
+            row, col = tok.start
+            text[row] = tok.string.lstrip("#").strip()
+            if not lines[row - 1][:col].strip():
+                alone.add(row)
+    return text, alone
+
+
+def _field_sources(source: str) -> tuple[dict[str, dict[str, tuple[str, str]]], dict[str, str]]:
+    """Per class: field name -> (annotation as written, comment); and the module's type aliases."""
+    tree = ast.parse(source)
+    text, alone = _comments(source)
+    aliases = {
+        node.targets[0].id: ast.get_source_segment(source, node.value) or ast.unparse(node.value)
+        for node in tree.body
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name)
+    }
+    classes: dict[str, dict[str, tuple[str, str]]] = {}
+    for node in tree.body:
+        if not isinstance(node, ast.ClassDef):
+            continue
+        fields = {}
+        for item in node.body:
+            if not (isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name)):
+                continue
+            above = []
+            row = item.lineno - 1
+            while row in alone:
+                above.insert(0, text[row])
+                row -= 1
+            inline = [text[r] for r in range(item.lineno, item.end_lineno + 1) if r in text and r not in alone]
+            annotation = ast.get_source_segment(source, item.annotation) or ast.unparse(item.annotation)
+            fields[item.target.id] = (annotation, " ".join(above + inline))
+        classes[node.name] = fields
+    return classes, aliases
+
+
+def _yaml_value(value: Any) -> str:
+    """A default as it is written in a YAML config."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and math.isinf(value):
+        return ".inf" if value > 0 else "-.inf"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
+    return str(value)
+
+
+def _bounds(field: Any) -> str:
+    found = []
+    for meta in field.metadata:
+        for attr, sign in _BOUNDS:
+            bound = getattr(meta, attr, None)
+            if bound is not None:
+                found.append(f"{sign} {_yaml_value(bound)}")
+    return ", ".join(found)
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def _linked(comment: str) -> str:
+    """A comment's decision-record paths as links relative to docs/config.md."""
+    return re.sub(r"docs/decisions/([\w.-]+\.md)", r"[\1](decisions/\1)", comment)
+
+
+def _type(annotation: str, aliases: dict[str, str]) -> str:
+    return aliases.get(annotation, annotation)
+
+
+def _section(key: str, model: type[BaseModel], classes: dict, aliases: dict) -> list[str]:
+    lines = [f"## {key}", ""]
+    doc = " ".join((model.__doc__ or "").split())
+    lines += [f"`{model.__name__}`: {doc}" if doc else f"`{model.__name__}`", ""]
+    lines += ["| key | type | default | range | what it does |", "|---|---|---|---|---|"]
+    for name, field in model.model_fields.items():
+        owner = next(c for c in model.__mro__ if name in classes.get(c.__name__, {}))
+        annotation, comment = classes[owner.__name__][name]
+        lines.append(
+            f"| `{name}` | `{_cell(_type(annotation, aliases))}` | `{_cell(_yaml_value(field.default))}` "
+            f"| {_bounds(field)} | {_linked(_cell(comment))} |"
+        )
+    return lines + [""]
+
+
+def render(source: str | None = None) -> str:
+    """docs/config.md as it should read for leovr/config.py (`source`: that file's text, read when None)."""
+    classes, aliases = _field_sources(SOURCE.read_text() if source is None else source)
+    sections = list(config.LeovrConfig.model_fields.items())
+    out = [
+        "# Configuration reference",
+        "",
+        "Generated by `python tools/config_doc.py` from the models and comments in leovr/config.py; do not edit by hand.",
+        "Every key can be set in a YAML file passed with `-c` (configs/default.yaml holds every section); options given",
+        "on the command line override it. Why the main defaults are what they are: [docs/decisions](decisions/README.md).",
+        "",
+        "Sections: " + " · ".join(f"[{key}](#{key})" for key, _ in sections),
+        "",
+    ]
+    for key, field in sections:
+        out += _section(key, field.annotation, classes, aliases)
+    return "\n".join(out).rstrip("\n") + "\n"
