@@ -317,7 +317,9 @@ def train(
             raise typer.BadParameter("give at least one sequence folder", param_hint="SEQUENCES")
         cfg = override(load_config(config).selfsup, epochs=epochs, batch_size=batch_size, max_frames=max_frames,
                        init_checkpoint=init)
-        r = train_selfsup(cfg, list(sequences), out, resume=resume, rerun=rerun)
+        from leovr.pipeline.refine import run_refine
+
+        r = train_selfsup(cfg, list(sequences), out, run_refine, resume=resume, rerun=rerun)
         if r:
             typer.echo(f"epoch {r['epoch']} ({r['stage']}): loss {r['loss']:.4f}, photometric {r['photometric']:.4f}, "
                        f"masks keep {100 * r['mask_kept']:.0f}% -> {out}/generator.pt")

@@ -28,6 +28,7 @@ from selfsup.blind import BlindSequence
 from selfsup.dataset import image_tensor
 from selfsup.losses import photometric_error
 from selfsup.supervision import (
+    PosePass,
     TrainFrame,
     at_training_size,
     graph_depth_at,
@@ -53,7 +54,7 @@ def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth
     return (photometric_error(img, warped, alpha) < photometric_error(img, nb, alpha))[0, 0].numpy()
 
 
-def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.Module | None = None,
+def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, pose_pass: PosePass, model: torch.nn.Module | None = None,
                 progress: bool = False, checkpoint: Path | None = None) -> dict:
     """{"variants": {variant: precision, recall, dropped_share}, "moving_share", "pixels",
     "moving_with_depth"} over the sequence ("dropped" vs "moving" on the scored pixels);
@@ -62,7 +63,7 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, model: torch.nn.M
     `checkpoint`: the refinement stage's masks, with the graph over this generator."""
     blind = BlindSequence(seq)
     frames = train_frames(blind, cfg)
-    graph = graph_pass(blind, cfg, Path(work), checkpoint, len(frames), progress)
+    graph = graph_pass(blind, cfg, Path(work), checkpoint, len(frames), pose_pass, progress)
     filled = [graph_depth_at(graph, f) for f in frames]
     if checkpoint is None:  # as the trainer's first stage: the classical fill only near returns
         depth = [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(filled, frames)]

@@ -12,12 +12,14 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
 
 from leovr.config import RefineConfig, SelfSupConfig
 from leovr.data.io import read_json_object, require_file, write_text
+from leovr.data.kitti_common import read_kitti_poses
 from leovr.data.run_info import read_run_depth
 from leovr.data.sequence import Sequence
 from leovr.depth.inference import rescale_sparse
@@ -26,6 +28,14 @@ from leovr.geometry import invert_T
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from selfsup.motion_mask import PairKeep, movers, pair_keep
+
+
+class PosePass(Protocol):
+    """The window graph over a sequence (the application's `leovr.pipeline.refine.run_refine`): writes
+    `poses_kitti.txt`, `landmarks*.npy` and `depth/` into `out`, resuming from its `progress.json`."""
+
+    def __call__(self, seq: Sequence, cfg: RefineConfig, out: Path, *, resume: bool, progress: bool,
+                 score: bool) -> object: ...
 
 
 @dataclass
@@ -92,12 +102,10 @@ def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
 
 
 def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | None, n_frames: int,
-               progress: bool = True) -> GraphResult:
-    """`leovr poses` on the (blind) sequence into `out`; reused when `out/done.json` exists and was made
-    with the same checkpoint file (path, size and time), resumed when a previous pass was interrupted.
+               pose_pass: PosePass, progress: bool = True) -> GraphResult:
+    """`leovr poses` (`pose_pass`) on the (blind) sequence into `out`; reused when `out/done.json` exists and
+    was made with the same checkpoint file (path, size and time), resumed when a previous pass was interrupted.
     `checkpoint=None`: IP-Basic depth, point factors only."""
-    from leovr.pipeline.refine import Progress, run_refine
-
     out = Path(out)
     stamp = None if checkpoint is None else _file_stamp(Path(checkpoint))
     done = out / "done.json"
@@ -117,14 +125,12 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
                             # the trainer's graph passes as measured by `bench selfsup`: each frame's own scan only
                             # (the earlier scans of a cone LiDAR in the depth input are not measured in training yet)
                             accumulate_frames=0)
-        run_refine(seq, rcfg, out, resume=(out / "progress.json").is_file(), progress=progress, score=False)
+        pose_pass(seq, rcfg, out, resume=(out / "progress.json").is_file(), progress=progress, score=False)
         write_text(done, json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint), "checkpoint_stamp": stamp}) + "\n")
-    state = Progress.load(out / "progress.json")
     indices = list(range(n_frames))
-    missing = [i for i in indices if i not in state.poses]
-    if missing:
-        raise DataError(out / "progress.json", f"graph pass has no pose for frames {missing[:5]}")
-    poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
+    poses = read_kitti_poses(require_file(out / "poses_kitti.txt", "graph-pass poses"))
+    if len(poses) != n_frames:
+        raise DataError(out / "poses_kitti.txt", f"graph pass has {len(poses)} poses for {n_frames} frames")
     arrays = [np.load(require_file(out / name, "graph-pass landmarks"))
               for name in ("landmarks.npy", "landmarks_frame.npy", "landmarks_lidar.npy")]
     return GraphResult(poses, indices, *arrays, out / "depth")

@@ -45,7 +45,7 @@ from selfsup.losses import (
     sparse_depth_loss,
     second_order_smoothness,
 )
-from selfsup.supervision import TrainFrame, at_training_size, build_supervision, graph_pass, train_frames
+from selfsup.supervision import PosePass, TrainFrame, at_training_size, build_supervision, graph_pass, train_frames
 from selfsup.warp import warp_image
 
 TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "sparse", "mask_kept", "refined_used")
@@ -158,13 +158,14 @@ def _append_logs(out: Path, record: dict) -> None:
 
 
 @single_threaded_blas
-def train_selfsup(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
-                  rerun: Path | None = None, oracle_masks: bool = False) -> dict:
-    """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0).
+def train_selfsup(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePass, resume: bool = False,
+                  progress: bool = True, rerun: Path | None = None, oracle_masks: bool = False) -> dict:
+    """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0). `pose_pass`:
+    the window graph that gives the poses, landmarks and refined depth (`leovr.pipeline.refine.run_refine`).
 
     `oracle_masks`: a bound for benchmarks on rendered sequences, not a method. The photometric mask is the
     simulator's moving mask (ground truth), in place of eq. 19 and every other test."""
-    return fit(cfg, sequences, out, resume, progress, rerun, oracle_masks)[0]
+    return fit(cfg, sequences, out, pose_pass, resume, progress, rerun, oracle_masks)[0]
 
 
 def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarray]:
@@ -178,8 +179,8 @@ def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarr
     return out
 
 
-def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = False, progress: bool = True,
-        rerun: Path | None = None, oracle_masks: bool = False) -> tuple[dict, DepthGenerator]:
+def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePass, resume: bool = False,
+        progress: bool = True, rerun: Path | None = None, oracle_masks: bool = False) -> tuple[dict, DepthGenerator]:
     """`train_selfsup`, also returning this process's model."""
     if not sequences:
         raise DataError("sequences", "self-supervised training needs at least one sequence folder")
@@ -221,7 +222,7 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, resume: bool = Fal
                 save_checkpoint(checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()})
         if rank != 0:
             barrier(world)
-        graphs = [graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), progress and rank == 0)
+        graphs = [graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), pose_pass, progress and rank == 0)
                   for k, s in enumerate(seqs)]
         if rank == 0:
             barrier(world)

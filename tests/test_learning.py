@@ -18,6 +18,7 @@ from leovr.depth.dataset import split_sequences
 from leovr.depth.inference import load_generator
 from leovr.depth.network import DepthGenerator
 from leovr.depth.train import generator_config, train_supervised
+from leovr.pipeline.refine import run_refine
 from leovr.sim.dataset import Recipe, make_dataset
 from selfsup.trainer import train_selfsup
 
@@ -63,7 +64,7 @@ def test_selfsup_training_learns(rendered, tmp_path):
     torch.manual_seed(0)
     start = DepthGenerator(generator_config(cfg))  # the trainer's initial weights (same seed)
     untrained = mae(start, tests)
-    train_selfsup(cfg, split_sequences(root, "train"), tmp_path / "run", progress=False)
+    train_selfsup(cfg, split_sequences(root, "train"), tmp_path / "run", run_refine, progress=False)
     # the uncertainty head is trained too (Gaussian NLL at the LiDAR-backed landmarks), and its loss falls
     nll = [json.loads(x)["nll"] for x in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     assert nll[-1] < 0.5 * nll[0], nll

@@ -251,9 +251,9 @@ def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
     worker = tmp_path / "worker.py"
     worker.write_text(
         "import sys, torch\nfrom pathlib import Path\nfrom leovr.config import SelfSupConfig\n"
-        "from selfsup.trainer import fit\n"
+        "from selfsup.trainer import fit\nfrom leovr.pipeline.refine import run_refine\n"
         f"cfg = SelfSupConfig(**{TINY!r}, epochs=1, max_frames=5)\n"
-        "_, model = fit(cfg, [Path(sys.argv[1])], Path(sys.argv[2]), progress=False)\n"
+        "_, model = fit(cfg, [Path(sys.argv[1])], Path(sys.argv[2]), run_refine, progress=False)\n"
         "rank = torch.distributed.get_rank()\n"
         "torch.save(model.state_dict(), Path(sys.argv[2]) / f'rank{rank}.pt')\n")
     out = tmp_path / "ddp"

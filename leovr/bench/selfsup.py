@@ -33,6 +33,7 @@ from leovr.depth.train import depth_loss, generator_config
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.paths import kitti_raw_dir, shipped_checkpoint
 from leovr.pipeline.completion import prepare_sample
+from leovr.pipeline.refine import run_refine
 from leovr.sim.dataset import RECIPES, Recipe, default_root, make_dataset
 from selfsup.mask_quality import VARIANTS, score_masks
 from selfsup.supervision import train_frames
@@ -139,7 +140,7 @@ def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bo
             return done, _minutes(run)
     if share_init is not None and share_init.is_dir() and not (run / "graph" / "init").exists():
         shutil.copytree(share_init, run / "graph" / "init")  # the initialisation pass uses no network: same for every run
-    train_selfsup(cfg, sequences, run, resume=last.is_file(), progress=progress, oracle_masks=oracle_masks)
+    train_selfsup(cfg, sequences, run, run_refine, resume=last.is_file(), progress=progress, oracle_masks=oracle_masks)
     return done, _minutes(run, (time.time() - t0) / 60.0)
 
 
@@ -255,7 +256,7 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
     model = load_generator(checkpoints["selfsup"])
     quality = {}
     for stage, ck in (("mask_quality", None), ("mask_quality_refine", checkpoints["selfsup"])):
-        per_seq = [score_masks(t, base, work / stage / p.name, model, checkpoint=ck) for t, p in zip(tests, test_paths)]
+        per_seq = [score_masks(t, base, work / stage / p.name, run_refine, model, checkpoint=ck) for t, p in zip(tests, test_paths)]
         quality[stage] = {v: {k: float(np.mean([q["variants"][v][k] for q in per_seq])) for k in ("precision", "recall", "dropped_share")}
                           for v in VARIANTS}
         for key in ("moving_share", "moving_with_depth"):
