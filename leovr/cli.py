@@ -128,10 +128,7 @@ def bench_baseline(
 
     cfg = override(load_config(config).bench_baseline, data=None if data is None else str(data))
     doc = run_baseline_bench(Path(cfg.data) if cfg.data else kitti_raw_dir(), out, cfg, quick)
-    for key, methods in doc["results"].items():
-        for method, r in methods.items():
-            typer.echo(f"{key:14s} {method:8s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  {r['ms_per_frame']:.1f} ms/frame")
-    typer.echo(f"-> {out}")
+    _print_bench("baseline", doc, out)
 
 
 @bench_app.command("depth")
@@ -146,13 +143,7 @@ def bench_depth(
 
     cfg = override(load_config(config).bench_depth, checkpoint=None if checkpoint is None else str(checkpoint))
     doc = run_depth_bench(out, cfg, quick)
-    for key, methods in doc["results"].items():
-        for method, r in methods.items():
-            extra = r.get("uncertainty", {}).get("spearman_error_sigma")
-            extra = "" if extra is None else f"  Spearman(|err|, sigma) {extra:.2f}"
-            typer.echo(f"{key:16s} {method:9s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  "
-                       f"{r['ms_per_frame']:.1f} ms/frame{extra}")
-    typer.echo(f"-> {out}")
+    _print_bench("depth", doc, out)
 
 
 @app.command()
@@ -246,13 +237,7 @@ def bench_refine(
     from leovr.bench.refine import run_refine_bench
 
     doc = run_refine_bench(out, load_config(config).bench_refine, quick)
-    for key, methods in doc["results"].items():
-        line = "  ".join(f"{m} {r['mae_m']:.3f}" for m, r in methods.items() if isinstance(r, dict) and "mae_m" in r)
-        typer.echo(f"{key:16s} MAE (m): {line}")
-    for key, t in doc["trajectory"].items():
-        typer.echo(f"{key:16s} ATE (m): " + "  ".join(f"{n} {v['ate_m']:.3f} (scale {v['scale']:.2f})" for n, v in t.items()))
-    typer.echo("timing (ms/frame): " + ", ".join(f"{k} {v:.0f}" for k, v in doc["timing"].items()))
-    typer.echo(f"-> {out}")
+    _print_bench("refine", doc, out)
 
 
 @bench_app.command("loop")
@@ -265,11 +250,7 @@ def bench_loop(
     from leovr.bench.loop import run_loop_bench
 
     doc = run_loop_bench(out, load_config(config).bench_loop, quick)
-    for key, r in doc["results"].items():
-        ate = f"ATE {r['ate_no_loop_m']:.3f} -> {r['ate_loop_m']:.3f} m  " if "ate_loop_m" in r else ""
-        typer.echo(f"{key:22s} {ate}loops true {r['loops_true']} false {r['loops_false']} missed {r['loops_missed']}"
-                   f"  {r['ms_per_query']:.1f} ms/query")
-    typer.echo(f"-> {out}")
+    _print_bench("loop", doc, out)
 
 
 @bench_app.command("speed")
@@ -283,14 +264,7 @@ def bench_speed(
     from leovr.bench.speed import run_speed_bench
 
     doc = run_speed_bench(out, load_config(config).bench_speed, quick)
-    for key, r in doc["results"].items():
-        ms = r["ms_per_frame"]
-        stages = "  ".join(f"{k[:-3]} {v['median']:.0f}/{v['p95']:.0f}" for k, v in ms.items())
-        typer.echo(f"{key:26s} ms/frame median/p95: {stages}  ({r['fps_wall']:.2f} frames/s wall,"
-                   f" graph growth {r['growth']['graph_ms']}, IP-Basic {r['ipbasic_ms_per_frame']:.1f} ms)")
-    for name, met in doc["targets_met"].items():
-        typer.echo(f"target {name}: {'met' if met else 'not met'}")
-    typer.echo(f"-> {out}")
+    _print_bench("speed", doc, out)
 
 
 @app.command()
@@ -404,8 +378,7 @@ def bench_batch(
     from leovr.bench.batch import run_batch_bench
 
     doc = run_batch_bench(out, load_config(config))
-    typer.echo(f"1 worker {doc['wall_s']['1']:.1f} s, 2 workers {doc['wall_s']['2']:.1f} s: speedup "
-               f"{doc['speedup']:.2f}, {doc['frames_per_core_hour']:.0f} frames per core-hour -> {out}")
+    _print_bench("batch", doc, out)
 
 
 @bench_app.command("real")
@@ -424,13 +397,7 @@ def bench_real(
     inputs = None if adapt is None else (list(cfg.inputs) if adapt else [])
     cfg = override(cfg, adapt_inputs=inputs, clips=[c.strip() for c in clips.split(",")] if clips else None)
     doc = run_real_bench(out, cfg, quick=quick)
-    for name, entry in [*doc["clips"].items(), ("pooled", doc["pooled"])]:
-        for key, r in entry["results"].items():
-            typer.echo(f"{name} {key}: " + ", ".join(f"{m} {v['mae_m']:.3f}" for m, v in r.items() if v.get("mae_m") is not None))
-        for inp, t in entry.get("trajectory", {}).items():
-            typer.echo(f"{name} {inp} ATE (m): " + "  ".join(f"{k} {v['ate_m']:.3f}" for k, v in t.items() if isinstance(v, dict))
-                       + f"  (leovr / KISS-ICP {t['leovr_vs_kiss_icp']:.2f}x)")
-    typer.echo(f"-> {out}")
+    _print_bench("real", doc, out)
 
 
 @bench_app.command("selfsup")
@@ -445,21 +412,7 @@ def bench_selfsup(
 
     cfg = override(load_config(config).bench_selfsup, parts=[p.strip() for p in parts.split(",")] if parts else None)
     doc = run_selfsup_bench(out, cfg, quick)
-    r = doc["results"]
-    for k in ("untrained", "selfsup", "selfsup_nomask", "selfsup_no_lf_lr", "supervised"):
-        if f"{k}_mae_m" in r:
-            typer.echo(f"{k:18s} MAE {r[f'{k}_mae_m']:.3f} m")
-    for k, v in r.get("traffic_only", {}).items():
-        typer.echo(f"traffic {k:19s} {'MAE' if k.startswith('selfsup') else '   '} {v:.3f}")
-    for stage in ("mask_quality", "mask_quality_refine"):
-        for k, v in r.get(stage, {}).items():
-            if isinstance(v, dict):
-                typer.echo(f"mask {k:12s} {'refinement stage' if stage.endswith('refine') else 'first stage     '} "
-                           f"precision {v['precision']:.3f} recall {v['recall']:.3f}")
-    if "kitti_raw" in r:
-        for k, v in r["kitti_raw"]["held_out"].items():
-            typer.echo(f"KITTI {k:30s} held-out MAE {v['mae_m']:.3f} m")
-    typer.echo(f"-> {out}")
+    _print_bench("selfsup", doc, out)
 
 
 @bench_app.command("simulate")
@@ -472,8 +425,14 @@ def bench_simulate(
     from leovr.bench.simulate import run_simulate_bench
 
     doc = run_simulate_bench(out, override(load_config(config).bench_simulate, frames=frames))
-    for lidar, r in doc["per_lidar"].items():
-        typer.echo(f"{lidar:6s} {r['frames_per_s']:.2f} frames/s (render), {r['wall_s_per_frame_with_writing']:.3f} s/frame with writing")
+    _print_bench("simulate", doc, out)
+
+
+def _print_bench(name: str, doc: dict, out: Path) -> None:
+    """A bench's tables as docs/benchmarks.md shows them, and where the JSON went."""
+    from leovr.bench.report import section
+
+    typer.echo(section(name, doc))
     typer.echo(f"-> {out}")
 
 

@@ -131,8 +131,8 @@ def test_complete_refuses_sequence_without_lidar(tmp_path):
 @needs_shared
 def test_bench_baseline_quick_contract(tmp_path):
     out = tmp_path / "b.json"
-    r = runner.invoke(app, ["bench", "baseline", "--quick", "--out", str(out)])
-    assert r.exit_code == 0, r.output
+    run = runner.invoke(app, ["bench", "baseline", "--quick", "--out", str(out)])
+    assert run.exit_code == 0, run.output
     doc = json.loads(out.read_text())
     assert set(doc["results"]) == {"kitti_vlp16", "kitti_mid40"}
     for per_input in doc["results"].values():
@@ -143,6 +143,8 @@ def test_bench_baseline_quick_contract(tmp_path):
             assert set(r["bins"]) == {"0-20", "20-40", "40-60", "60-80", ">80"}
     # the denser VLP-16 input must beat Mid-40 (a narrow cone) for the same method
     assert doc["results"]["kitti_vlp16"]["nearest"]["mae_m"] < doc["results"]["kitti_mid40"]["nearest"]["mae_m"]
+    # the command prints the tables docs/benchmarks.md shows for this bench
+    assert "## baseline" in run.output and f"| kitti_vlp16 | nearest | {doc['results']['kitti_vlp16']['nearest']['mae_m']:.3f} |" in run.output
 
 
 @needs_shared

@@ -355,6 +355,12 @@ RENDERERS = {"baseline": render_baseline, "depth": render_depth, "refine": rende
              "simulate": render_simulate}
 
 
+def section(name: str, doc: dict) -> str:
+    """One bench's section as docs/benchmarks.md shows it (also what `leovr bench NAME` prints)."""
+    data, body = RENDERERS[name](doc)
+    return "\n".join(header(name, doc, data) + body).rstrip() + "\n"
+
+
 def render(results_dir: Path) -> str:
     """docs/benchmarks.md: a preamble, then one section per bench from `<results_dir>/<name>.json`."""
     lines = ["# Benchmarks", "",
