@@ -23,7 +23,7 @@ from leovr.data.io import (
     write_text,
 )
 from leovr.data.records import Frame
-from leovr.data.sequence import Sequence
+from leovr.data.sequence import FileSequence, Sequence
 from leovr.errors import DataError
 from leovr.geometry import pose_from_tum, pose_to_tum
 
@@ -83,7 +83,7 @@ def _number(d: dict, key: str, default, kind: type, source: Path):
     return out
 
 
-class NativeSequence(Sequence):
+class NativeSequence(FileSequence):
     """Reader for folders holding `sequence.yaml`."""
 
     name = "native"
@@ -138,16 +138,8 @@ class NativeSequence(Sequence):
         self.depth_scale = _number(meta, "depth_scale", LEGACY_DEPTH_SCALE, float, meta_file)
         self.has_masks = (path / "masks").is_dir()
 
-    def _num_frames(self) -> int:
-        return len(self.image_files)
-
-    def timestamps(self) -> np.ndarray:
-        return self._times.copy()
-
-    def image_path(self, i: int) -> Path | None:
-        return self.image_files[i]
-
     def _load(self, i: int) -> Frame:
+        """As FileSequence, with the scan's own fields (a per-point time among them), depth and masks."""
         points = times = None
         if self.has_lidar:
             raw = read_point_file(self.scan_files[i], len(self.fields))
@@ -166,18 +158,7 @@ class NativeSequence(Sequence):
             raise DataError(
                 self.image_files[i], f"image is {image.shape[1]}x{image.shape[0]}, sequence.yaml says {self.width}x{self.height}"
             )
-        return Frame(
-            index=i,
-            timestamp=float(self._times[i]),
-            image=image,
-            K=self.K,
-            T_cam_lidar=self.T_cam_lidar,
-            points=points,
-            point_times=times,
-            T_world_cam=None if self._poses is None else self._poses[i],
-            depth=depth,
-            moving_mask=mask,
-        )
+        return self._frame(i, image, points, times, depth=depth, moving_mask=mask)
 
 
 class NativeWriter:

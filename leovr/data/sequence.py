@@ -137,16 +137,14 @@ class FileSequence(Sequence):
         if points is not None and self.sweeps is not None:
             start, end = self.sweeps[i]
             times = start + azimuth_times(points, end - start)
-        return Frame(
-            index=i,
-            timestamp=float(self._times[i]),
-            image=read_image(self.image_files[i]),
-            K=self.K,
-            T_cam_lidar=self.T_cam_lidar,
-            points=points,
-            point_times=times,
-            T_world_cam=None if self._poses is None else self._poses[i],
-        )
+        return self._frame(i, read_image(self.image_files[i]), points, times)
+
+    def _frame(self, i: int, image: np.ndarray, points: np.ndarray | None, point_times: np.ndarray | None = None,
+               **extra) -> Frame:
+        """Frame i from its image and scan, with the sequence's calibration, time and pose."""
+        return Frame(index=i, timestamp=float(self._times[i]), image=image, K=self.K, T_cam_lidar=self.T_cam_lidar,
+                     points=points, point_times=point_times,
+                     T_world_cam=None if self._poses is None else self._poses[i], **extra)
 
 
 class SequenceView(Sequence):

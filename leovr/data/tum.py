@@ -13,7 +13,7 @@ import numpy as np
 
 from leovr.data.io import check_timestamps, read_depth_png, read_image, require_file
 from leovr.data.records import Frame
-from leovr.data.sequence import Sequence
+from leovr.data.sequence import FileSequence
 from leovr.errors import DataError
 from leovr.geometry import pose_from_tum
 
@@ -70,7 +70,7 @@ def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([x, y, z], 1).astype(np.float32)
 
 
-class TumRgbdSequence(Sequence):
+class TumRgbdSequence(FileSequence):
     """A TUM RGB-D folder; frames are the RGB images that have a depth image within 20 ms."""
 
     name = "tum_rgbd"
@@ -89,7 +89,9 @@ class TumRgbdSequence(Sequence):
         if not keep.any():
             raise DataError(path / "depth.txt", "no depth image within 20 ms of any RGB image")
         self._times = t_rgb[keep]
-        self.rgb_files = [path / rgb[i][0] for i in np.nonzero(keep)[0]]
+        self.image_files = [path / rgb[i][0] for i in np.nonzero(keep)[0]]
+        self.scan_files = []  # the depth image is the scan (`_load`)
+        self.T_cam_lidar = np.eye(4)
         self.depth_files = [path / dep[k][0] for k in j[keep]]
         fx, fy, cx, cy = next((v for k, v in INTRINSICS.items() if k in path.name), DEFAULT_INTRINSICS)
         self.K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
@@ -106,26 +108,10 @@ class TumRgbdSequence(Sequence):
         self.has_poses = self._poses is not None
         self.has_lidar = True
 
-    def _num_frames(self) -> int:
-        return len(self.rgb_files)
-
-    def timestamps(self) -> np.ndarray:
-        return self._times.copy()
-
-    def image_path(self, i: int) -> Path | None:
-        return self.rgb_files[i]
-
     def _load(self, i: int) -> Frame:
+        """The RGB image, and the depth image back-projected as the frame's points (camera frame)."""
         sensor_depth = read_depth_png(self.depth_files[i], TUM_DEPTH_SCALE)
         points = backproject(sensor_depth, self.K)
         if len(points) == 0:
             raise DataError(self.depth_files[i], "depth image has no valid pixel")
-        return Frame(
-            index=i,
-            timestamp=float(self._times[i]),
-            image=read_image(self.rgb_files[i]),
-            K=self.K,
-            T_cam_lidar=np.eye(4),
-            points=points,
-            T_world_cam=None if self._poses is None else self._poses[i],
-        )
+        return self._frame(i, read_image(self.image_files[i]), points)
