@@ -12,7 +12,7 @@ from tests.conftest import KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_
 @needs_shared
 def test_bench_real_contract(tmp_path):
     cfg = BenchRealConfig(clips=[str(KITTI_RAW)], inputs=["vlp16"], adapt_inputs=["vlp16"], quick_frames=5,
-                          quick_train_frames=3)
+                          quick_train_frames=3, causal=False)
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     assert json.loads((tmp_path / "real.json").read_text())["benchmark"] == "real"
     clip = doc["clips"]["kitti_raw"]
@@ -28,6 +28,8 @@ def test_bench_real_contract(tmp_path):
         for v in r.values():
             assert {"mae_m", "rmse_m", "absrel", "delta1", "n", "bins"} <= set(v) and v["mae_m"] > 0
     assert trans["nearest"]["n"] > ind["nearest"]["n"]  # 5 frames scored vs 2
+    for r in (ind, trans):  # the shipped generator and the graph over it beat the nearest fill on the same pixels
+        assert max(r["generator"]["mae_m"], r["refined"]["mae_m"]) < 0.85 * r["nearest"]["mae_m"], r
     assert set(clip["adapt_minutes"]) == {"inductive_vlp16", "transductive_vlp16"}
     assert doc["pooled"]["results"]["inductive_vlp16"]["nearest"]["n"] == ind["nearest"]["n"]  # one clip: pooled = it
     assert "held-out LiDAR points" in doc["ground_truth"]
@@ -39,7 +41,11 @@ def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_pa
     cfg = BenchRealConfig(clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], adapt_inputs=[], quick_frames=5)
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     one, two = doc["clips"]["kitti_raw"], doc["clips"]["kitti_raw_0013"]
-    assert set(one["results"]) == set(two["results"]) == {"shipped_vlp16"} and "adapt_minutes" not in one
+    # every input also runs causal (live use), scored on its own held-out pixels
+    assert set(one["results"]) == set(two["results"]) == {"shipped_vlp16", "causal_vlp16"} and "adapt_minutes" not in one
+    for clip in (one, two):
+        for r in clip["results"].values():
+            assert r["refined"]["mae_m"] < 0.85 * r["nearest"]["mae_m"], r
     n = [c["results"]["shipped_vlp16"]["nearest"]["n"] for c in (one, two)]
     assert doc["pooled"]["results"]["shipped_vlp16"]["nearest"]["n"] == sum(n)  # every scored pixel of both clips
     t = two["trajectory"]["vlp16"]
@@ -47,6 +53,7 @@ def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_pa
     best = min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"])
     assert abs(t["leovr_vs_kiss_icp"] - t["leovr"]["ate_m"] / best) < 1e-9
     assert doc["pooled"]["trajectory_vs_kiss_icp"]["vlp16"] == t["leovr_vs_kiss_icp"]  # the one clip with poses
+    assert set(two["trajectory"]) == {"vlp16", "causal_vlp16"} and two["trajectory"]["causal_vlp16"]["leovr"]["ate_m"] > 0
 
 
 def test_adapted_scores_join_on_the_pixels_both_runs_hold():

@@ -19,6 +19,9 @@ def test_bench_refine_contract(tmp_path):
                         "refined"}
     for r in res.values():
         assert r["n"] > 3 * 4 * 100_000 and set(r["bins"]) and len(r["per_sequence_mae_m"]) == 3  # 3 scenarios
+    # a cone LiDAR: the graph's depth beats the nearest fill and its several-frame version, the generator's own scan
+    assert res["refined"]["mae_m"] < 0.5 * res["nearest"]["mae_m"]
+    assert res["refined"]["mae_m"] < res["nearest_accumulated"]["mae_m"]
     traj = doc["trajectory"]["synthetic_mid40"]
     assert traj["leovr"]["ate_m"] > 0 and traj["kiss_icp"]["ate_m"] > 0
     assert set(doc["timing"]) == {"generator_ms", "frontend_ms", "graph_ms", "output_ms"}
