@@ -1,4 +1,4 @@
-"""docs/benchmarks.md is generated from docs/results/*.json (`tools/bench_table.py`): the committed file
+"""docs/benchmarks.md is generated from docs/results/*.json (`tools/gen_docs.py`): the committed file
 matches the JSON, and the renderer shows what a depth result holds and says which results are missing."""
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def _depth_doc() -> dict:
 def test_committed_benchmarks_md_is_generated_from_results():
     doc = ROOT / "docs" / "benchmarks.md"
     expected = render(ROOT / "docs" / "results")
-    assert doc.read_text() == expected, "docs/benchmarks.md is stale: run `python tools/bench_table.py`"
+    assert doc.read_text() == expected, "docs/benchmarks.md is stale: run `python tools/gen_docs.py`"
 
 
 def test_render_depth_result_and_missing_benches(tmp_path: Path):

@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_the_committed_cli_reference_matches_the_command_line():
     text = render()
-    assert (ROOT / "docs" / "cli.md").read_text() == text, "docs/cli.md is stale: run python tools/cli_doc.py"
+    assert (ROOT / "docs" / "cli.md").read_text() == text, "docs/cli.md is stale: run python tools/gen_docs.py"
     for command in ("refine", "poses", "adapt", "bench real", "bench refine", "viz", "batch"):
         assert f"## `leovr {command}`" in text
     assert "--causal" in text

@@ -1,4 +1,4 @@
-"""docs/config.md is generated from leovr/config.py (`tools/config_doc.py`): the committed file must be
+"""docs/config.md is generated from leovr/config.py (`tools/gen_docs.py`): the committed file must be
 what the models and their comments render to now."""
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def _rows(doc: str, section: str) -> dict[str, str]:
 
 def test_committed_config_md_is_rendered_from_the_models():
     assert DOC == ROOT / "docs" / "config.md"
-    assert DOC.read_text() == render(), "docs/config.md is stale: run `python tools/config_doc.py`"
+    assert DOC.read_text() == render(), "docs/config.md is stale: run `python tools/gen_docs.py`"
 
 
 def test_every_refine_setting_is_documented_with_its_comment():
@@ -64,5 +64,5 @@ class RefineConfig(_Model):
 
 
 def test_check_mode_passes_on_the_committed_file():
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "config_doc.py"), "--check"], capture_output=True)
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_docs.py"), "--check"], capture_output=True)
     assert done.returncode == 0, done.stderr.decode()
