@@ -1,0 +1,85 @@
+"""A refine run's settings derived from its input, and one frame's input: its image, its cheap LiDAR
+input (deskewed) and the depth the graph starts from when no trained network may be used."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from leovr.config import CompleteConfig, FrameSelection, RefineConfig
+from leovr.data.records import Frame
+from leovr.data.sequence import Sequence
+from leovr.depth.classical import complete_depth
+from leovr.errors import DataError
+from leovr.eval.heldout import parallax_filter
+from leovr.lidar.deskew import deskew_frame
+from leovr.lidar.projection import sparse_depth
+from leovr.pipeline.completion import EvalSample, prepare_sample
+
+
+def completion_config(cfg: RefineConfig) -> CompleteConfig:
+    """The generator with the run's input and scoring settings, as `complete` would run it."""
+    shared = set(FrameSelection.model_fields)
+    settings = cfg.model_dump(include=shared)
+    if settings["input"] == "none":  # camera only: the generator gets no LiDAR (frame_sample), the scan is truth
+        settings["input"] = "full"
+    return CompleteConfig(method="generator", **settings)
+
+
+def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
+    """The graph's settings without LiDAR: the generator's depth, far less sure without LiDAR, gets the
+    camera-only landmark prior and depth-consistency sigma."""
+    return cfg.model_copy(update={"landmark_prior_rel": cfg.mono_landmark_prior_rel,
+                                  "consistency_sigma_log": cfg.mono_consistency_sigma_log})
+
+
+def road_height(seq: Sequence, cfg: RefineConfig) -> float | None:
+    """The camera's height above the road for camera-only runs: the config's, else the recording's;
+    None (or 0 in the config): unknown, the generator's depth sets the scale."""
+    h = cfg.camera_height_m if cfg.camera_height_m is not None else seq.camera_height_m
+    return h if h else None
+
+
+def classical_source(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
+    """IP-Basic depth with its holes (above the scan) filled from the nearest completed pixel, and a
+    flat 20 % relative sigma: the graph's depth input when no trained network may be used (the
+    self-supervised cold start)."""
+    from scipy.ndimage import distance_transform_edt
+
+    depth = complete_depth(sample.sparse, "ipbasic")
+    hole = depth <= 0
+    if hole.all():
+        raise DataError(f"frame {sample.frame.index}", "no LiDAR return in the image: nothing to complete")
+    if hole.any():
+        _, (iv, iu) = distance_transform_edt(hole, return_indices=True)
+        depth = depth[iv, iu]
+    return depth, np.log(0.2 * depth)
+
+
+def stereo_image(seq: Sequence, j: int) -> np.ndarray | None:
+    """Frame j's image for motion stereo, None when it cannot be read (the frame's own turn reports it)."""
+    from leovr.data.io import read_image
+
+    try:
+        path = seq.image_path(j)
+        return read_image(path, gray=True) if path is not None else seq[j].image
+    except DataError:
+        return None
+
+
+def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.ndarray | None = None,
+                 frame_dt: float = 0.1, camera_only: bool = False, truth: bool = True,
+                 frame: Frame | None = None) -> EvalSample:
+    """The frame with its cheap LiDAR input (deskewed when a motion is given) and ground truth; without
+    LiDAR (or `camera_only`, `--input none`) an empty input, and the whole scan, if any, held out.
+    `truth=False`: a held-out truth is left for `with_truth` (prepare_sample). `frame`: seq[i], read already."""
+    f = deskew_frame(seq[i] if frame is None else frame, motion_cam, frame_dt)
+    has_points = f.points is not None and len(f.points) > 0
+    if has_points and not camera_only:
+        return prepare_sample(f, ccfg, truth)
+    empty = np.zeros(f.shape, np.float32)
+    if f.depth is not None:
+        return EvalSample(f, empty, f.depth, "dense", None)
+    if has_points:
+        every = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+        return EvalSample(f, empty, parallax_filter(every, every, ccfg.parallax_window, ccfg.parallax_rel), "heldout", None)
+    return EvalSample(f, empty, empty, "none", None)

@@ -1,0 +1,167 @@
+"""The generator stage of `leovr refine`: a frame's input (read, its sweep's motion, deskewed) and the depth
+the graph starts from (earlier scans joined, motion stereo, the generator), with the images' motion to the
+window's earlier frames. It runs in the lookahead's worker thread while the main thread updates the graph
+with the previous frame; its inputs are known once the front end has processed that frame (the deskew
+motion), so the results are those of a sequential run."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from leovr.config import CompleteConfig, RefineConfig
+from leovr.data.records import Frame
+from leovr.data.sequence import Sequence
+from leovr.lidar.accumulate import ScanHistory, with_history
+from leovr.pipeline.completion import EvalSample
+from leovr.pipeline.lookahead import Lookahead
+from leovr.pipeline.refine_input import frame_sample, stereo_image
+
+Generator = Callable[[EvalSample], tuple[np.ndarray, np.ndarray]]  # sample -> depth, log sigma
+
+
+@dataclass
+class PreparedFrame:
+    """What the generator stage hands to the main thread for one frame."""
+
+    sample: EvalSample  # the frame with its cheap input, deskewed; its held-out truth not built yet
+    depth: np.ndarray  # the generator's depth, moved towards the motion-stereo corners when they ran
+    log_sigma: np.ndarray
+    generator_ms: float  # the stage's time: the generator, with the sweep's motion when it is read
+    pairs: dict[int, np.ndarray]  # the images' motion to the window's earlier frames (pair factors)
+    corners: np.ndarray | None  # motion-stereo depth at image corners (0 elsewhere), when it ran
+
+
+@dataclass
+class ConeSteps:
+    """Whether a step that needs a LiDAR and is `auto` with a cone one (motion stereo, pair factors, the
+    photometric field) runs. Read by both threads; `spinning` is set by the main thread, once, before the
+    frames that follow are prepared."""
+
+    has_lidar: bool
+    spinning: bool | None = None  # once judged on the first scan with returns
+
+    def runs(self, setting: bool | str, sample: EvalSample) -> bool:
+        if not self.has_lidar or setting is False:
+            return False
+        if setting is True:
+            return True
+        kept = sample.kept_points
+        spinning = self.spinning
+        if spinning is None and kept is not None and len(kept) >= 100:
+            from odometry.initial_pose import is_spinning
+
+            spinning = is_spinning(kept[:, :3])
+        return spinning is False
+
+
+class PrepareStage:
+    """`prepare` a frame: its input, then its generator depth. The main thread reads back `start` (the first
+    step's motion) and `sweep_of` (a sweep's motion read from the images) once the frame is prepared."""
+
+    def __init__(self, seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], has_lidar: bool,
+                 frame_dt: float, generator: Generator, history: ScanHistory, cone: ConeSteps,
+                 frames: Lookahead) -> None:
+        from odometry.motion_stereo import GrayImages, MotionStereoSettings
+        from odometry.sweep_motion import SweepMotion
+
+        self.seq, self.cfg, self.ccfg, self.indices = seq, cfg, ccfg, indices
+        self.has_lidar, self.camera_only = has_lidar, cfg.input == "none"
+        self.frame_dt, self.generator, self.history, self.cone, self.frames = frame_dt, generator, history, cone, frames
+        self.following = dict(zip(indices[:-1], indices[1:]))
+        self.selected = set(indices)
+        # motion stereo: image corners outside a cone LiDAR's reach, triangulated over neighbouring frames
+        self.stereo = MotionStereoSettings()
+        self.stereo_images = GrayImages(lambda j: stereo_image(seq, j),
+                                        keep=2 * max(self.stereo.offsets + tuple(cfg.pair_offsets)) + 3)
+        self.sweep_images = SweepMotion()
+        self.sweep_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
+        self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
+
+    def next_frame(self, i: int, frame: Frame) -> Frame | None:
+        """Frame i + 1 when it is the next selected one and frame i's scan has point times (its sweep ends
+        there), else None; read once: frame i + 1's own preparation then takes it from the lookahead."""
+        j = i + 1
+        if frame.point_times is None or self.following.get(i) != j:
+            return None
+        return self.frames.peek(j)
+
+    def sweep(self, i: int, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
+        """The camera motion over frame i's sweep, to deskew it: the last step (`motion`, None before the
+        second frame), or the motion read from this image and the next one (not in a causal run)."""
+        nxt_frame = None if self.cfg.causal else self.next_frame(i, frame)
+        if nxt_frame is None:
+            return motion
+        return self.sweep_images(i, frame.image, i + 1, nxt_frame.image, frame.K, motion)
+
+    def start_motion(self, i: int, frame: Frame) -> np.ndarray | None:
+        """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
+        from odometry.initial_pose import first_step
+
+        nxt_frame = self.next_frame(i, frame)
+        if nxt_frame is None:
+            return None
+        scans = [frame_sample(self.seq, k, self.ccfg, None, self.frame_dt, self.camera_only, truth=False, frame=f).kept_points
+                 for k, f in ((i, frame), (i + 1, nxt_frame))]
+        self.start = first_step(*scans, frame.T_cam_lidar)
+        return self.start
+
+    def read_input(self, i: int, motion: np.ndarray | None) -> tuple[Frame, EvalSample, float]:
+        """Frame i as read, its sample (deskewed over the sweep's motion) and the seconds the motion took.
+        `motion`: the last step (deskew on), else None."""
+        cfg = self.cfg
+        frame = self.frames.take(i)
+        t_sweep = time.perf_counter()
+        if cfg.deskew and self.has_lidar and i == self.indices[0] and not cfg.causal:
+            motion = self.start_motion(i, frame)
+        given = motion
+        motion = self.sweep(i, frame, motion) if cfg.deskew else None
+        # KISS-ICP's prediction for the next frame: the images' motion only where it overruled the last step
+        # (the start and end of turns); elsewhere KISS-ICP keeps its own constant velocity
+        self.sweep_of[i] = motion if motion is not given and given is not None else None
+        sweep_s = time.perf_counter() - t_sweep  # counted with the generator: the same thread's per-frame work
+        # the held-out truth is scoring, not refinement: built in the main thread's scoring step
+        sample = frame_sample(self.seq, i, self.ccfg, motion, self.frame_dt, self.camera_only, truth=False, frame=frame)
+        return frame, sample, sweep_s
+
+    def prepare(self, i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> PreparedFrame:
+        """Frame i's input and generator depth; runs beside the graph update of the previous frame.
+        `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
+        predicted camera (the generator's input only)."""
+        frame, sample, sweep_s = self.read_input(i, motion)
+        t0 = time.perf_counter() - sweep_s
+        depth, log_sigma, pairs, corners = self.generate(i, frame, sample, earlier)
+        return PreparedFrame(sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners)
+
+    def generate(self, i: int, frame: Frame, sample: EvalSample, earlier: np.ndarray | None
+                 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray], np.ndarray | None]:
+        """The generator's depth and log sigma on the sample (with the earlier scans that agree with it),
+        moved towards the motion-stereo corners, the pair motions, and the corners."""
+        from odometry.motion_stereo import (FrameTracks, corrected_depth, motion_stereo_depth, neighbour_frames,
+                                            pair_motions)
+
+        cfg, stereo, K = self.cfg, self.stereo, sample.frame.K
+        if earlier is not None:
+            earlier = self.history.keep_consistent(earlier, sample.kept_points)
+        seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, K))
+        corners, pairs, tracks = None, {}, None
+        with_stereo, with_pairs = self.cone.runs(cfg.motion_stereo, sample), self.cone.runs(cfg.pair_factors, sample)
+        if with_stereo or with_pairs:  # frame i's corners and tracks, shared by motion stereo and the pairs
+            if i not in self.stereo_images.images:
+                self.stereo_images.put(i, frame.image)
+            tracks = FrameTracks(i, self.stereo_images, K, sample.sparse, stereo)
+        if with_stereo:
+            offsets = stereo.causal_offsets if cfg.causal else stereo.offsets
+            corners = motion_stereo_depth(i, neighbour_frames(i, self.indices, offsets, cfg.causal), self.stereo_images,
+                                          K, sample.sparse, seen.sparse, stereo, tracks)
+        depth, log_sigma = self.generator(seen)
+        if corners is not None:  # the generator's depth moved towards the corners around them
+            depth = corrected_depth(depth, corners, stereo.spread * float(K[0, 0]), stereo.support,
+                                    stereo.range_log, stereo.edge_px)
+        if with_pairs:  # the images' motion to the window's earlier frames
+            pairs = pair_motions(i, [i - o for o in cfg.pair_offsets if i - o in self.selected], self.stereo_images,
+                                 K, sample.sparse, stereo, tracks)
+        return depth, log_sigma, pairs, corners
