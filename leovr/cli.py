@@ -163,7 +163,7 @@ def refine(
 ) -> None:
     """Generator depth refined with poses and landmarks in the sliding-window factor graph."""
     cfg = override(load_config(config).refine, checkpoint=None if checkpoint is None else str(checkpoint),
-                   window=window, input=input, start=start, end=end, loop_closure=loop_closure, causal=causal)
+                   window=window, input=input, start=start, end=end, loop={"enabled": loop_closure}, causal=causal)
     _run_refine(data, out, cfg, resume, rerun)
 
 
@@ -178,7 +178,7 @@ def poses(
     compare: bool = typer.Option(False, "--compare", help="Also run the textbook monocular VO (mono_vo) and, with LiDAR, KISS-ICP alone (kiss_icp), and score them beside leovr."),
 ) -> None:
     """The offline pose pass the self-supervised trainer uses: window odometry, then loop closure."""
-    cfg = override(load_config(config).refine, loop_closure=loop_closure, input=input, compare=compare or None)
+    cfg = override(load_config(config).refine, loop={"enabled": loop_closure}, input=input, compare=compare or None)
     _run_refine(data, out, cfg, resume, None)
 
 
@@ -188,7 +188,7 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
 
     seq = open_sequence(data)
     m = run_refine(seq, cfg, out, resume=resume)
-    if cfg.loop_closure:
+    if cfg.loop.enabled:
         loops = json.loads((out / "loops.json").read_text())["loops"]
         typer.echo(f"loops: {sum(r['accepted'] for r in loops)} accepted of {len(loops)} candidates (loops.json)")
     typer.echo(m["mode"])

@@ -55,10 +55,11 @@ class FrontEnd:
 
     def __post_init__(self) -> None:
         cfg = self.cfg
-        self.icp = LidarOdometry(self.T_cam_lidar, cov_inflation=cfg.icp_cov_inflation) if self.use_lidar else None
+        self.icp = LidarOdometry(self.T_cam_lidar, cov_inflation=cfg.graph.icp_cov_inflation) if self.use_lidar else None
+        camera_only = cfg.camera_only
         self.mono = None if self.use_lidar else MonoMotion(
-            self.K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
-            camera_height=self.camera_height, ground_sigma_log=cfg.mono_ground_sigma_log)
+            self.K, camera_only.depth_sigma_log, camera_only.track_sigma_log, camera_only.speed_sigma_log,
+            camera_height=self.camera_height, ground_sigma_log=camera_only.ground_sigma_log)
 
     @property
     def depth_scale(self) -> float:
@@ -74,8 +75,9 @@ class FrontEnd:
         lidar_z = np.full(len(uv), np.nan)
         if self.use_lidar and sparse is not None:
             lv, lu = np.nonzero(sparse > 0)
-            lidar_z = associate(uv, np.stack([lu, lv], 1).astype(float), sparse[lv, lu], self.cfg.assoc_radius_px,
-                                self.cfg.assoc_max_rel_spread)
+            front = self.cfg.frontend
+            lidar_z = associate(uv, np.stack([lu, lv], 1).astype(float), sparse[lv, lu], front.assoc_radius_px,
+                                front.assoc_max_rel_spread)
         z = np.where(np.isfinite(lidar_z), lidar_z, z)
         pts = back_project(uv, z, self.K)
         lidar_cam = [pts[k] if np.isfinite(lidar_z[k]) else None for k in range(len(uv))]
@@ -93,7 +95,7 @@ class FrontEnd:
             self.length_readings[index] = step.length_reading
         if self.depth_scale != 1.0:  # the generator's depth at the road's metric scale
             depth, log_sigma = depth * self.depth_scale, log_sigma + np.log(self.depth_scale)
-        feats = detect(image, cfg.n_features)
+        feats = detect(image, cfg.frontend.n_features)
         cam_pts, lidar_cam = self._feature_points(feats, depth, sparse)
         T_icp = self.icp.register(scan, guess=icp_guess) if self.icp is not None else None
         landmark = np.full(len(feats), -1, np.int64)
@@ -118,8 +120,8 @@ class FrontEnd:
             if step is not None:  # camera only: the epipolar motion, else PnP if the epipolar test agrees
                 T_init, source, odo_cov = self._camera_only_pose(step, T_prev, obj, img, p.feats.uv[ia], feats.uv[ib])
             else:
-                cands["pnp"] = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
-                guess = choose_pose(cands, obj, img, self.K, cfg.pnp_reproj_px)
+                cands["pnp"] = pnp_pose(obj, img, self.K, cfg.frontend.pnp_reproj_px)[0]
+                guess = choose_pose(cands, obj, img, self.K, cfg.frontend.pnp_reproj_px)
                 if guess is None or guess.inliers < 6 and "icp" not in cands:
                     T_init, source = T_prev @ self.velocity, "constant_velocity"
                 else:
@@ -129,16 +131,16 @@ class FrontEnd:
             if not len(ia):
                 inl = np.zeros(0, bool)
             elif step is not None:  # camera only: the epipolar test picks the matches
-                inl = sampson_px(T_rel, p.feats.uv[ia], feats.uv[ib], self.K) < cfg.pnp_reproj_px
+                inl = sampson_px(T_rel, p.feats.uv[ia], feats.uv[ib], self.K) < cfg.frontend.pnp_reproj_px
                 # a vehicle driving along with the camera passes the epipolar test (it moves along its
                 # epipolar lines) but shows far less parallax than its depth predicts
                 inl &= parallax_agrees(T_rel, p.cam_pts[ia], p.feats.uv[ia], feats.uv[ib], self.K)
                 # where the road gave the step, its metric motion places landmarks from a smaller ray angle
                 road = step.scale_source.startswith("ground")
                 obj, triangulated = self._triangulated(obj, T_prev, T_rel, p.feats.uv[ia], feats.uv[ib],
-                                                       cfg.mono_ground_triangulation_min_deg if road else 1.0)
+                                                       cfg.camera_only.ground_triangulation_min_deg if road else 1.0)
             else:
-                inl = reprojection_inliers(T_init, obj, img, self.K, cfg.pnp_reproj_px)
+                inl = reprojection_inliers(T_init, obj, img, self.K, cfg.frontend.pnp_reproj_px)
             if inl.sum() >= 6:
                 trusted = convex_hull_mask(img[inl], self.shape) & (depth > 0)
             for m in np.nonzero(inl)[0]:
@@ -150,7 +152,7 @@ class FrontEnd:
                     new_landmarks[k] = obj[m]
                     if triangulated[m] and step is not None and step.scale_source.startswith("ground"):
                         # placed by the metric motion, not by the generator's depth: its own depth prior
-                        prior_rel[k] = cfg.mono_triangulated_prior_rel
+                        prior_rel[k] = cfg.camera_only.triangulated_prior_rel
                     observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
                 landmark[b] = k
                 observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b]))
@@ -174,13 +176,14 @@ class FrontEnd:
         """Initial pose without LiDAR, its source and its between-factor covariance: the epipolar motion with
         its filtered step length; where that failed, PnP on the landmarks if its motion passes the
         epipolar test of the matches; else constant velocity."""
-        cfg = self.cfg
+        cfg, camera_only = self.cfg, self.cfg.camera_only
         if step.scale_source != "constant_speed":
             length = float(np.linalg.norm(step.T_rel[:3, 3]))
-            rel = cfg.mono_ground_odometry_sigma_rel if step.scale_source.startswith("ground") else cfg.mono_odometry_sigma_rel
-            sigmas = np.r_[np.full(3, cfg.mono_odometry_sigma_rad), np.full(3, max(rel * length, 0.01))]
+            ground = step.scale_source.startswith("ground")
+            rel = camera_only.ground_odometry_sigma_rel if ground else camera_only.odometry_sigma_rel
+            sigmas = np.r_[np.full(3, camera_only.odometry_sigma_rad), np.full(3, max(rel * length, 0.01))]
             return T_prev @ step.T_rel, f"epipolar ({step.scale_source})", np.diag(sigmas**2)
-        T_pnp = pnp_pose(obj, img, self.K, cfg.pnp_reproj_px)[0]
+        T_pnp = pnp_pose(obj, img, self.K, cfg.frontend.pnp_reproj_px)[0]
         if T_pnp is not None and epipolar_agrees(invert_T(T_prev) @ T_pnp, uv0, uv1, self.K):
             return T_pnp, "pnp", None
         return T_prev @ self.velocity, "constant_velocity", None

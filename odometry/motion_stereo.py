@@ -13,7 +13,8 @@ there). The generator's depth then moves towards the corners around them (`corre
 the network as extra input instead, the corners helped the real clip more but made the simulator's
 drives worse: a few wrong corners move whole regions there. Settings were chosen on development data
 only, the clip's frames 0-37 and the simulator's Mid-40 validation drives; on with a cone LiDAR only
-(docs/decisions/0005-motion-stereo-cone-only.md).
+(docs/decisions/0005-motion-stereo-cone-only.md). The settings are `refine.motion_stereo`
+(leovr.config.MotionStereoConfig).
 """
 
 from __future__ import annotations
@@ -27,40 +28,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-
-@dataclass(frozen=True)
-class MotionStereoSettings:
-    offsets: tuple[int, ...] = (2, 4, 8, 12, 16)  # frames before and after frame i that its corners are tracked into
-    # a causal run's frames before frame i: the previous frame too (without it a causal Mid-40-like run on
-    # kitti_raw_0013 lost its way, ATE 1.23 against 0.14 m; depth better on both real drives and a rendered one)
-    causal_offsets: tuple[int, ...] = (1, 2, 4, 8, 12, 16)
-    max_corners: int = 4000
-    corner_quality: float = 0.003
-    corner_distance_px: int = 4
-    lk_window_px: int = 11  # pyramidal Lucas-Kanade: window, pyramid levels, iterations (21 / 4 / 30: 2.5x the time, worse)
-    lk_levels: int = 3
-    lk_iterations: int = 20
-    track_check_px: float = 0.5  # forward-backward optical-flow agreement
-    min_views: int = 4  # frame i included
-    max_rms_px: float = 0.7  # multi-view reprojection error
-    min_parallax_px: float = 8.0  # the largest displacement against a point at infinity, over the views
-    lidar_gap_px: float = 8.0  # a corner joins the input only this far from any LiDAR return
-    scale_radius_px: float = 2.0  # a tracked corner takes the LiDAR depth of a return this near, for a pair's length
-    scale_min_points: int = 10  # a pair with fewer LiDAR-backed corners (parallax > 2 px) is dropped
-    min_depth_m: float = 1.5
-    max_depth_m: float = 150.0
-    # a corner is kept when at least this many other kept corners lie within neighbour_radius x focal length
-    # (pixels) and their median depth is within max_log_diff of its own (log): lone corners and outliers go
-    min_neighbours: int = 2
-    neighbour_radius: float = 0.05
-    max_log_diff: float = 0.15
-    # corrected_depth: the corners' log ratio to the generator spread with sigma = spread x focal length (px),
-    # over pixels whose generator depth is within about range_log (log) of the corner's, fading where their
-    # summed weight is small against `support` corners' worth
-    spread: float = 0.06
-    support: float = 1.0
-    range_log: float = 0.2
-    edge_px: int = 2
+from leovr.config import MotionStereoConfig
 
 
 class GrayImages:
@@ -85,7 +53,7 @@ class GrayImages:
         return self.images[i]
 
 
-def track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray, s: MotionStereoSettings) -> tuple[np.ndarray, np.ndarray]:
+def track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray, s: MotionStereoConfig) -> tuple[np.ndarray, np.ndarray]:
     """Corners of g0 in g1 (pyramidal Lucas-Kanade) and which of them came back within s.track_check_px."""
     lk = dict(winSize=(s.lk_window_px, s.lk_window_px), maxLevel=s.lk_levels,
               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, s.lk_iterations, 0.01))
@@ -118,7 +86,7 @@ def essential_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray
 
 
 def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
-                s: MotionStereoSettings) -> np.ndarray | None:
+                s: MotionStereoConfig) -> np.ndarray | None:
     """Frame i -> j as [R | t] (3 x 4) from the tracks: rotation and direction from the essential matrix,
     length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
     when either cannot be had."""
@@ -208,7 +176,7 @@ class Corners:
         return Corners(*(x[sel] for x in (self.u, self.v, self.z, self.rms, self.parallax, self.views)))
 
 
-def detect_corners(g0: np.ndarray, s: MotionStereoSettings) -> np.ndarray | None:
+def detect_corners(g0: np.ndarray, s: MotionStereoConfig) -> np.ndarray | None:
     """N x 2 float32 corners of a grayscale image (Shi-Tomasi), None when it has none."""
     found = cv2.goodFeaturesToTrack(g0, s.max_corners, s.corner_quality, s.corner_distance_px)
     return None if found is None else found.reshape(-1, 2).astype(np.float32)
@@ -219,7 +187,7 @@ class FrameTracks:
     computed once per neighbour: motion stereo and the pair motions both track into frame i - 2."""
 
     def __init__(self, i: int, images: GrayImages, K: np.ndarray, own: np.ndarray,
-                 s: MotionStereoSettings = MotionStereoSettings()) -> None:
+                 s: MotionStereoConfig = MotionStereoConfig()) -> None:
         self.images, self.K, self.s = images, K, s
         g0 = images[i]
         self.g0 = g0
@@ -244,7 +212,7 @@ class FrameTracks:
 
 
 def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                 s: MotionStereoSettings = MotionStereoSettings(), tracks: FrameTracks | None = None
+                 s: MotionStereoConfig = MotionStereoConfig(), tracks: FrameTracks | None = None
                  ) -> dict[int, np.ndarray]:
     """Frame i's motion to each neighbour j as a 4 x 4 T_j_i (camera i's points into camera j): rotation and
     direction from the essential matrix of the tracked corners, length from the frame's own LiDAR returns
@@ -264,7 +232,7 @@ def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarra
 
 
 def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                         s: MotionStereoSettings = MotionStereoSettings(), tracks: FrameTracks | None = None
+                         s: MotionStereoConfig = MotionStereoConfig(), tracks: FrameTracks | None = None
                          ) -> Corners:
     """Frame i's corners tracked into its neighbours and triangulated; all of them, before the tests."""
     none = Corners(*(np.zeros(0, t) for t in (int, int, float, float, float, int)))
@@ -299,7 +267,7 @@ def agree_with_neighbours(c: Corners, radius_px: float, min_neighbours: int, max
 
 
 def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                        seen: np.ndarray | None = None, s: MotionStereoSettings = MotionStereoSettings(),
+                        seen: np.ndarray | None = None, s: MotionStereoConfig = MotionStereoConfig(),
                         tracks: FrameTracks | None = None) -> np.ndarray:
     """Frame i's triangulated corners that pass the tests, as a sparse depth map (0 = none), only where no
     LiDAR return of `seen` (default: `own`, the frame's own returns, which set each pair's length) lies
@@ -318,7 +286,7 @@ def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np
     return out
 
 
-def neighbour_frames(i: int, selected: list[int], offsets: tuple[int, ...], causal: bool = False) -> list[int]:
+def neighbour_frames(i: int, selected: list[int], offsets: list[int], causal: bool = False) -> list[int]:
     """The frames i - o and i + o of the run's selection (i - o only, `causal`), nearest first."""
     have = set(selected)
     return [j for o in offsets for j in ((i - o,) if causal else (i - o, i + o)) if j in have]

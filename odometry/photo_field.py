@@ -15,55 +15,17 @@ clear valley, and there they should choose no change; otherwise, or when their m
 their choice read the depth 5-40 % too far, and the sweep made 35 of the 38 development frames worse). Run when a
 frame leaves the window, with the poses it leaves with (final before it, the window's after it). Settings
 chosen on development data only: the simulator's Mid-40 validation drives and the KITTI clip's frames 0-37
-(docs/decisions/0007-photometric-field-cone-only.md).
+(docs/decisions/0007-photometric-field-cone-only.md). The settings are `refine.photometric`
+(leovr.config.PhotometricConfig).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
+from leovr.config import PhotometricConfig
 from odometry.depth_field import CorrectionGrid
-
-
-@dataclass(frozen=True)
-class PhotoFieldSettings:
-    rows: int = 16  # the correction's grid (nodes), corner to corner (finer than the graph's 8 x 14: 1.81 -> 1.77 m)
-    cols: int = 28
-    # candidates: log offsets in [-span, span], 0.2 apart (odd count: 0 is one); a parabola through the best and
-    # its neighbours refines it. 0.2 apart beat 0.1 on the development drives (span 0.5 / 11: 1.846 m, 0.8 / 9:
-    # 1.813, 1.0 / 11: 1.813, 0.6 / 7: 1.829, 0.8 / 11: 1.824, 1.0 / 21: 1.837)
-    span_log: float = 0.8
-    candidates: int = 9
-    patch_px: int = 2  # ZNCC window half size, at the downsampled scale
-    min_texture: float = 4.0  # gray-level variance in the window: flatter patches do not vote
-    min_pixels: int = 30  # a node needs this much (bilinear) weight of voting pixels for every candidate
-    min_gain: float = 0.05  # kept when the best candidate's mean cost is this much below no change
-    min_depth_m: float = 0.5
-    min_backed: int = 5  # nodes with returns and a clear choice needed to check the poses (photometric_offsets)
-    # ... and this share of the seen nodes with returns: where the images pin the depth at few of the nodes whose
-    # depth is known, the check rests on little and the sweep's choices elsewhere are no better (development data:
-    # simulator drives 0.64-1.0 of them, 5-95 %, and the sweep helped on 91 % of the frames; KITTI frames 0-37
-    # 0.01-0.35, and the sweep made 35 of 38 frames worse with the graph's poses, whatever the check's bias)
-    min_backed_share: float = 0.5
-    # their median choice may be this far from 0 (a step length read wrong, a turn misread). Simulator validation
-    # drives: 5-95 % -0.07 to 0.04; the sweep helped in every bias bin, so with the share test above in front of
-    # it: 0.05: 1.813 m, 0.1: 1.785, 0.15: 1.772, off: 1.770 (0.1 kept as the safer). KITTI frames 0-37 (graph's
-    # poses): -0.51 to -0.05, refused by the share test already (without it, 0.05 alone lets 1-2 frames through,
-    # each made worse)
-    max_bias_log: float = 0.1
-    # the sweep runs on images made smaller by the integer factor that brings them nearest this many pixels
-    # (448 x 256: 2, KITTI's 1242 x 375: 4; the patch size is at that scale); 0: this fixed factor
-    sweep_pixels: int = 30000
-    downsample: int = 0
-    # a far candidate (depth x e^far_log, ~20x: as good as infinity) that a moved node's best must beat by
-    # `far_gain`: a vehicle driving along with the camera matches best at infinity, and without this test its
-    # nodes were pushed to the span's far end (KITTI frames 0-37 with KISS-ICP's poses on the full scan, no
-    # check: 1.70 -> 1.85 m without, 1.65 m with; simulator validation 1.823 -> 1.807 m); 0: off
-    far_log: float = 3.0
-    far_gain: float = 0.05
 
 
 def _box(x: np.ndarray, k: int) -> np.ndarray:
@@ -85,7 +47,7 @@ _votes_cache: dict[CorrectionGrid, _Votes] = {}
 
 
 def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
-                        K: np.ndarray, free: np.ndarray, s: PhotoFieldSettings = PhotoFieldSettings(),
+                        K: np.ndarray, free: np.ndarray, s: PhotometricConfig = PhotometricConfig(),
                         stats: dict | None = None) -> np.ndarray:
     """Per-node log offsets (grid `s.rows` x `s.cols`, flat) for a frame's depth (H x W, 0 = unknown).
     `gray`: the frame's image (H x W); `neighbours`: (image, T_j_i) pairs, T_j_i mapping this camera's
@@ -170,14 +132,14 @@ def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tu
     return out
 
 
-def free_nodes(sparse: np.ndarray, s: PhotoFieldSettings = PhotoFieldSettings()) -> np.ndarray:
+def free_nodes(sparse: np.ndarray, s: PhotometricConfig = PhotometricConfig()) -> np.ndarray:
     """Per node of the photometric grid: True where the nearest-node cell holds no LiDAR return."""
     grid = CorrectionGrid(s.rows, s.cols, *sparse.shape)
     counts = grid.cell_means(np.where(sparse > 0, 1.0, 0.0))  # share of pixels with a return
     return ~(np.nan_to_num(counts) > 0)
 
 
-def photometric_correction(depth: np.ndarray, offsets: np.ndarray, s: PhotoFieldSettings = PhotoFieldSettings()) -> np.ndarray:
+def photometric_correction(depth: np.ndarray, offsets: np.ndarray, s: PhotometricConfig = PhotometricConfig()) -> np.ndarray:
     """The depth times the upsampled offsets (0 stays 0)."""
     if not np.any(offsets):
         return depth

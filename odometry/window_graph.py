@@ -16,7 +16,7 @@ import cv2
 import gtsam
 import numpy as np
 
-from leovr.config import RefineConfig
+from leovr.config import GraphConfig, RefineConfig
 from leovr.geometry import invert_T, rotation_angle_deg
 from odometry.depth_field import CorrectionGrid
 from odometry.mono_vo import relative_motion
@@ -94,7 +94,7 @@ class _Pair:
     trusted_uv: tuple[np.ndarray, np.ndarray]
 
 
-def lm_params(cfg: RefineConfig) -> gtsam.LevenbergMarquardtParams:
+def lm_params(cfg: GraphConfig) -> gtsam.LevenbergMarquardtParams:
     """The smoother's Levenberg-Marquardt settings: `lm_iterations` iterations, and a step that does not lower
     the error is retried with more damping only while lambda stays under `lm_lambda_upper_bound`. gtsam's batch
     smoother never lets lambda fall below 1e-10, so the default cap of 1e-10 ends the update at the first step
@@ -116,8 +116,8 @@ class WindowGraph:
     condition_leaving: bool = True
 
     def __post_init__(self) -> None:
-        self.smoother = gtsam.BatchFixedLagSmoother(self.cfg.window - 0.5, lm_params(self.cfg))
-        self.grid = CorrectionGrid(self.cfg.grid_rows, self.cfg.grid_cols, *self.shape)
+        self.smoother = gtsam.BatchFixedLagSmoother(self.cfg.window - 0.5, lm_params(self.cfg.graph))
+        self.grid = CorrectionGrid(self.cfg.graph.grid_rows, self.cfg.graph.grid_cols, *self.shape)
         self.cal = gtsam.Cal3_S2(self.K[0, 0], self.K[1, 1], 0.0, self.K[0, 2], self.K[1, 2])
         self.depths: dict[int, FrameDepth] = {}
         self.poses: dict[int, np.ndarray] = {}
@@ -133,11 +133,11 @@ class WindowGraph:
         self.road_up: list[np.ndarray] = []  # camera only: the road's normal in the world, the first ones seen
         # the correction field's depth factors; `auto` is on until the caller knows the sensor (refine: a
         # spinning LiDAR turns them off)
-        self.depth_factors: bool = self.cfg.depth_factors is not False
+        self.depth_factors: bool = self.cfg.graph.depth_factors is not False
 
     # ----------------------------------------------------------------- factors of one new frame
     def _frame_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-        cfg = self.cfg
+        g = self.cfg.graph
         values.insert(X(f.index), gtsam.Pose3(f.T_init))
         if self.last is None:
             graph.add(gtsam.PriorFactorPose3(X(f.index), gtsam.Pose3(f.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
@@ -146,41 +146,41 @@ class WindowGraph:
             if f.odometry_cov is not None:
                 noise = gtsam.noiseModel.Gaussian.Covariance(f.odometry_cov)
             else:
-                noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, cfg.odometry_sigma_rad), np.full(3, cfg.odometry_sigma_m)])
+                noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, g.odometry_sigma_rad), np.full(3, g.odometry_sigma_m)])
             graph.add(gtsam.BetweenFactorPose3(X(self.last), X(f.index), gtsam.Pose3(rel), noise))
         if f.icp_pose is not None:
             self._icp_factors(f.index, *f.icp_pose, graph)
         self._pair_factors(f, graph)
-        if f.road_normal_prev is not None and self.last is not None and cfg.mono_road_attitude_sigma_rad > 0:
+        if f.road_normal_prev is not None and self.last is not None and self.cfg.camera_only.road_attitude_sigma_rad > 0:
             self._road_attitude(self.last, f.road_normal_prev, graph)
         fd = FrameDepth(f.log_depth, self.grid)
         self.depths[f.index] = fd
         values.insert(C(f.index), np.zeros(self.grid.size))
         sig = self.grid.cell_means(f.rel_sigma)
-        sig = np.clip(np.nan_to_num(sig, nan=cfg.prior_sigma_max), cfg.prior_sigma_min, cfg.prior_sigma_max)
+        sig = np.clip(np.nan_to_num(sig, nan=g.prior_sigma_max), g.prior_sigma_min, g.prior_sigma_max)
         graph.add(gtsam.PriorFactorVector(C(f.index), np.zeros(self.grid.size), gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        if self.depth_factors and f.lidar_uvz is not None and len(f.lidar_uvz) and cfg.lidar_depth_samples > 0:
+        if self.depth_factors and f.lidar_uvz is not None and len(f.lidar_uvz) and g.lidar_depth_samples > 0:
             uvz = f.lidar_uvz
-            if len(uvz) > cfg.lidar_depth_samples:
-                uvz = uvz[self.rng.choice(len(uvz), cfg.lidar_depth_samples, replace=False)]
-            graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], cfg.lidar_depth_sigma_log).factor(C(f.index)))
-        if self.depth_factors and f.stereo_uvz is not None and len(f.stereo_uvz) and cfg.stereo_depth_sigma_log > 0:
+            if len(uvz) > g.lidar_depth_samples:
+                uvz = uvz[self.rng.choice(len(uvz), g.lidar_depth_samples, replace=False)]
+            graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], g.lidar_depth_sigma_log).factor(C(f.index)))
+        if self.depth_factors and f.stereo_uvz is not None and len(f.stereo_uvz) and g.stereo_depth_sigma_log > 0:
             uvz = f.stereo_uvz
-            graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], cfg.stereo_depth_sigma_log).factor(C(f.index)))
+            graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], g.stereo_depth_sigma_log).factor(C(f.index)))
         for k, P in f.new_landmarks.items():
             values.insert(L(k), np.asarray(P, float))
             self.landmarks[k] = np.asarray(P, float)
             # the depth it was initialised from (generator or LiDAR) keeps a landmark determined when the baseline is short
             depth = max(1.0, float(np.linalg.norm(P - self.poses.get(self.last, f.T_init)[:3, 3])))
-            rel = f.landmark_prior_rel.get(k, cfg.landmark_prior_rel)
+            rel = f.landmark_prior_rel.get(k, g.landmark_prior_rel)
             graph.add(gtsam.PriorFactorPoint3(L(k), np.asarray(P, float), gtsam.noiseModel.Isotropic.Sigma(3, rel * depth)))
         for o in f.observations:
-            graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, cfg.pixel_sigma))
+            graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, g.pixel_sigma))
             if o.lidar_cam is not None:
-                graph.add(lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), cfg.bearing_sigma_rad, cfg.range_sigma_m))
+                graph.add(lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), g.bearing_sigma_rad, g.range_sigma_m))
         if self.depth_factors and f.trusted is not None and self.last is not None and f.trusted.any():
             v, u = np.nonzero(f.trusted)
-            dc = DepthConsistency(fd, self.depths[self.last], self.K, cfg.consistency_sigma_log)
+            dc = DepthConsistency(fd, self.depths[self.last], self.K, g.consistency_sigma_log)
             pair = _Pair(f.index, self.last, dc, (u.astype(float), v.astype(float)))
             self._resample(pair)
             self.pairs.append(pair)
@@ -193,7 +193,7 @@ class WindowGraph:
         if len(self.road_up) < n_ref:
             self.road_up.append(self.poses[i][:3, :3] @ normal_cam)
         up = np.mean(self.road_up, axis=0)
-        noise = gtsam.noiseModel.Isotropic.Sigma(2, self.cfg.mono_road_attitude_sigma_rad)
+        noise = gtsam.noiseModel.Isotropic.Sigma(2, self.cfg.camera_only.road_attitude_sigma_rad)
         graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(up / np.linalg.norm(up)), noise, gtsam.Unit3(normal_cam)))
 
     def _pair_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph) -> None:
@@ -203,15 +203,15 @@ class WindowGraph:
         initial pose is kept only if the essential matrix of the front end's own matches with the previous
         frame agrees with it instead: in a fast turn either the pair's tracks or the initial pose can be the
         one that failed (Huber still lets a 100-sigma outlier pull the pose)."""
-        cfg = self.cfg
+        g = self.cfg.graph
         second: list[np.ndarray | None] = []  # the matches' rotation, computed once and only when needed
         for j, T in f.pair_motions.items():
             if j not in self.poses:
                 continue
-            if cfg.pair_gate_deg > 0 and not self._pair_agrees(f, j, T, second):
+            if g.pair_gate_deg > 0 and not self._pair_agrees(f, j, T, second):
                 continue
             length = float(np.linalg.norm(T[:3, 3]))
-            base = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, cfg.pair_sigma_rad), np.full(3, cfg.pair_sigma_rel * length + 0.01)])
+            base = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, g.pair_sigma_rad), np.full(3, g.pair_sigma_rel * length + 0.01)])
             noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345), base)
             graph.add(gtsam.BetweenFactorPose3(X(j), X(f.index), gtsam.Pose3(T), noise))
 
@@ -219,7 +219,7 @@ class WindowGraph:
         """Whether pair j's rotation lies within `pair_gate_deg` of the initial pose's, or else of the rotation
         of the essential matrix of the front end's matches with the previous frame (chained to j through the
         window's poses)."""
-        gate = self.cfg.pair_gate_deg
+        gate = self.cfg.graph.pair_gate_deg
         R_pair = T[:3, :3]
         if rotation_angle_deg(R_pair.T @ (invert_T(self.poses[j]) @ f.T_init)[:3, :3]) <= gate:
             return True
@@ -246,7 +246,8 @@ class WindowGraph:
 
     def _resample(self, pair: _Pair) -> None:
         u, v = pair.trusted_uv
-        pick = self.rng.choice(len(u), self.cfg.consistency_samples, replace=len(u) < self.cfg.consistency_samples)
+        n = self.cfg.graph.consistency_samples
+        pick = self.rng.choice(len(u), n, replace=len(u) < n)
         pair.dc.set_samples(u[pick], v[pick])
 
     # ----------------------------------------------------------------------------- public API

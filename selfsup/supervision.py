@@ -17,7 +17,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from leovr.config import RefineConfig, SelfSupConfig
+from leovr.config import AccumulationConfig, GraphConfig, LoopConfig, RefineConfig, SelfSupConfig
 from leovr.data.io import read_json_object, require_file, write_text
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.data.run_info import read_run_depth
@@ -115,16 +115,18 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
         if not same or left.get("checkpoint_stamp", stamp) != stamp:  # a pass over other weights: run it again
             shutil.rmtree(out)
     if not done.is_file():
-        rcfg = RefineConfig(input=cfg.input, end=n_frames, seed=cfg.seed, loop_closure=cfg.loop_closure,
-                            loop_min_gap=cfg.loop_min_gap, generator_focal_px=cfg.train_focal_px,
+        rcfg = RefineConfig(input=cfg.input, end=n_frames, seed=cfg.seed,
+                            loop=LoopConfig(enabled=cfg.loop_closure, min_gap=cfg.loop_min_gap),
+                            generator_focal_px=cfg.train_focal_px,
                             depth_source="ipbasic" if checkpoint is None else "generator",
                             # forced on with a generator (not `auto`): L_r needs a correction field that can move
-                            depth_factors=checkpoint is not None, checkpoint=None if checkpoint is None else str(checkpoint),
+                            graph=GraphConfig(depth_factors=checkpoint is not None),
+                            checkpoint=None if checkpoint is None else str(checkpoint),
                             # the trainer's own checkpoints carry no int8 calibration table: floating point
                             generator_runtime="onnxruntime",
                             # the trainer's graph passes as measured by `bench selfsup`: each frame's own scan only
                             # (the earlier scans of a cone LiDAR in the depth input are not measured in training yet)
-                            accumulate_frames=0)
+                            accumulation=AccumulationConfig(frames=0))
         pose_pass(seq, rcfg, out, resume=(out / "progress.json").is_file(), progress=progress, score=False)
         write_text(done, json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint), "checkpoint_stamp": stamp}) + "\n")
     indices = list(range(n_frames))

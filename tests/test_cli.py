@@ -14,7 +14,7 @@ from conftest import KITTI_RAW, needs_shared, write_kitti_raw
 from typer.testing import CliRunner
 
 from leovr.cli import app
-from leovr.config import LeovrConfig, load_config
+from leovr.config import LeovrConfig, RefineConfig, load_config, override
 from leovr.errors import ConfigError
 from leovr.paths import REPO_ROOT
 
@@ -33,6 +33,55 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
     bad.write_text("complete:\n  input: ratio:0.9\n")
     with pytest.raises(ConfigError, match="outside"):
         load_config(bad)
+    bad.write_text("refine:\n  graph:\n    pixel_sigm: 2.0\n")  # a misspelt key of a nested table: named in full
+    with pytest.raises(ConfigError, match=r"refine\.graph\.pixel_sigm"):
+        load_config(bad)
+    bad.write_text("refine:\n  loop_closure: true\n")  # a key of the flat layout before the nested tables
+    with pytest.raises(ConfigError, match="refine.loop_closure"):
+        load_config(bad)
+
+
+def test_a_nested_table_in_yaml_changes_only_the_keys_it_names(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("refine:\n  window: 6\n  graph:\n    pixel_sigma: 2.0\n  camera_only:\n    graph:\n"
+                    "      landmark_prior_rel: 5.0\n")
+    cfg = load_config(path).refine
+    assert cfg.window == 6 and cfg.graph.pixel_sigma == 2.0 and cfg.camera_only.graph.landmark_prior_rel == 5.0
+    default = RefineConfig()
+    assert cfg.graph.model_copy(update={"pixel_sigma": default.graph.pixel_sigma}) == default.graph
+    assert cfg.camera_only.graph.consistency_sigma_log == default.camera_only.graph.consistency_sigma_log
+
+
+def test_override_merges_nested_options_and_skips_the_ones_not_given():
+    base = RefineConfig(graph={"pixel_sigma": 2.0}, loop={"min_gap": 40})
+    cfg = override(base, window=6, loop={"enabled": True}, graph={"grid_rows": None}, causal=None)
+    assert cfg.window == 6 and cfg.loop.enabled and cfg.loop.min_gap == 40 and cfg.graph == base.graph
+    assert override(base, loop={"enabled": None}) == base
+    with pytest.raises(ConfigError, match=r"loop\.min_gap"):
+        override(base, loop={"min_gap": 1})
+    with pytest.raises(ConfigError, match="causal run"):
+        override(base, causal=True, loop={"enabled": True})
+
+
+def test_refine_flags_set_the_nested_settings(tmp_path, monkeypatch):
+    """--loop-closure sets refine.loop.enabled beside the top-level flags, over the config file's values."""
+    import leovr.cli as cli
+
+    seen = []
+    monkeypatch.setattr(cli, "_run_refine", lambda data, out, cfg, resume, rerun: seen.append(cfg))
+    path = tmp_path / "c.yaml"
+    path.write_text("refine:\n  loop:\n    min_gap: 50\n  graph:\n    pixel_sigma: 2.0\n")
+    r = runner.invoke(app, ["refine", str(tmp_path), "-o", str(tmp_path / "o"), "-c", str(path), "--loop-closure",
+                            "--window", "6", "--input", "vlp16", "--end", "9"])
+    assert r.exit_code == 0, r.output
+    cfg = seen[-1]
+    assert cfg.loop.enabled and cfg.loop.min_gap == 50 and cfg.graph.pixel_sigma == 2.0
+    assert (cfg.window, cfg.input, cfg.end, cfg.causal) == (6, "vlp16", 9, False)
+    r = runner.invoke(app, ["poses", str(tmp_path), "-o", str(tmp_path / "p"), "--no-loop-closure", "--compare"])
+    assert r.exit_code == 0, r.output
+    assert not seen[-1].loop.enabled and seen[-1].compare
+    r = runner.invoke(app, ["refine", str(tmp_path), "-o", str(tmp_path / "o"), "--causal", "--loop-closure"])
+    assert isinstance(r.exception, ConfigError) and "causal run" in str(r.exception)
 
 
 def test_info_prints_summary(kitti_raw_tiny):

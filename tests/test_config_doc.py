@@ -8,15 +8,17 @@ import subprocess
 import sys
 from pathlib import Path
 
+from pydantic import BaseModel
+
 from leovr.config import LeovrConfig, RefineConfig
 from leovr.config_doc import DOC, render
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _rows(doc: str, section: str) -> dict[str, str]:
-    """key -> description of one section's table."""
-    body = doc.split(f"\n## {section}\n", 1)[1].split("\n## ", 1)[0]
+def _rows(doc: str, section: str, level: int = 2) -> dict[str, str]:
+    """key -> description of one section's table (up to the next heading: a nested table's own)."""
+    body = doc.split(f"\n{'#' * level} {section}\n", 1)[1].split("\n#", 1)[0]
     rows = {}
     for line in body.splitlines():
         cells = [c.strip() for c in re.split(r"(?<!\\)\|", line)[1:-1]]
@@ -44,6 +46,29 @@ def test_every_section_in_the_top_level_order_and_every_setting_described():
         rows = _rows(doc, key)
         assert list(rows) == list(field.annotation.model_fields)
         assert all(text for text in rows.values()), (key, [k for k, text in rows.items() if not text])
+
+
+def _nested(model: type[BaseModel], key: str, level: int) -> list[tuple[str, type[BaseModel], int]]:
+    """(dotted key, model, heading level) of every nested model below `model`, depth first."""
+    found = []
+    for name, field in model.model_fields.items():
+        if isinstance(field.annotation, type) and issubclass(field.annotation, BaseModel):
+            found.append((f"{key}.{name}", field.annotation, level + 1))
+            found += _nested(field.annotation, f"{key}.{name}", level + 1)
+    return found
+
+
+def test_every_nested_setting_has_its_own_table_under_its_dotted_key():
+    doc = render()
+    nested = _nested(RefineConfig, "refine", 2)
+    assert [key for key, _, _ in nested] == [
+        "refine.frontend", "refine.graph", "refine.accumulation", "refine.motion_stereo", "refine.photometric",
+        "refine.loop", "refine.camera_only", "refine.camera_only.graph"]
+    for key, model, level in nested:
+        rows = _rows(doc, key, level)
+        assert list(rows) == list(model.model_fields), key
+        assert all(text.strip() for text in rows.values()), (key, [k for k, text in rows.items() if not text.strip()])
+        assert f"(#{key.replace('.', '')})" in doc  # the parent's row links to it
 
 
 def test_comments_are_read_from_above_and_beside_a_field():

@@ -36,6 +36,20 @@ def _truth(frames) -> np.ndarray:
     return np.stack([invert_T(frames[0].T_world_cam) @ f.T_world_cam for f in frames])
 
 
+def test_the_camera_only_profile_puts_its_graph_settings_over_refine_graph():
+    """Without LiDAR the graph runs with `refine.graph` and, in place of the keys it names,
+    `refine.camera_only.graph` (by default a loose landmark prior and depth-consistency sigma)."""
+    from leovr.config import CameraOnlyGraphConfig, GraphConfig
+    from leovr.pipeline.refine import camera_only_graph_config
+
+    assert set(CameraOnlyGraphConfig.model_fields) <= set(GraphConfig.model_fields)
+    cfg = RefineConfig(graph={"pixel_sigma": 2.0, "landmark_prior_rel": 0.4}, camera_only={"graph": {"consistency_sigma_log": 0.5}})
+    graph = camera_only_graph_config(cfg).graph
+    assert (graph.pixel_sigma, graph.landmark_prior_rel, graph.consistency_sigma_log) == (2.0, 10.0, 0.5)
+    assert graph.model_copy(update={"landmark_prior_rel": 0.4, "consistency_sigma_log": 0.05}) == cfg.graph
+    assert cfg.graph.landmark_prior_rel == 0.4  # the LiDAR runs' settings are left as they are
+
+
 def test_epipolar_motion_points_the_way_the_camera_moved(drive):
     _, frames = drive
     for a, b in zip(frames[:-1], frames[1:]):
@@ -115,7 +129,7 @@ def test_a_vehicle_driving_along_fails_the_parallax_test():
 
 def test_with_the_road_triangulated_landmarks_get_the_loose_prior(drive):
     """Where the road gave the step, landmarks whose rays part by at least
-    `mono_ground_triangulation_min_deg` are placed by the metric motion and get the loose depth prior;
+    `camera_only.ground_triangulation_min_deg` are placed by the metric motion and get the loose depth prior;
     without a camera height (scale from the generator's depth) every landmark keeps the default prior."""
     from odometry.frontend import FrontEnd
     from odometry.window_graph import WindowGraph
@@ -132,7 +146,7 @@ def test_with_the_road_triangulated_landmarks_get_the_loose_prior(drive):
             depth = 0.7 * np.where(f.depth > 0, f.depth, 100.0)  # a generator has depth everywhere (sky: far)
             fi = front.process(i, f.image, depth, np.log(0.1 * depth), None, None, graph)
             assert set(fi.landmark_prior_rel) <= set(fi.new_landmarks)
-            assert all(r == cfg.mono_triangulated_prior_rel for r in fi.landmark_prior_rel.values())
+            assert all(r == cfg.camera_only.triangulated_prior_rel for r in fi.landmark_prior_rel.values())
             n_new, n_loose = n_new + len(fi.new_landmarks), n_loose + len(fi.landmark_prior_rel)
             graph.add_frame(fi)
         flagged[h] = (n_loose, n_new)
@@ -223,10 +237,10 @@ def test_camera_only_poses_on_the_real_raw_clip_stay_metric(tmp_path):
     icp = LidarOdometry(seq[0].T_cam_lidar)
     ref = np.stack([icp.register(seq[i].points) for i in range(n)])  # the scan is held out of the runs below
     scales = {}
-    for name, extra in (("camera_only", {"mono_length_smoothing": False}), ("shipped", {}),
-                        ("lidar_settings", {"mono_landmark_prior_rel": 0.3, "mono_consistency_sigma_log": 0.05,
-                                            "mono_length_smoothing": False})):
-        run_refine(seq, RefineConfig(input="none", end=n, loop_closure=False, **extra), tmp_path / name,
+    lidar_graph = {"landmark_prior_rel": 0.3, "consistency_sigma_log": 0.05}  # refine.graph's defaults
+    for name, camera_only in (("camera_only", {"length_smoothing": False}), ("shipped", {}),
+                              ("lidar_settings", {"graph": lidar_graph, "length_smoothing": False})):
+        run_refine(seq, RefineConfig(input="none", end=n, camera_only=camera_only), tmp_path / name,
                    progress=False, score=False)
         est = read_kitti_poses(tmp_path / name / "poses_kitti.txt")
         scales[name] = trajectory_metrics(est, ref, "sim3")["scale"]
@@ -311,8 +325,9 @@ def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
     seq, n = open_sequence(kitti_raw_dir()), 40
     cfg = RefineConfig(input="none")
     gen = generator_method(completion_config(cfg))
-    mm = MonoMotion(seq[0].K, cfg.mono_depth_sigma_log, cfg.mono_track_sigma_log, cfg.mono_speed_sigma_log,
-                    camera_height=road_height(seq, cfg), ground_sigma_log=cfg.mono_ground_sigma_log)
+    mono = cfg.camera_only
+    mm = MonoMotion(seq[0].K, mono.depth_sigma_log, mono.track_sigma_log, mono.speed_sigma_log,
+                    camera_height=road_height(seq, cfg), ground_sigma_log=mono.ground_sigma_log)
     icp = LidarOdometry(seq[0].T_cam_lidar)
     poses, ref = [np.eye(4)], []
     for i in range(n):
@@ -333,7 +348,7 @@ def test_a_resumed_camera_only_run_smooths_the_same_lengths(drive, tmp_path):
     import warnings
 
     seq_dir, frames = drive
-    seq, cfg = open_sequence(seq_dir), RefineConfig(input="none", loop_closure=False)
+    seq, cfg = open_sequence(seq_dir), RefineConfig(input="none", loop={"enabled": False})
     run_refine(seq, cfg, tmp_path / "whole", progress=False, score=False)
     with killed_after_saves(4):
         run_refine(seq, cfg, tmp_path / "cut", progress=False, score=False)

@@ -6,14 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from leovr.config import SimulateConfig
+from leovr.config import MotionStereoConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.lidar.projection import sparse_depth
 from leovr.sim.simulate import simulate
 from odometry.motion_stereo import (
     Corners,
     GrayImages,
-    MotionStereoSettings,
     agree_with_neighbours,
     corrected_depth,
     motion_stereo_depth,
@@ -21,7 +20,7 @@ from odometry.motion_stereo import (
 )
 from scipy.ndimage import distance_transform_edt
 
-SETTINGS = MotionStereoSettings(offsets=(1, 2, 3, 4))  # a 9-frame drive
+SETTINGS = MotionStereoConfig(offsets=[1, 2, 3, 4])  # a 9-frame drive
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +117,7 @@ def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monke
     run_refine(seq, RefineConfig(input="full"), tmp_path / "auto", progress=False)
     assert calls == list(range(9))  # a Mid-40 cone: every frame (offsets 2, 4, 8 of the shipped ones: frames 2-6 have 4 views or more)
     calls.clear()
-    run_refine(seq, RefineConfig(input="full", motion_stereo=False), tmp_path / "off", progress=False)
+    run_refine(seq, RefineConfig(input="full", motion_stereo={"enabled": False}), tmp_path / "off", progress=False)
     assert calls == []
     moved = [np.abs(read_depth_png(tmp_path / "auto" / "depth_generator" / f"{i:06d}.png")
                     - read_depth_png(tmp_path / "off" / "depth_generator" / f"{i:06d}.png")).max() for i in range(9)]

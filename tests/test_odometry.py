@@ -158,7 +158,7 @@ def test_icp_window_factors_make_the_graph_follow_the_lidar_motion():
     from leovr.config import RefineConfig
     from odometry.window_graph import FrameInput, WindowGraph
 
-    cfg = RefineConfig(window=4, depth_factors=False)
+    cfg = RefineConfig(window=4, graph={"depth_factors": False})
     graph = WindowGraph(cfg, K, SHAPE)
     truth = [make_T(Rotation.from_rotvec([0, 0.01 * i, 0]).as_matrix(), [0.1 * i, 0, 1.0 * i]) for i in range(8)]
     cov = np.diag(np.r_[np.full(3, 1e-3), np.full(3, 0.02)] ** 2)
@@ -194,7 +194,7 @@ def _window_run(condition: bool, frames: int = 7) -> tuple[list[np.ndarray], int
 
     rng = np.random.default_rng(3)
     pts = np.c_[rng.uniform(-6, 6, 60), rng.uniform(-3, 3, 60), rng.uniform(15, 40, 60)]
-    cfg = RefineConfig(window=3, depth_factors=False)
+    cfg = RefineConfig(window=3, graph={"depth_factors": False})
     g = WindowGraph(cfg, K, SHAPE, rng=np.random.default_rng(0), condition_leaving=condition)
     truth, done, largest = [], [], 0
     for i in range(frames):
@@ -234,7 +234,7 @@ def test_pair_factors_make_the_graph_follow_the_images_motion():
     truth = [make_T(Rotation.from_rotvec([0, 0.02 * i, 0]).as_matrix(), [0.1 * i, 0, 1.0 * i]) for i in range(8)]
 
     def run(pairs: bool) -> float:
-        graph = WindowGraph(RefineConfig(window=4, depth_factors=False), K, SHAPE)
+        graph = WindowGraph(RefineConfig(window=4, graph={"depth_factors": False}), K, SHAPE)
         done = []
         guesses = [make_T(T[:3, :3], [0, 0, 0.5 * i]) for i, T in enumerate(truth)]
         for i, T in enumerate(truth):
@@ -269,7 +269,7 @@ def _pair_run(pair_error_deg: float, gate_deg: float, matches_follow_pair: bool)
         c = (pts - T_cam[:3, 3]) @ T_cam[:3, :3]
         return (c @ K.T)[:, :2] / c[:, 2:]
 
-    graph = WindowGraph(RefineConfig(window=4, depth_factors=False, pair_gate_deg=gate_deg), K, SHAPE)
+    graph = WindowGraph(RefineConfig(window=4, graph={"depth_factors": False, "pair_gate_deg": gate_deg}), K, SHAPE)
     done = []
     for i, T in enumerate(truth):
         rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
@@ -308,7 +308,7 @@ def test_stereo_corners_move_the_correction_field_where_no_lidar_reaches():
     stereo = np.column_stack([uv, np.full(len(uv), 20.0)])
 
     def run(sigma: float) -> np.ndarray:
-        graph = WindowGraph(RefineConfig(window=4, stereo_depth_sigma_log=sigma), K, SHAPE)
+        graph = WindowGraph(RefineConfig(window=4, graph={"stereo_depth_sigma_log": sigma}), K, SHAPE)
         f = FrameInput(0, np.eye(4), np.log(gen), np.full(SHAPE, 0.3), [], {}, None, None)
         f.stereo_uvz = stereo
         done = graph.add_frame(f) + graph.flush()
@@ -418,7 +418,7 @@ def _failed_step_solves(cap: float) -> tuple[int, float]:
     residual's slope: the step overshoots 2.5x), and the estimate it leaves."""
     import gtsam
 
-    from leovr.config import RefineConfig
+    from leovr.config import GraphConfig
     from odometry.window_graph import lm_params
 
     key = gtsam.symbol("c", 0)
@@ -428,7 +428,7 @@ def _failed_step_solves(cap: float) -> tuple[int, float]:
             H[0] = np.array([[0.4]])
         return values.atVector(key) - 1.0
 
-    smoother = gtsam.BatchFixedLagSmoother(10.0, lm_params(RefineConfig(lm_lambda_upper_bound=cap)))
+    smoother = gtsam.BatchFixedLagSmoother(10.0, lm_params(GraphConfig(lm_lambda_upper_bound=cap)))
     graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap()
     graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [key], residual))
     values.insert(key, np.array([0.0]))
@@ -443,8 +443,8 @@ def test_a_step_that_raises_the_error_ends_the_update_without_retries():
     it 3 times, to the same end."""
     from leovr.config import RefineConfig
 
-    assert RefineConfig().lm_lambda_upper_bound <= 1e-10
-    solves, x = _failed_step_solves(RefineConfig().lm_lambda_upper_bound)
+    assert RefineConfig().graph.lm_lambda_upper_bound <= 1e-10
+    solves, x = _failed_step_solves(RefineConfig().graph.lm_lambda_upper_bound)
     assert solves == 1 and x == 0.0
     solves_old, x_old = _failed_step_solves(1e-2)
     assert solves_old == 4 and x_old == x

@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from leovr.config import PhotometricConfig
 from leovr.geometry import invert_T
 from leovr.lidar.projection import sparse_depth
 from odometry.depth_field import CorrectionGrid
-from odometry.photo_field import PhotoFieldSettings, free_nodes, photometric_correction, photometric_offsets
+from odometry.photo_field import free_nodes, photometric_correction, photometric_offsets
 
-S = PhotoFieldSettings()
+S = PhotometricConfig()
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +79,7 @@ def test_refine_runs_it_with_a_cone_lidar_and_can_be_turned_off(drive, tmp_path,
     run_refine(seq, RefineConfig(input="full", end=7), tmp_path / "on", progress=False, score=False)
     assert len(calls) == 7 and min(calls) == 3 and max(calls) == 6  # every frame; its neighbours within 3 frames
     calls.clear()
-    run_refine(seq, RefineConfig(input="full", end=7, photometric_field=False), tmp_path / "off", progress=False,
+    run_refine(seq, RefineConfig(input="full", end=7, photometric={"enabled": False}), tmp_path / "off", progress=False,
                score=False)
     assert calls == []
 
@@ -110,8 +111,6 @@ def test_poses_whose_steps_read_short_are_caught_by_the_nodes_with_returns(drive
 def test_texture_that_moves_with_the_camera_is_not_pushed_away(drive):
     """A vehicle driving along with the camera stays put in the image: every candidate of the span matches it
     worse than infinity, and without the far candidate its nodes went to the span's far end."""
-    from dataclasses import replace
-
     _, frames = drive
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
@@ -125,7 +124,7 @@ def test_texture_that_moves_with_the_camera_is_not_pushed_away(drive):
     node_u = np.tile(np.linspace(0, f.shape[1] - 1, S.cols), S.rows)
     region = free & (node_u < 0.7 * w)
     assert region.sum() >= 10
-    naive = photometric_offsets(f.depth, _gray(f), along, f.K, free, replace(S, far_log=0.0))
+    naive = photometric_offsets(f.depth, _gray(f), along, f.K, free, S.model_copy(update={"far_log": 0.0}))
     assert np.median(naive[region]) > 0.3  # the naive sweep pushes it far
     off = photometric_offsets(f.depth, _gray(f), along, f.K, free, S)
     assert np.mean(np.abs(off[region]) > 0.1) < 0.2
@@ -134,8 +133,6 @@ def test_texture_that_moves_with_the_camera_is_not_pushed_away(drive):
 def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive):
     """Most nodes with returns must find a clear valley: where the images do not pin the depth that the LiDAR
     measured, the sweep's choices elsewhere are not trusted either (the real KITTI clip: a quarter of them)."""
-    from dataclasses import replace
-
     _, frames = drive
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
@@ -155,5 +152,5 @@ def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive):
     assert not photometric_offsets(wrong, _gray(f), unpinned, f.K, free, S, stats).any(), stats
     assert stats["backed"] < S.min_backed_share * stats["eligible"]
     # the share test is what refused it: without it the free nodes move as in the first test
-    off = photometric_offsets(wrong, _gray(f), unpinned, f.K, free, replace(S, min_backed_share=0.0))
+    off = photometric_offsets(wrong, _gray(f), unpinned, f.K, free, S.model_copy(update={"min_backed_share": 0.0}))
     assert np.median(off[free & (off != 0)]) == pytest.approx(-0.3, abs=0.1)

@@ -72,7 +72,7 @@ def test_depth_factors_auto_leave_a_spinning_lidars_depth_to_the_generator(refin
     simulate(SimulateConfig(scenario="straight", lidar="vlp16", frames=4, seed=3002), seq_dir, progress=False)
     run_refine(open_sequence(seq_dir), RefineConfig(input="full"), tmp_path / "auto", progress=False)
     assert changed(tmp_path / "auto") == 0.0
-    run_refine(open_sequence(seq_dir), RefineConfig(input="full", depth_factors=True), tmp_path / "on", progress=False)
+    run_refine(open_sequence(seq_dir), RefineConfig(input="full", graph={"depth_factors": True}), tmp_path / "on", progress=False)
     assert changed(tmp_path / "on") > 0.1
 
 

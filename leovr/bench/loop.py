@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from leovr.bench.common import write_bench
-from leovr.config import BenchLoopConfig, RefineConfig, SimulateConfig
+from leovr.config import BenchLoopConfig, LoopConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.geometry import invert_T, rotation_angle_deg
 from leovr.paths import kitti_odometry_dir, kitti_raw_dir, shipped_vocabulary
@@ -79,7 +79,7 @@ def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progres
     frames = cfg.quick_frames if quick else cfg.frames
     lidars = cfg.lidars[:1] if quick else cfg.lidars
     seeds = cfg.seeds[:1] if quick else cfg.seeds
-    base = RefineConfig(input="full", loop_closure=True, loop_min_gap=cfg.loop_min_gap)
+    base = RefineConfig(input="full", loop=LoopConfig(enabled=True, min_gap=cfg.loop_min_gap))
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
 
@@ -87,7 +87,7 @@ def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progres
             m = run_refine(seq, rcfg, work / tag, progress=progress)
             gt = [seq[i].T_world_cam for i in range(m["frames"])]
             gt = gt if all(T is not None for T in gt) else None
-            r = loop_truth(work / tag, gt, rcfg.loop_min_gap)
+            r = loop_truth(work / tag, gt, rcfg.loop.min_gap)
             t = m.get("trajectory", {})
             if "leovr" in t:
                 r["ate_loop_m"] = t["leovr"]["ate_m"]

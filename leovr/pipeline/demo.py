@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.config import DemoConfig, RefineConfig, SimulateConfig
+from leovr.config import DemoConfig, LoopConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.data.io import atomic_write, write_text
 from leovr.data.kitti_common import read_kitti_poses
@@ -97,7 +97,8 @@ def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
         source = (f"generated `{cfg.scenario}` sequence, {cfg.lidar} LiDAR, seed {cfg.seed} "
                   f"(`{out / 'sequence'}`, preview in `sequence/preview.png`)")
     # loop closure where the scenario has loops (a lap of the city loop takes about 290 frames at 30 km/h)
-    rcfg = RefineConfig(input=inp, end=min(cfg.frames, len(seq)), loop_closure=not cfg.data and cfg.scenario == "city_loop")
+    rcfg = RefineConfig(input=inp, end=min(cfg.frames, len(seq)),
+                        loop=LoopConfig(enabled=not cfg.data and cfg.scenario == "city_loop"))
     m = run_refine(seq, rcfg, out / "refine", progress=progress)
     indices = list(range(rcfg.end))
     if seq.has_lidar:
@@ -126,10 +127,10 @@ def report(m: dict, source: str, inp: str) -> str:
         f"Input: {source}; {m['frames']} frames; LiDAR input `{inp}`; {m['mode']}; window {m['window']}.",
         f"Ground truth: {m['ground_truth'] or 'none'}. `raw` is the LiDAR input scored where it has a return.",
         *(["`generator_frame` is the generator on each frame's own scan; `generator` had the returns of the earlier "
-           "frames added (a Mid-40 cone: `refine.accumulate_frames`) and was moved towards image corners triangulated over "
-           "the frames around it (`refine.motion_stereo`, on for a cone by default), as the graph used it; `refined` "
+           "frames added (a Mid-40 cone: `refine.accumulation.frames`) and was moved towards image corners triangulated over "
+           "the frames around it (`refine.motion_stereo.enabled`, on for a cone by default), as the graph used it; `refined` "
            "is also moved, where no return lies, by a photometric plane sweep against the frames +-1..3 when the "
-           "poses pass its check (`refine.photometric_field`). `nearest_accumulated` and `ipbasic_accumulated` fill the "
+           "poses pass its check (`refine.photometric.enabled`). `nearest_accumulated` and `ipbasic_accumulated` fill the "
            "cheap returns of the same frames (16 before and after), placed with KISS-ICP's poses: the fair yardstick for "
            "a refinement that sees several frames."] if "generator_frame" in depth else []),
         "",

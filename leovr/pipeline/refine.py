@@ -86,7 +86,6 @@ class RefineRun:
         from odometry.frontend import FrontEnd
         from odometry.mono_vo import MonoVO
         from odometry.motion_stereo import GrayImages
-        from odometry.photo_field import PhotoFieldSettings
         from odometry.window_graph import WindowGraph
 
         self.seq, self.cfg, self.out, self.progress, self.score = seq, cfg, Path(out), progress, score
@@ -118,13 +117,13 @@ class RefineRun:
                   frame_numbers=self.names, **({} if has_lidar else {"camera_height_m": self.front.camera_height}))
         self.frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
         # a narrow-cone LiDAR's last scans, placed by the graph's poses, join the generator's input (spinning: off)
-        self.history = ScanHistory(cfg.accumulate_frames if has_lidar else 0, first.T_cam_lidar, cfg.accumulate_check)
+        self.history = ScanHistory(cfg.accumulation.frames if has_lidar else 0, first.T_cam_lidar, cfg.accumulation.check)
         self.cone = ConeSteps(has_lidar)  # whether the `auto` cone-LiDAR steps run; the sensor is judged once
         # the photometric correction of a leaving frame: its neighbours' images and the nodes free to move
         self.position = {j: n for n, j in enumerate(indices)}
-        self.photo = PhotoFieldSettings(min_gain=cfg.photometric_min_gain)
+        self.photo = cfg.photometric
         self.photo_images = GrayImages(lambda j: stereo_image(seq, j),
-                                       keep=cfg.window + 2 * max(cfg.photometric_offsets, default=0) + 3)
+                                       keep=cfg.window + 2 * max(cfg.photometric.offsets, default=0) + 3)
         self.photo_free: dict[int, np.ndarray] = {}
         self.t_end = time.perf_counter()  # the end of the last frame's turn on the run's clock
 
@@ -200,7 +199,7 @@ class RefineRun:
         fi = self.front.process(i, sample.frame.image, p.depth, p.log_sigma, sample.sparse if self.has_lidar else None,
                                 sample.kept_points, self.graph, icp_guess=guess)
         fi.pair_motions = p.pairs
-        if i not in self.done and self.cone.runs(self.cfg.photometric_field, sample):
+        if i not in self.done and self.cone.runs(self.cfg.photometric.enabled, sample):
             self.photo_images.put(i, sample.frame.image)
             self.photo_free[i] = free_nodes(sample.sparse, self.photo)
         if p.corners is not None:
@@ -221,7 +220,7 @@ class RefineRun:
         self.cone.spinning = spinning
         if spinning:
             self.history.frames = 0
-        if self.cfg.depth_factors == "auto":
+        if self.cfg.graph.depth_factors == "auto":
             self.graph.depth_factors = not spinning
 
     def submit_next(self, ahead: Lookahead[PreparedFrame, Frame], n: int, i: int, fi: FrameInput) -> None:
@@ -282,14 +281,14 @@ class RefineRun:
         return out
 
     def photometric_step(self, i: int, T_i: np.ndarray, depth: np.ndarray, leaving: dict[int, np.ndarray]) -> np.ndarray:
-        """Frame i's refined depth after the plane sweep against the selected frames `photometric_offsets`
+        """Frame i's refined depth after the plane sweep against the selected frames `photometric.offsets`
         before and after it (the poses they have now: final before i, the window's after it; `leaving`: the
         poses of the frames leaving with i)."""
         from odometry.photo_field import photometric_correction, photometric_offsets
 
         cfg, indices, at = self.cfg, self.indices, self.position[i]
         free = self.photo_free.pop(i)
-        offsets = [-o for o in cfg.photometric_offsets] + ([] if cfg.causal else cfg.photometric_offsets)
+        offsets = [-o for o in cfg.photometric.offsets] + ([] if cfg.causal else cfg.photometric.offsets)
         near = [indices[at + o] for o in offsets if 0 <= at + o < len(indices)]
         poses = self.latest_poses(near) | {j: leaving[j] for j in near if j in leaving}
         gray = self.photo_images[i]
@@ -320,7 +319,7 @@ class RefineRun:
         atomic_write(self.out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
         baselines, icp = self.pose_baselines(bool(several))
         if several and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
-            accumulated_fills(seq, indices, self.ccfg, icp, self.scored, several, cfg.accumulate_frames,
+            accumulated_fills(seq, indices, self.ccfg, icp, self.scored, several, cfg.accumulation.frames,
                               causal=cfg.causal, frame_dt=self.frame_dt, progress=self.progress)
         return write_outputs(seq, cfg, self.ccfg, indices, state, self.out, self.has_lidar, self.progress, pool,
                              self.score, self.scored, collect, baselines)

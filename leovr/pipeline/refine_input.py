@@ -26,16 +26,18 @@ def completion_config(cfg: RefineConfig) -> CompleteConfig:
 
 
 def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
-    """The graph's settings without LiDAR: the generator's depth, far less sure without LiDAR, gets the
-    camera-only landmark prior and depth-consistency sigma."""
-    return cfg.model_copy(update={"landmark_prior_rel": cfg.mono_landmark_prior_rel,
-                                  "consistency_sigma_log": cfg.mono_consistency_sigma_log})
+    """The graph's settings without LiDAR: `refine.graph` with the camera-only profile's graph settings
+    (`refine.camera_only.graph`: the generator's depth, far less sure without LiDAR, gets a looser landmark
+    prior and depth-consistency sigma) in their place."""
+    graph = cfg.graph.model_copy(update=cfg.camera_only.graph.model_dump())
+    return cfg.model_copy(update={"graph": graph})
 
 
 def road_height(seq: Sequence, cfg: RefineConfig) -> float | None:
     """The camera's height above the road for camera-only runs: the config's, else the recording's;
     None (or 0 in the config): unknown, the generator's depth sets the scale."""
-    h = cfg.camera_height_m if cfg.camera_height_m is not None else seq.camera_height_m
+    h = cfg.camera_only.camera_height_m
+    h = seq.camera_height_m if h is None else h
     return h if h else None
 
 

@@ -19,7 +19,7 @@ def smoothed_step_lengths(poses: np.ndarray, indices: list[int], readings: dict,
     from odometry.step_length import rescale_steps, smooth_log_lengths
 
     chain = [readings.get(i) for i in indices[1:]]
-    return rescale_steps(poses, np.exp(smooth_log_lengths(chain, cfg.mono_length_change_sigma_m)))
+    return rescale_steps(poses, np.exp(smooth_log_lengths(chain, cfg.camera_only.length_change_sigma_m)))
 
 
 def move_poses(state: Progress, indices: list[int], before: np.ndarray, after: np.ndarray, landmarks: np.ndarray,
@@ -40,16 +40,16 @@ def whole_recording_passes(seq: Sequence, cfg: RefineConfig, out: Path, indices:
                            landmarks: np.ndarray, seen_by: np.ndarray, smooth_lengths: bool,
                            length_readings: dict) -> None:
     """The camera-only step lengths (`smooth_lengths`: a camera-only run with the road's height, not causal)
-    and loop closure (`cfg.loop_closure`), each keeping the poses it started from in `state`."""
-    if smooth_lengths and cfg.mono_length_smoothing and len(indices) > 2:
+    and loop closure (`cfg.loop.enabled`), each keeping the poses it started from in `state`."""
+    if smooth_lengths and cfg.camera_only.length_smoothing and len(indices) > 2:
         before = state.stacked("poses", indices)
         state.poses_window = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         after = smoothed_step_lengths(before, indices, length_readings, cfg)
         move_poses(state, indices, before, after, landmarks, seen_by)
-    if cfg.loop_closure:
+    if cfg.loop.enabled:
         from leovr.pipeline.loops import loop_pass
 
-        before = state.stacked("poses", indices)
-        corrected, _, _ = loop_pass(seq, out, indices, before, cfg.loop_min_gap, cfg.vocabulary, cfg.loop_odometry_cauchy)
+        before, loop = state.stacked("poses", indices), cfg.loop
+        corrected, _, _ = loop_pass(seq, out, indices, before, loop.min_gap, loop.vocabulary, loop.odometry_cauchy)
         state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         move_poses(state, indices, before, corrected, landmarks, seen_by)

@@ -65,7 +65,7 @@ class PrepareStage:
     def __init__(self, seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], has_lidar: bool,
                  frame_dt: float, generator: Generator, history: ScanHistory, cone: ConeSteps,
                  frames: Lookahead) -> None:
-        from odometry.motion_stereo import GrayImages, MotionStereoSettings
+        from odometry.motion_stereo import GrayImages
         from odometry.sweep_motion import SweepMotion
 
         self.seq, self.cfg, self.ccfg, self.indices = seq, cfg, ccfg, indices
@@ -74,9 +74,9 @@ class PrepareStage:
         self.following = dict(zip(indices[:-1], indices[1:]))
         self.selected = set(indices)
         # motion stereo: image corners outside a cone LiDAR's reach, triangulated over neighbouring frames
-        self.stereo = MotionStereoSettings()
+        self.stereo = cfg.motion_stereo
         self.stereo_images = GrayImages(lambda j: stereo_image(seq, j),
-                                        keep=2 * max(self.stereo.offsets + tuple(cfg.pair_offsets)) + 3)
+                                        keep=2 * max([*self.stereo.offsets, *cfg.graph.pair_offsets]) + 3)
         self.sweep_images = SweepMotion()
         self.sweep_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
         self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
@@ -148,7 +148,7 @@ class PrepareStage:
             earlier = self.history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, K))
         corners, pairs, tracks = None, {}, None
-        with_stereo, with_pairs = self.cone.runs(cfg.motion_stereo, sample), self.cone.runs(cfg.pair_factors, sample)
+        with_stereo, with_pairs = self.cone.runs(stereo.enabled, sample), self.cone.runs(cfg.graph.pair_factors, sample)
         if with_stereo or with_pairs:  # frame i's corners and tracks, shared by motion stereo and the pairs
             if i not in self.stereo_images.images:
                 self.stereo_images.put(i, frame.image)
@@ -162,6 +162,6 @@ class PrepareStage:
             depth = corrected_depth(depth, corners, stereo.spread * float(K[0, 0]), stereo.support,
                                     stereo.range_log, stereo.edge_px)
         if with_pairs:  # the images' motion to the window's earlier frames
-            pairs = pair_motions(i, [i - o for o in cfg.pair_offsets if i - o in self.selected], self.stereo_images,
+            pairs = pair_motions(i, [i - o for o in cfg.graph.pair_offsets if i - o in self.selected], self.stereo_images,
                                  K, sample.sparse, stereo, tracks)
         return depth, log_sigma, pairs, corners
