@@ -152,8 +152,6 @@ class GraphConfig(_Model):
     consistency_sigma_log: float = 0.05  # depth-consistency sigma (log depth)
     lidar_depth_samples: int = Field(400, ge=0)  # own LiDAR returns on the correction field (0 = off)
     lidar_depth_sigma_log: float = 0.03  # LiDAR-depth factor sigma (log depth)
-    # motion stereo's corners on the correction field, sigma (log depth; 0 = off); chosen on development drives
-    stereo_depth_sigma_log: float = Field(0.03, ge=0)
     prior_sigma_min: float = 0.02  # generator prior on the field: sigma / depth per cell, clipped below ...
     prior_sigma_max: float = 0.5  # ... and above
     # the images' motion to the window's frames `pair_offsets` before as robust between factors; auto: cone LiDAR

@@ -73,7 +73,6 @@ class FrameInput:
     # earlier frame j -> T_j_i (4 x 4): this frame's motion to j read from the images (essential matrix, LiDAR
     # length; odometry.motion_stereo.pair_motions), a between factor where j is still in the window
     pair_motions: dict[int, np.ndarray] = field(default_factory=dict)
-    stereo_uvz: np.ndarray | None = None  # M x 3: motion stereo's corners outside the LiDAR's reach (u, v, depth)
     # the front end's feature matches with the previous frame: (its index, its pixels, this frame's pixels); a
     # second opinion on the rotation where a pair motion and the initial pose disagree (`_pair_factors`)
     matches_prev: tuple[int, np.ndarray, np.ndarray] | None = None
@@ -164,9 +163,6 @@ class WindowGraph:
             if len(uvz) > g.lidar_depth_samples:
                 uvz = uvz[self.rng.choice(len(uvz), g.lidar_depth_samples, replace=False)]
             graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], g.lidar_depth_sigma_log).factor(C(f.index)))
-        if self.depth_factors and f.stereo_uvz is not None and len(f.stereo_uvz) and g.stereo_depth_sigma_log > 0:
-            uvz = f.stereo_uvz
-            graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], g.stereo_depth_sigma_log).factor(C(f.index)))
         for k, P in f.new_landmarks.items():
             values.insert(L(k), np.asarray(P, float))
             self.landmarks[k] = np.asarray(P, float)

@@ -293,33 +293,6 @@ def test_a_pair_motion_that_neither_the_front_end_nor_its_matches_support_is_lef
     assert _pair_run(1.0, gate_deg=3.0, matches_follow_pair=False) > 0.7  # a small disagreement is the pair's to fix
 
 
-def test_stereo_corners_move_the_correction_field_where_no_lidar_reaches():
-    """Motion stereo's corners (`FrameInput.stereo_uvz`) on the correction field: a generator 30 % too near
-    on the left half, with corners there at the true depth, is corrected there and left alone on the right;
-    with the factor off (sigma 0) the field stays at the generator."""
-    from leovr.config import RefineConfig
-    from odometry.window_graph import FrameInput, WindowGraph
-
-    true = np.full(SHAPE, 20.0)
-    gen = true.copy()
-    gen[:, :80] *= 0.7
-    rng = np.random.default_rng(0)
-    uv = np.column_stack([rng.uniform(2, 70, 60), rng.uniform(2, SHAPE[0] - 3, 60)])
-    stereo = np.column_stack([uv, np.full(len(uv), 20.0)])
-
-    def run(sigma: float) -> np.ndarray:
-        graph = WindowGraph(RefineConfig(window=4, graph={"stereo_depth_sigma_log": sigma}), K, SHAPE)
-        f = FrameInput(0, np.eye(4), np.log(gen), np.full(SHAPE, 0.3), [], {}, None, None)
-        f.stereo_uvz = stereo
-        done = graph.add_frame(f) + graph.flush()
-        return gen * np.exp(done[0].log_offset)
-
-    fixed, left_alone = run(0.03), run(0.0)
-    assert np.median(np.abs(fixed[:, :60] / true[:, :60] - 1)) < 0.05  # corrected where the corners are
-    assert np.median(np.abs(fixed[:, 110:] / true[:, 110:] - 1)) < 0.05  # untouched where the generator is right
-    np.testing.assert_allclose(left_alone, gen, rtol=1e-6)
-
-
 def _turning_drive(yaw_deg: list[float], length_m: list[float] | None = None, seed: int = 0):
     """A spinning scanner's drive through a street of walls, step k turning `yaw_deg[k]` and moving `length_m[k]`
     (2.2 m a frame by default: 80 km/h, as the loop laps). Returns the scans (LiDAR frame), the camera-LiDAR

@@ -202,9 +202,6 @@ class RefineRun:
         if i not in self.done and self.cone.runs(self.cfg.photometric.enabled, sample):
             self.photo_images.put(i, sample.frame.image)
             self.photo_free[i] = free_nodes(sample.sparse, self.photo)
-        if p.corners is not None:
-            cv, cu = np.nonzero(p.corners > 0)
-            fi.stereo_uvz = np.column_stack([cu, cv, p.corners[cv, cu]]).astype(float)
         return fi
 
     def judge_sensor(self, sample: EvalSample) -> None:
