@@ -7,50 +7,24 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator
 
+from leovr.config_base import FrameSelection, GeneratorRuntime, _Model  # noqa: F401  (re-exported)
 from leovr.errors import ConfigError
-from leovr.eval.depth_metrics import LEOVR_BINS
 from leovr.lidar.cheap_sensor import parse_input
+from leovr.refine_config import (  # noqa: F401  (re-exported: leovr.config names every model)
+    AccumulationConfig,
+    CameraOnlyConfig,
+    CameraOnlyGraphConfig,
+    FrontEndConfig,
+    GraphConfig,
+    LoopConfig,
+    MotionStereoConfig,
+    PhotometricConfig,
+    RefineConfig,
+)
 
 Scenario = Literal["city_loop", "straight", "dynamic", "traffic"]  # leovr.sim.world.SCENARIOS
-GeneratorRuntime = Literal["torch", "onnxruntime", "onnxruntime_int8"]  # leovr.depth.runtime.for_inference
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
-
-
-class FrameSelection(_Model):
-    """What depth jobs share: the generator, the cheap LiDAR input, the frames and how they are scored."""
-
-    checkpoint: str | None = None  # generator weights (.pt); None = the shipped checkpoint
-    generator_focal_px: float | None = 260.0  # generator run at this focal length (px, its training camera); None = native
-    # onnxruntime_int8: the network in 8-bit integers from the checkpoint's calibration table (leovr.depth.quantize;
-    # a checkpoint without one runs in floating point, with a warning); onnxruntime: floating point, torch's outputs
-    generator_runtime: GeneratorRuntime = "onnxruntime_int8"
-    # the classical prior at depth edges (generator and `interp`): the side the image puts a pixel on, or the nearest return
-    prior_edges: Literal["image", "nearest"] = "image"
-    input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
-    seed: int = 0  # seeds the simulated input (ratio:R draws)
-    start: int = 0  # first frame (index into the sequence)
-    end: int | None = None  # frame index to stop before; None = the last frame
-    step: int = 1  # every n-th frame
-    bins: list[float] = list(LEOVR_BINS)  # ground-truth distance bins (m) the depth error is also reported in
-    parallax_window: int = 7  # held-out point dropped when a return in this window (px, side) is nearer ...
-    parallax_rel: float = 0.15  # ... by more than this fraction (LiDAR-camera parallax filter)
-
-    @field_validator("input")
-    @classmethod
-    def _check_input(cls, v: str) -> str:
-        return str(parse_input(v))
-
-    @field_validator("step")
-    @classmethod
-    def _check_step(cls, v: int) -> int:
-        if v < 1:
-            raise ValueError("step must be at least 1")
-        return v
 
 
 class CompleteConfig(FrameSelection):
@@ -116,238 +90,6 @@ class BenchDepthConfig(_Model):
     kitti_inputs: list[str] = ["vlp16", "mid40"]  # cheap inputs simulated from the KITTI scans
     quick_step: int = Field(6, ge=1)  # --quick: every 6th KITTI frame and a 4-frame rendered test set
     seed: int = 0  # seeds the simulated inputs
-
-
-class FrontEndConfig(_Model):
-    """The visual-LiDAR front end: ORB features per frame, their LiDAR depth and the initial pose."""
-
-    n_features: int = Field(1000, ge=50)  # ORB features per frame
-    assoc_radius_px: float = 5.0  # feature <-> projected LiDAR point association radius (px, eq. 10)
-    assoc_max_rel_spread: float = 0.1  # reject when depths within the radius spread more than this (relative)
-    pnp_reproj_px: float = 2.0  # PnP / epipolar inlier threshold of the front end (px)
-
-
-class GraphConfig(_Model):
-    """The sliding-window factor graph (LeoVR Sec. III-C): its factors, the depth correction field and the
-    solver."""
-
-    # the correction field's depth-consistency and LiDAR-depth factors (false: point factors only); auto: off with a
-    # spinning LiDAR, judged on the first scan of 100+ returns (docs/decisions/0003-depth-factors-auto.md)
-    depth_factors: bool | Literal["auto"] = "auto"
-    grid_rows: int = Field(8, ge=2)  # depth correction field: rows of log-depth offsets per frame
-    grid_cols: int = Field(14, ge=2)  # depth correction field: columns
-    lm_iterations: int = Field(3, ge=1)  # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
-    # LM retries a step that raises the error at 10x damping only below this cap; 1e-10: no retry, the update ends
-    # (docs/decisions/0002-no-lm-retries.md)
-    lm_lambda_upper_bound: float = Field(1e-10, gt=0)
-    pixel_sigma: float = 1.0  # reprojection factor (eq. 8) sigma (px), Huber
-    bearing_sigma_rad: float = 0.003  # LiDAR point factor (eq. 10): bearing sigma (rad)
-    range_sigma_m: float = 0.1  # LiDAR point factor: range sigma (m)
-    landmark_prior_rel: float = 0.3  # landmark prior from the depth it was initialised with, sigma / depth
-    odometry_sigma_rad: float = 0.05  # front-end motion between consecutive frames (weak): rotation sigma (rad)
-    odometry_sigma_m: float = 0.3  # ... translation sigma (m)
-    # KISS-ICP's point-to-point registration covariance x this (docs/decisions/0001-icp-covariance-inflation.md)
-    icp_cov_inflation: float = Field(6.0, gt=0)
-    consistency_samples: int = Field(300, ge=10)  # pixels per depth-consistency factor, resampled each update
-    consistency_sigma_log: float = 0.05  # depth-consistency sigma (log depth)
-    lidar_depth_samples: int = Field(400, ge=0)  # own LiDAR returns on the correction field (0 = off)
-    lidar_depth_sigma_log: float = 0.03  # LiDAR-depth factor sigma (log depth)
-    prior_sigma_min: float = 0.02  # generator prior on the field: sigma / depth per cell, clipped below ...
-    prior_sigma_max: float = 0.5  # ... and above
-    # the images' motion to the window's frames `pair_offsets` before as robust between factors; auto: cone LiDAR
-    # only; needs a LiDAR (docs/decisions/0006-pair-factors-cone-only.md)
-    pair_factors: bool | Literal["auto"] = "auto"
-    pair_offsets: list[int] = [1, 2, 3]  # pair factors to the frames this many before (frames)
-    pair_sigma_rad: float = Field(0.0007, gt=0)  # pair factor rotation sigma (rad)
-    pair_sigma_rel: float = Field(0.02, gt=0)  # pair factor translation sigma per metre of the pair's travel (+ 1 cm)
-    # a pair whose rotation is this far (deg) from both the initial pose's and the front end's essential matrix is
-    # left out; 0: no test (docs/decisions/0006-pair-factors-cone-only.md)
-    pair_gate_deg: float = Field(3.0, ge=0)
-
-
-class AccumulationConfig(_Model):
-    """A cone LiDAR's earlier scans, placed with the graph's poses, in the generator's input."""
-
-    # cone LiDAR: earlier frames' inputs placed with the graph's poses fill the generator's input (frames; 0: off;
-    # spinning LiDAR: off) (docs/decisions/0004-earlier-scans-cone-only.md)
-    frames: int = Field(16, ge=0)
-    # drop an earlier return once a later scan sees free space or a surface in front of it (RangeImage)
-    check: bool = True
-
-
-class MotionStereoConfig(_Model):
-    """Motion stereo (odometry.motion_stereo): image corners triangulated over the frames before and after
-    correct the generator's depth where a cone LiDAR does not reach; settings chosen on development data only."""
-
-    # image corners outside the LiDAR's reach, triangulated over +-16 frames, correct the generator's depth;
-    # auto: cone LiDAR only; needs a LiDAR (docs/decisions/0005-motion-stereo-cone-only.md)
-    enabled: bool | Literal["auto"] = "auto"
-    offsets: list[int] = [2, 4, 8, 12, 16]  # frames before and after frame i that its corners are tracked into
-    # a causal run's frames before frame i: the previous frame too (without it a causal Mid-40-like run on
-    # kitti_raw_0013 lost its way, ATE 1.23 against 0.14 m; depth better on both real drives and a rendered one)
-    causal_offsets: list[int] = [1, 2, 4, 8, 12, 16]
-    max_corners: int = 4000  # Shi-Tomasi corners per frame, at most ...
-    corner_quality: float = 0.003  # ... their quality level (share of the strongest corner's) ...
-    corner_distance_px: int = 4  # ... and distance apart (px), at least
-    # pyramidal Lucas-Kanade: window (px), pyramid levels, iterations (21 / 4 / 30: 2.5x the time, worse)
-    lk_window_px: int = 11
-    lk_levels: int = 3  # ... pyramid levels
-    lk_iterations: int = 20  # ... iterations
-    track_check_px: float = 0.5  # forward-backward optical-flow agreement (px)
-    min_views: int = 4  # views a corner needs, frame i included
-    max_rms_px: float = 0.7  # multi-view reprojection error (px), at most
-    min_parallax_px: float = 8.0  # the largest displacement against a point at infinity, over the views (px), at least
-    lidar_gap_px: float = 8.0  # a corner joins the input only this far from any LiDAR return (px)
-    scale_radius_px: float = 2.0  # a tracked corner takes the LiDAR depth of a return this near, for a pair's length (px)
-    scale_min_points: int = 10  # a pair with fewer LiDAR-backed corners (parallax > 2 px) is dropped
-    min_depth_m: float = 1.5  # corners kept between this depth (m) ...
-    max_depth_m: float = 150.0  # ... and this
-    # a corner is kept when at least this many other kept corners lie within neighbour_radius x focal length
-    # (pixels) and their median depth is within max_log_diff of its own (log): lone corners and outliers go
-    min_neighbours: int = 2
-    neighbour_radius: float = 0.05  # ... the neighbours' radius (x focal length)
-    max_log_diff: float = 0.15  # ... their median depth's largest difference (log)
-    # corrected_depth: the corners' log ratio to the generator spread with sigma = spread x focal length (px),
-    # over pixels whose generator depth is within about range_log (log) of the corner's, fading where their
-    # summed weight is small against `support` corners' worth
-    spread: float = 0.06
-    support: float = 1.0  # ... corners' worth of weight below which the correction fades
-    range_log: float = 0.2  # ... generator depth this near the corner's (log)
-    # a corner's ratio is taken against the generator depth within this many pixels (px) that matches it best
-    edge_px: int = 2
-
-
-class PhotometricConfig(_Model):
-    """The photometric field (odometry.photo_field): a plane sweep against the neighbours' images corrects a
-    leaving frame's depth where no return lies; settings chosen on development data only."""
-
-    # a leaving frame's depth where no return lies, by a plane sweep against its neighbours' images
-    # (odometry.photo_field); auto: cone LiDAR only (docs/decisions/0007-photometric-field-cone-only.md)
-    enabled: bool | Literal["auto"] = "auto"
-    offsets: list[int] = [1, 2, 3]  # plane sweep against the frames this many before and after (frames)
-    rows: int = 16  # the correction's grid (nodes), corner to corner (finer than the graph's 8 x 14: 1.81 -> 1.77 m)
-    cols: int = 28  # ... its columns
-    # candidates: log offsets in [-span, span], 0.2 apart (odd count: 0 is one); a parabola through the best and
-    # its neighbours refines it. 0.2 apart beat 0.1 on the development drives (span 0.5 / 11: 1.846 m, 0.8 / 9:
-    # 1.813, 1.0 / 11: 1.813, 0.6 / 7: 1.829, 0.8 / 11: 1.824, 1.0 / 21: 1.837)
-    span_log: float = 0.8
-    candidates: int = 9  # ... candidates in the span
-    patch_px: int = 2  # ZNCC window half size, at the downsampled scale
-    min_texture: float = 4.0  # gray-level variance in the window: flatter patches do not vote
-    min_pixels: int = 30  # a node needs this much (bilinear) weight of voting pixels for every candidate
-    # a node moves only when its best candidate's mean ZNCC cost is this much below no change
-    min_gain: float = Field(0.05, ge=0)
-    min_depth_m: float = 0.5  # pixels nearer than this (m) do not vote
-    min_backed: int = 5  # nodes with returns and a clear choice needed to check the poses
-    # ... and this share of the seen nodes with returns: where the images pin the depth at few of the nodes whose
-    # depth is known, the check rests on little and the sweep's choices elsewhere are no better (development data:
-    # simulator drives 0.64-1.0 of them, 5-95 %, and the sweep helped on 91 % of the frames; KITTI frames 0-37
-    # 0.01-0.35, and the sweep made 35 of 38 frames worse with the graph's poses, whatever the check's bias)
-    min_backed_share: float = 0.5
-    # their median choice may be this far from 0 (a step length read wrong, a turn misread). Simulator validation
-    # drives: 5-95 % -0.07 to 0.04; the sweep helped in every bias bin, so with the share test above in front of
-    # it: 0.05: 1.813 m, 0.1: 1.785, 0.15: 1.772, off: 1.770 (0.1 kept as the safer). KITTI frames 0-37 (graph's
-    # poses): -0.51 to -0.05, refused by the share test already (without it, 0.05 alone lets 1-2 frames through,
-    # each made worse)
-    max_bias_log: float = 0.1
-    # the sweep runs on images made smaller by the integer factor that brings them nearest this many pixels
-    # (448 x 256: 2, KITTI's 1242 x 375: 4; the patch size is at that scale); 0: this fixed factor
-    sweep_pixels: int = 30000
-    downsample: int = 0  # a fixed integer factor instead (0: from sweep_pixels)
-    # a far candidate (depth x e^far_log, ~20x: as good as infinity) that a moved node's best must beat by
-    # `far_gain`: a vehicle driving along with the camera matches best at infinity, and without this test its
-    # nodes were pushed to the span's far end (KITTI frames 0-37 with KISS-ICP's poses on the full scan, no
-    # check: 1.70 -> 1.85 m without, 1.65 m with; simulator validation 1.823 -> 1.807 m); 0: off
-    far_log: float = 3.0
-    far_gain: float = 0.05  # ... by this much (ZNCC cost)
-
-
-class LoopConfig(_Model):
-    """Loop closure after the window pass (LeoVR Sec. IV-B): bag-of-words candidates, geometric validation,
-    a global pose graph."""
-
-    enabled: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
-    min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
-    odometry_cauchy: float = Field(1.0, gt=0)  # loop pose graph: odometry factors under a Cauchy kernel (sigmas)
-    vocabulary: str | None = None  # ORB vocabulary (.npz); None = the shipped one
-
-
-class CameraOnlyGraphConfig(_Model):
-    """`refine.graph` settings that a camera-only run uses in their place (camera_only_graph_config): the
-    generator's depth is far less sure without LiDAR (docs/decisions/0008-camera-only-loose-priors.md)."""
-
-    # landmark prior from the generator's depth, far less sure without LiDAR, sigma / depth
-    landmark_prior_rel: float = Field(10.0, gt=0)
-    consistency_sigma_log: float = Field(0.3, gt=0)  # depth-consistency sigma (log depth)
-
-
-class CameraOnlyConfig(_Model):
-    """The camera-only profile, used without LiDAR (`--input none`, or a recording without one): the metric
-    step length from the road or the generator, and looser graph priors."""
-
-    depth_sigma_log: float = 0.2  # how far one frame's depth-based step length may be off (log)
-    track_sigma_log: float = 0.05  # how far the tracks' relative scale may be off (log)
-    speed_sigma_log: float = 0.005  # step-length change per frame (log; inertia; chosen on development clips)
-    # road scale: every step's length solved again over the whole recording after the window pass
-    # (odometry/step_length.py)
-    length_smoothing: bool = True
-    # ... the step length changing by this much a frame (m; 0.005 at 10 Hz is 0.5 m/s^2; chosen on development clips)
-    length_change_sigma_m: float = Field(0.005, gt=0)
-    odometry_sigma_rad: float = 0.005  # the epipolar motion's rotation sigma in the graph (rad)
-    odometry_sigma_rel: float = 0.05  # its translation sigma per metre of step
-    # the camera's height above the road (m), which sets the metric scale; None: the recording's own
-    # (KITTI: 1.65 m); 0: off (scale from the generator)
-    camera_height_m: float | None = Field(None, ge=0)
-    ground_sigma_log: float = Field(0.08, gt=0)  # one frame's road-based step length, log sigma at 20 road corners
-    # the epipolar motion's translation sigma per metre of step where the road gave its length
-    ground_odometry_sigma_rel: float = Field(0.01, gt=0)
-    # road scale: landmarks triangulated from the metric motion where the rays part by this angle (deg),
-    # else seeded from the generator's depth (docs/decisions/0008-camera-only-loose-priors.md)
-    ground_triangulation_min_deg: float = Field(0.3, gt=0)
-    triangulated_prior_rel: float = Field(1.0, gt=0)  # ... and their depth prior, sigma / depth
-    # road scale: the road's normal as a prior on each frame's pitch and roll (rad; 0: off); assumes a
-    # flat road (the world normal is the mean of the first 10 seen)
-    road_attitude_sigma_rad: float = Field(0.003, ge=0)
-    # `refine.graph` settings used in their place without LiDAR (camera_only_graph_config)
-    graph: CameraOnlyGraphConfig = CameraOnlyGraphConfig()
-
-
-class RefineConfig(FrameSelection):
-    """`leovr refine`: generator depth, visual-LiDAR front end and the sliding-window graph (LeoVR Sec. III).
-    The settings of each stage are a table of their own below."""
-
-    input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R simulate a cheaper sensor (evaluation); none: camera only
-    window: int = Field(4, ge=2)  # frames in the sliding window (LeoVR Fig. 15)
-    # live use: each frame's depth and pose from it and earlier frames only; false: final when it leaves the window
-    causal: bool = False
-    depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
-    # motion-compensate scans with per-point times by the sweep's motion (odometry.sweep_motion: from the images
-    # where they agree, else the last step; causal: the last step)
-    deskew: bool = True
-    compare: bool = False  # also run the textbook monocular VO (`mono_vo`) and KISS-ICP alone (`kiss_icp`, with LiDAR; always with ground-truth poses)
-    frontend: FrontEndConfig = FrontEndConfig()  # ORB features, their LiDAR depth, the initial pose
-    graph: GraphConfig = GraphConfig()  # the sliding-window graph: its factors, the depth correction field, the solver
-    accumulation: AccumulationConfig = AccumulationConfig()  # a cone LiDAR's earlier scans in the generator's input
-    motion_stereo: MotionStereoConfig = MotionStereoConfig()  # image corners triangulated over nearby frames correct the depth
-    photometric: PhotometricConfig = PhotometricConfig()  # plane sweep of a leaving frame's depth where no return lies
-    loop: LoopConfig = LoopConfig()  # loop closure after the window pass
-    camera_only: CameraOnlyConfig = CameraOnlyConfig()  # the camera-only profile (no LiDAR)
-
-    @model_validator(mode="after")
-    def _check_causal(self) -> "RefineConfig":
-        if self.causal and self.loop.enabled:
-            raise ValueError("loop.enabled corrects the whole recording afterwards; a causal run cannot have it")
-        return self
-
-    @field_validator("input")
-    @classmethod
-    def _check_input(cls, v: str) -> str:
-        if v.strip().lower() == "none":
-            return "none"
-        try:
-            return str(parse_input(v))
-        except ValueError:
-            raise ValueError(f"unknown input '{v}' (choose full, vlp16, mid40, ratio:R or none)") from None
 
 
 class BenchRefineConfig(_Model):

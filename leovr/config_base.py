@@ -1,0 +1,48 @@
+"""The configuration models' common base: strict pydantic models, and what every depth job shares."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, field_validator
+
+from leovr.eval.depth_metrics import LEOVR_BINS
+from leovr.lidar.cheap_sensor import parse_input
+
+GeneratorRuntime = Literal["torch", "onnxruntime", "onnxruntime_int8"]  # leovr.depth.runtime.for_inference
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class FrameSelection(_Model):
+    """What depth jobs share: the generator, the cheap LiDAR input, the frames and how they are scored."""
+
+    checkpoint: str | None = None  # generator weights (.pt); None = the shipped checkpoint
+    generator_focal_px: float | None = 260.0  # generator run at this focal length (px, its training camera); None = native
+    # onnxruntime_int8: the network in 8-bit integers from the checkpoint's calibration table (leovr.depth.quantize;
+    # a checkpoint without one runs in floating point, with a warning); onnxruntime: floating point, torch's outputs
+    generator_runtime: GeneratorRuntime = "onnxruntime_int8"
+    # the classical prior at depth edges (generator and `interp`): the side the image puts a pixel on, or the nearest return
+    prior_edges: Literal["image", "nearest"] = "image"
+    input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
+    seed: int = 0  # seeds the simulated input (ratio:R draws)
+    start: int = 0  # first frame (index into the sequence)
+    end: int | None = None  # frame index to stop before; None = the last frame
+    step: int = 1  # every n-th frame
+    bins: list[float] = list(LEOVR_BINS)  # ground-truth distance bins (m) the depth error is also reported in
+    parallax_window: int = 7  # held-out point dropped when a return in this window (px, side) is nearer ...
+    parallax_rel: float = 0.15  # ... by more than this fraction (LiDAR-camera parallax filter)
+
+    @field_validator("input")
+    @classmethod
+    def _check_input(cls, v: str) -> str:
+        return str(parse_input(v))
+
+    @field_validator("step")
+    @classmethod
+    def _check_step(cls, v: int) -> int:
+        if v < 1:
+            raise ValueError("step must be at least 1")
+        return v
