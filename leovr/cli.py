@@ -10,15 +10,13 @@ from typing import Optional
 
 import typer
 
+from leovr.cli_bench import ConfigOpt, bench_app
 from leovr.config import load_config, override
 from leovr.errors import LeovrError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="leovr: dense depth and drift-free poses from a camera and a cheap LiDAR.")
-bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks writing JSON results (see docs/benchmarks.md).")
 app.add_typer(bench_app, name="bench")
-
-ConfigOpt = typer.Option(None, "--config", "-c", help="YAML config file (see configs/default.yaml).")
 
 
 @app.command()
@@ -115,37 +113,6 @@ def demo(
     typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, mae_by_distance.png, trajectory.png, demo.rrd, refine/")
 
 
-@bench_app.command("baseline")
-def bench_baseline(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
-    quick: bool = typer.Option(False, help="Every 6th frame only (under 2 minutes)."),
-    data: Optional[Path] = typer.Option(None, help="KITTI raw clip (default: ../shared/data/kitti_raw)."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Nearest and IP-Basic completion on the KITTI raw clip with VLP-16 and Mid-40 inputs."""
-    from leovr.bench.baseline import run_baseline_bench
-    from leovr.paths import kitti_raw_dir
-
-    cfg = override(load_config(config).bench_baseline, data=None if data is None else str(data))
-    doc = run_baseline_bench(Path(cfg.data) if cfg.data else kitti_raw_dir(), out, cfg, quick)
-    _print_bench("baseline", doc, out)
-
-
-@bench_app.command("depth")
-def bench_depth(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
-    quick: bool = typer.Option(False, help="A 4-frame rendered test set and every 6th KITTI frame."),
-    config: Optional[Path] = ConfigOpt,
-    checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
-) -> None:
-    """Nearest, IP-Basic and the generator on simulator test sequences and the KITTI raw clip."""
-    from leovr.bench.depth import run_depth_bench
-
-    cfg = override(load_config(config).bench_depth, checkpoint=None if checkpoint is None else str(checkpoint))
-    doc = run_depth_bench(out, cfg, quick)
-    _print_bench("depth", doc, out)
-
-
 @app.command()
 def refine(
     data: Path = typer.Argument(..., help="Sequence folder (KITTI raw/odometry, TUM RGB-D or native)."),
@@ -225,46 +192,6 @@ def viz(
 
     r = write_recording(target, out, max_frames)
     typer.echo(f"{r['frames']} frames, trajectories: {', '.join(r['trajectories']) or 'none'} -> {r['path']}")
-
-
-@bench_app.command("refine")
-def bench_refine(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
-    quick: bool = typer.Option(False, help="8-frame rendered test sequences and 8 KITTI frames."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Depth (IP-Basic, generator, refined), trajectories (KISS-ICP, LeoVR), timing and window ablation."""
-    from leovr.bench.refine import run_refine_bench
-
-    doc = run_refine_bench(out, load_config(config).bench_refine, quick)
-    _print_bench("refine", doc, out)
-
-
-@bench_app.command("loop")
-def bench_loop(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
-    quick: bool = typer.Option(False, help="One LiDAR, one city loop."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Loop closure: ATE with and without, true / false / missed loops, query time."""
-    from leovr.bench.loop import run_loop_bench
-
-    doc = run_loop_bench(out, load_config(config).bench_loop, quick)
-    _print_bench("loop", doc, out)
-
-
-@bench_app.command("speed")
-def bench_speed(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
-    quick: bool = typer.Option(False, help="12 rendered and 12 KITTI frames."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Time per frame of refine per stage (median / p95 / max), frames per second, the graph's growth
-    along a 200-frame drive, with the same run's MAE / ATE and IP-Basic's time as the yard stick."""
-    from leovr.bench.speed import run_speed_bench
-
-    doc = run_speed_bench(out, load_config(config).bench_speed, quick)
-    _print_bench("speed", doc, out)
 
 
 @app.command()
@@ -367,73 +294,6 @@ def batch(
             typer.echo(f"failed: {r['name']}: {r.get('error', '')}")
     if counts["failed"]:
         raise typer.Exit(1)
-
-
-@bench_app.command("batch")
-def bench_batch(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs in <stem>_work/)."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Wall time of `leovr batch` with 1 and 2 workers on the same generated sequences."""
-    from leovr.bench.batch import run_batch_bench
-
-    doc = run_batch_bench(out, load_config(config))
-    _print_bench("batch", doc, out)
-
-
-@bench_app.command("real")
-def bench_real(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
-    quick: bool = typer.Option(False, help="First 12 frames of each clip, one adaptation epoch."),
-    adapt: Optional[bool] = typer.Option(None, "--adapt/--no-adapt", help="Adapt the generator to each clip for every input / none (default: the config's adapt_inputs)."),
-    clips: Optional[str] = typer.Option(None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Real KITTI raw drives: nearest, IP-Basic, prior, shipped generator / refined (adapted / adapted + refined
-    with --adapt) on the same held-out pixels; leovr's ATE against KISS-ICP's where a drive has poses."""
-    from leovr.bench.real import run_real_bench
-
-    cfg = load_config(config).bench_real
-    inputs = None if adapt is None else (list(cfg.inputs) if adapt else [])
-    cfg = override(cfg, adapt_inputs=inputs, clips=[c.strip() for c in clips.split(",")] if clips else None)
-    doc = run_real_bench(out, cfg, quick=quick)
-    _print_bench("real", doc, out)
-
-
-@bench_app.command("selfsup")
-def bench_selfsup(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
-    quick: bool = typer.Option(False, help="One short sequence per scenario, two epochs."),
-    parts: Optional[str] = typer.Option(None, help="Comma-separated parts to run: synthetic,traffic,kitti (default: all)."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Cold-start self-supervised training vs untrained, no-mask, no-L_f/L_r and supervised models."""
-    from leovr.bench.selfsup import run_selfsup_bench
-
-    cfg = override(load_config(config).bench_selfsup, parts=[p.strip() for p in parts.split(",")] if parts else None)
-    doc = run_selfsup_bench(out, cfg, quick)
-    _print_bench("selfsup", doc, out)
-
-
-@bench_app.command("simulate")
-def bench_simulate(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
-    frames: Optional[int] = typer.Option(None, help="Frames per LiDAR model."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Rendering speed (frames per second) at 448x256 for each LiDAR model."""
-    from leovr.bench.simulate import run_simulate_bench
-
-    doc = run_simulate_bench(out, override(load_config(config).bench_simulate, frames=frames))
-    _print_bench("simulate", doc, out)
-
-
-def _print_bench(name: str, doc: dict, out: Path) -> None:
-    """A bench's tables as docs/benchmarks.md shows them, and where the JSON went."""
-    from leovr.bench.report import section
-
-    typer.echo(section(name, doc))
-    typer.echo(f"-> {out}")
 
 
 def main() -> None:
