@@ -337,26 +337,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         if since_best >= cfg.patience or (cfg.max_minutes and minutes >= cfg.max_minutes):
             break
         t0 = time.time()
-        # BatchNorm stays in inference mode: a few frames of one clip per batch would give it noisy
-        # statistics (the usual practice when fine-tuning with small batches); every weight still trains
-        model.eval()
-        order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
-        items = [(train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
-                 for j in order]  # the same on every process
-        losses, err, cnt = [], 0.0, 0
-        bar = tqdm(batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
-                   disable=not (progress and lead))
-        for b in bar:  # the batches of one process; with several, each takes its share of every batch
-            part, weight = share(b, rank, world)
-            opt.zero_grad()
-            loss, e, c = step(part)
-            (loss * weight).backward()  # weight 1.0 for a single process
-            opt.step()
-            if weight > 0:
-                losses.append(float(loss.detach()))
-                err, cnt = err + e, cnt + c
-                bar.set_postfix(loss=f"{losses[-1]:.3f}")
-        loss_sum, n_loss, err, cnt = all_sum([sum(losses), len(losses), err, cnt], world)
+        loss_sum, n_loss, err, cnt = train_epoch(model, step, opt, train, cfg, epoch, gen, rank, world, progress and lead)
         val_mae = validate(model, val, rank, world) if val else float("nan")
         minutes = all_max(minutes + (time.time() - t0) / 60.0, world)
         improved = not val or val_mae < best
@@ -375,7 +356,43 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
                                    "settings": settings, "sequences": [str(s.path) for s in seqs],
                                    "network": model.cfg.__dict__})
     record.update({"frames_train": len(train), "frames_val": len(val), "minutes": round(minutes, 2)})
-    if val:  # the best epoch's weights, then how far to trust them over their prior (GeneratorConfig.blend)
+    finish(model, frames, val, record, out, cfg, init, seqs, rank, world)
+    return record
+
+
+def train_epoch(model: DepthGenerator, step: torch.nn.Module, opt: torch.optim.Optimizer, train: list[AdaptFrame],
+                cfg: AdaptConfig, epoch: int, gen: torch.Generator, rank: int, world: int, progress: bool
+                ) -> list[float]:
+    """One epoch over the training frames (each with one of its splits, the same on every process); returns the
+    loss sum, the number of batches, the hidden-return error sum and its count, summed over the processes."""
+    # BatchNorm stays in inference mode: a few frames of one clip per batch would give it noisy
+    # statistics (the usual practice when fine-tuning with small batches); every weight still trains
+    model.eval()
+    order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
+    items = [(train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
+             for j in order]  # the same on every process
+    losses, err, cnt = [], 0.0, 0
+    bar = tqdm(batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
+               disable=not progress)
+    for b in bar:  # the batches of one process; with several, each takes its share of every batch
+        part, weight = share(b, rank, world)
+        opt.zero_grad()
+        loss, e, c = step(part)
+        (loss * weight).backward()  # weight 1.0 for a single process
+        opt.step()
+        if weight > 0:
+            losses.append(float(loss.detach()))
+            err, cnt = err + e, cnt + c
+            bar.set_postfix(loss=f"{losses[-1]:.3f}")
+    return all_sum([sum(losses), len(losses), err, cnt], world)
+
+
+def finish(model: DepthGenerator, frames: list[AdaptFrame], val: list[AdaptFrame], record: dict, out: Path,
+           cfg: AdaptConfig, init: Path, seqs: list[Sequence], rank: int, world: int) -> None:
+    """The best epoch's weights, how far to trust them over their prior (GeneratorConfig.blend, chosen on the
+    validation frames), and the int8 runtime's calibration table measured on the user's own frames."""
+    lead = rank == 0
+    if val:
         barrier(world)
         kept = torch.load(out / "generator.pt", map_location="cpu", weights_only=False)
         model.load_state_dict(kept["model"])
@@ -385,14 +402,13 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         if lead:
             save_best(model, out, cfg, init, seqs, kept["epoch"], kept["val_mae_m"],
                       blend_val_mae_m=by_blend[blend])
-    if lead:  # the int8 runtime's calibration table, measured on the user's own frames (their cheap input)
+    if lead:
         kept = torch.load(out / "generator.pt", map_location="cpu", weights_only=False)
         model.load_state_dict(kept["model"])
         kept["int8_ranges"] = calibrate_generator(model, network_feeds(frames))
         save_checkpoint(out / "generator.pt", kept)
         write_text(out / "summary.json", json.dumps(record, indent=2) + "\n")
     barrier(world)
-    return record
 
 
 def network_feeds(frames: list[AdaptFrame]) -> list[dict[str, np.ndarray]]:
