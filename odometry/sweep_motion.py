@@ -40,7 +40,7 @@ def sweep_motion(a: Features, b: Features, K: np.ndarray, velocity: np.ndarray |
     sweep, from the two images' features `a` and `b`: the images' motion (its length from `velocity`, the
     last estimated step in the same convention; rotation only when None) or `velocity` itself, whichever
     `margin` times more ORB matches between the images agree with. Where it keeps the last step it returns the
-    `velocity` object itself: callers tell an overruled step by identity (KISS-ICP's prediction, `refine.icp_guess`)."""
+    `velocity` object itself: callers tell an overruled step by identity (KISS-ICP's prediction in `leovr refine`)."""
     ia, ib = match(a, b)
     uv0, uv1 = a.uv[ia].astype(np.float64), b.uv[ib].astype(np.float64)
     motion, inl = relative_motion(uv0, uv1, K, method=cv2.USAC_ACCURATE)
