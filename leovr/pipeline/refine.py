@@ -39,7 +39,7 @@ from leovr.lidar.accumulate import ScanHistory
 from leovr.pipeline.accumulated_baseline import accumulated_fills
 from leovr.pipeline.completion import (EvalSample, frame_indices, generator_checkpoint, generator_method, warn_empty_input,
                                        with_truth)
-from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
+from leovr.pipeline.kiss_baseline import kiss_icp_trajectories
 from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_input import (camera_only_graph_config, classical_source, completion_config, frame_sample,
                                          road_height, stereo_image)
@@ -332,11 +332,12 @@ class RefineRun:
             write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"][0])
         icp = None
         if self.has_lidar and (cfg.compare or several or self.score and self.first.T_world_cam is not None):
-            icp = kiss_icp_trajectory(seq, indices, self.ccfg, self.progress)
-            if icp is not None:
-                baselines["kiss_icp"] = icp, "se3"
-                write_kitti_poses(out / "poses_kiss_icp_kitti.txt", icp)
-            if icp is not None and self.first.point_times is not None:  # KISS-ICP without its deskew, the other way to run it
-                baselines["kiss_icp_no_deskew"] = kiss_icp_trajectory(seq, indices, self.ccfg, self.progress, deskew=False), "se3"
-                write_kitti_poses(out / "poses_kiss_icp_no_deskew_kitti.txt", baselines["kiss_icp_no_deskew"][0])
+            # without its deskew too where scans carry point times: the other way to run it
+            runs = kiss_icp_trajectories(seq, indices, self.ccfg, (True, False) if self.first.point_times is not None
+                                         else (True,), self.progress)
+            for deskew, name in ((True, "kiss_icp"), (False, "kiss_icp_no_deskew")):
+                if runs is not None and deskew in runs:
+                    baselines[name] = runs[deskew], "se3"
+                    write_kitti_poses(out / f"poses_{name}_kitti.txt", runs[deskew])
+            icp = None if runs is None else runs[True]
         return baselines, icp
