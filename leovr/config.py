@@ -341,8 +341,12 @@ class LeovrConfig(_Model):
 
 
 def _describe(exc: ValidationError) -> str:
-    """One line per invalid field: 'section.key: what is wrong'."""
-    return "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+    """One line per invalid field: 'section.key: what is wrong' (a check across fields: what is wrong)."""
+    def one(e: dict) -> str:
+        msg = e["msg"].removeprefix("Value error, ")
+        return f"{'.'.join(map(str, e['loc']))}: {msg}" if e["loc"] else msg
+
+    return "; ".join(one(e) for e in exc.errors())
 
 
 def load_config(path: str | Path | None = None) -> LeovrConfig:

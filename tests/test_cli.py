@@ -264,3 +264,11 @@ def test_complete_with_generator_checkpoint_and_missing_checkpoint(kitti_raw_tin
         capture_output=True, text=True,
     )
     assert proc.returncode == 2 and "depth-generator checkpoint not found" in proc.stderr
+
+
+def test_a_causal_run_with_loop_closure_is_refused_in_one_line(tmp_path):
+    """A check across settings names what is wrong, without pydantic's prefixes or an empty location."""
+    r = subprocess.run([sys.executable, "-c", "from leovr.cli import main; main()", "refine", str(tmp_path / "seq"),
+                        "-o", str(tmp_path / "o"), "--causal", "--loop-closure"], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.startswith("error: invalid option: loop.enabled corrects the whole recording afterwards"), r.stderr
