@@ -37,7 +37,8 @@ def kiss_icp_trajectories(seq: Sequence, indices: list[int], ccfg: CompleteConfi
     sensor = parse_input(ccfg.input)
     odos: dict[bool, LidarOdometry] = {}
     poses: dict[bool, list[np.ndarray]] = {d: [] for d in deskews}
-    desc = "kiss_icp baseline" + ("" if deskews == (True,) else f" (deskew {', '.join(map(str, deskews))})")
+    desc = {(True,): "kiss_icp baseline", (False,): "kiss_icp baseline (no deskew)"}.get(
+        deskews, "kiss_icp baselines (with and without its deskew)")
     for i in tqdm(indices, desc=desc, unit="frame", disable=not progress):
         f = seq[i]
         if f.points is None:
