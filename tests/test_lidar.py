@@ -110,8 +110,11 @@ def test_vlp16_on_real_hdl64_scan():
 
     f = open_sequence(KITTI_RAW)[0]
     assert len(np.unique(ring_ids(f.points))) == 65  # 64 rings + the partial one KITTI scans start with
-    kept = simulate_cheap_sensor(f.points, parse_input("vlp16")).kept
+    split = simulate_cheap_sensor(f.points, parse_input("vlp16"))
+    kept = split.kept
     assert len(np.unique(ring_ids(kept, n_rings=16))) == 16
+    np.testing.assert_array_equal(f.points[split.heldout_index], split.heldout)
+    assert len(kept) + len(split.heldout_index) == len(f.points)
     assert 0.22 < len(kept) / len(f.points) < 0.28
 
 
@@ -148,6 +151,7 @@ def test_ratio_input_fraction_disjoint_and_seeded():
     assert len(s.kept) + len(s.heldout) == n
     assert abs(len(s.kept) / n - 0.1) < 0.02
     assert not set(map(tuple, s.kept)) & set(map(tuple, s.heldout))
+    np.testing.assert_array_equal(scan[s.heldout_index], s.heldout)  # the same returns from another deskew
     again = simulate_cheap_sensor(scan, parse_input("ratio:0.1"), 3, 7, **args)
     np.testing.assert_array_equal(s.kept, again.kept)
     other = simulate_cheap_sensor(scan, parse_input("ratio:0.1"), 4, 7, **args)

@@ -281,3 +281,26 @@ def test_visual_lidar_poses_beat_kiss_icp_on_the_real_drive_with_poses(tmp_path)
     assert {"leovr", "kiss_icp", "kiss_icp_no_deskew"} <= set(t) and t["leovr"]["frames"] == len(seq) == 32
     assert t["leovr"]["ate_m"] < min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"])
     assert t["leovr"]["ate_m"] < 0.08
+
+
+@needs_posed_drive
+def test_the_held_out_truth_is_deskewed_with_the_ground_truth_motion_whatever_the_runs_motion():
+    """On a recording with poses and point times, the held-out returns a run is scored against do not depend
+    on the motion the run deskews its input with: two runs with different motions get the same truth, and
+    it differs from the truth deskewed with the run's own motion (the scan moves 1.1 m over its sweep)."""
+    from leovr.config import CompleteConfig
+    from leovr.geometry import make_T
+    from leovr.pipeline.completion import heldout_truth, with_truth
+    from leovr.pipeline.refine_input import frame_sample
+
+    seq = open_sequence(KITTI_RAW_POSES)
+    ccfg = CompleteConfig(method="generator", input="vlp16")
+    still, ahead = np.eye(4), make_T(np.eye(3), np.array([0.0, 0.0, 0.5]))
+    a, b = (frame_sample(seq, 7, ccfg, motion, 0.1036) for motion in (still, ahead))
+    np.testing.assert_array_equal(a.gt, b.gt)
+    assert not np.array_equal(a.sparse, b.sparse)  # the inputs follow each run's motion
+    deferred = frame_sample(seq, 7, ccfg, ahead, 0.1036, truth=False)
+    np.testing.assert_array_equal(with_truth(deferred, ccfg).gt, a.gt)
+    held = deferred.heldout_points
+    own = heldout_truth(deferred.frame, deferred.frame.points[held.heldout_index], ccfg)
+    assert (a.gt > 0).sum() > 10_000 and not np.array_equal(own, a.gt)

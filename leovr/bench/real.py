@@ -37,6 +37,7 @@ from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.pipeline.completion import ground_truth_note
 from leovr.pipeline.refine import FrameScore, completion_config, frame_sample, run_refine
+from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE
 
 # generator: the shipped generator as it ran in refine (with earlier scans for a cone LiDAR, Mid-40-like);
 # generator_frame: on the frame's own input alone (only where earlier scans were added)
@@ -109,15 +110,16 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
         "clips": per_clip,
         "pooled": {"clips": list(per_clip), "results": pooled_results, "summary": summary_of(pooled_results),
                    "trajectory_vs_kiss_icp": {inp: float(np.mean(r)) for inp, r in trajectory_ratios(per_clip).items()}},
-        "ground_truth": "; ".join(ground_truth_note(k, completion_config(RefineConfig())) for k in sorted(notes)),
+        "ground_truth": "; ".join(ground_truth_note(k, completion_config(RefineConfig())) for k in sorted(notes))
+        + ("; " + TRUTH_DESKEW_NOTE if "heldout" in notes else ""),
     }
     return write_bench(out, "real", body, started)
 
 
 def add_adapted(shipped: FrameScore, adapted: FrameScore) -> None:
     """The adapted run's generator and refined depth beside the shipped run's methods, on the pixels both runs
-    hold: with point times each run deskews the held-out returns with its own motion, so a few returns can land
-    on other pixels; every method keeps the same pixels (the shipped run's truth there)."""
+    hold: on a recording without poses each run deskews the held-out returns with its own motion, so a few
+    returns can land on other pixels; every method keeps the same pixels (the shipped run's truth there)."""
     key = lambda fs: fs.pick[0].astype(np.int64) * 1_000_000 + fs.pick[1]  # noqa: E731  (row-major, sorted)
     _, ia, ib = np.intersect1d(key(shipped), key(adapted), assume_unique=True, return_indices=True)
     if len(ia) < len(shipped.gt):

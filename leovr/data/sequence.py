@@ -55,6 +55,10 @@ class Sequence(ABC):
         self._check_size(i, frame)
         return frame
 
+    def pose(self, i: int) -> np.ndarray | None:
+        """Frame i's ground-truth pose (camera to world), None without poses."""
+        return self[i].T_world_cam if self.has_poses else None
+
     def _check_size(self, i: int, frame: Frame) -> None:
         """Every image of a sequence has one size: its one calibration cannot fit two (the first frame
         loaded sets the size)."""
@@ -131,6 +135,9 @@ class FileSequence(Sequence):
     def image_path(self, i: int) -> Path | None:
         return self.image_files[i]
 
+    def pose(self, i: int) -> np.ndarray | None:
+        return None if self._poses is None else self._poses[i]
+
     def _load(self, i: int) -> Frame:
         points = read_point_file(self.scan_files[i], 4) if self.scan_files else None
         times = None
@@ -168,6 +175,9 @@ class SequenceView(Sequence):
 
     def timestamps(self) -> np.ndarray:
         return self.base.timestamps()[self.indices]
+
+    def pose(self, i: int) -> np.ndarray | None:
+        return self.base.pose(self.indices[i])
 
     def frame_numbers(self) -> list[int]:
         numbers = self.base.frame_numbers()

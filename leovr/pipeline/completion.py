@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -37,14 +38,26 @@ class EvalSample:
     gt: np.ndarray | None
     gt_kind: str  # "dense", "heldout", "none", or "deferred" (held-out truth not built yet: with_truth)
     kept_points: np.ndarray | None = None  # the cheap input's points, LiDAR frame
-    heldout_points: np.ndarray | None = None  # the held-out returns, LiDAR frame (kind "deferred")
+    # the held-out returns, LiDAR frame (kind "deferred"), or where to take them from
+    heldout_points: np.ndarray | TruthScan | None = None
 
 
-def heldout_truth(frame: Frame, heldout: np.ndarray, cfg: CompleteConfig) -> np.ndarray:
-    """The held-out returns as a depth map, each dropped where a nearer return lies within the parallax
-    window (the LiDAR sees background beside an edge that the camera cannot: shared data README)."""
+@dataclass
+class TruthScan:
+    """The held-out returns taken from the frame's scan deskewed with the ground-truth motion (built when the
+    truth is), so that every run on a recording with poses is scored against the same truth."""
+
+    scan: Callable[[], np.ndarray]  # the whole scan so deskewed
+    heldout_index: np.ndarray
+
+
+def heldout_truth(frame: Frame, heldout: np.ndarray, cfg: CompleteConfig, scan: np.ndarray | None = None
+                  ) -> np.ndarray:
+    """The held-out returns as a depth map, each dropped where a nearer return of the scan (default the
+    frame's) lies within the parallax window (the LiDAR sees background beside an edge that the camera cannot:
+    shared data README)."""
     held = sparse_depth(heldout, frame.K, frame.T_cam_lidar, frame.shape)
-    every = sparse_depth(frame.points, frame.K, frame.T_cam_lidar, frame.shape)
+    every = sparse_depth(frame.points if scan is None else scan, frame.K, frame.T_cam_lidar, frame.shape)
     return parallax_filter(held, every, cfg.parallax_window, cfg.parallax_rel)
 
 
@@ -52,13 +65,19 @@ def with_truth(sample: EvalSample, cfg: CompleteConfig) -> EvalSample:
     """The sample with its held-out truth built (a "deferred" one), else as it is."""
     if sample.gt_kind != "deferred":
         return sample
-    return replace(sample, gt=heldout_truth(sample.frame, sample.heldout_points, cfg), gt_kind="heldout",
-                   heldout_points=None)
+    held, scan = sample.heldout_points, None
+    if isinstance(held, TruthScan):
+        scan = held.scan()
+        held = scan[held.heldout_index]
+    return replace(sample, gt=heldout_truth(sample.frame, held, cfg, scan), gt_kind="heldout", heldout_points=None)
 
 
-def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True) -> EvalSample:
+def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True,
+                   truth_scan: Callable[[], np.ndarray] | None = None) -> EvalSample:
     """Split the frame's scan into the cheap input and the held-out rest; build the ground truth (with
-    `truth=False` a held-out truth is left "deferred": `with_truth` builds it, e.g. off a run's critical path)."""
+    `truth=False` a held-out truth is left "deferred": `with_truth` builds it, e.g. off a run's critical path).
+    `truth_scan`: gives the same scan deskewed with the ground-truth motion; the held-out returns are taken
+    from it (`TruthScan`)."""
     if frame.points is None:
         raise DataError(f"frame {frame.index}", "has no LiDAR scan; depth completion needs a range sensor input")
     split = simulate_cheap_sensor(
@@ -69,9 +88,10 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True) -> Eva
         return EvalSample(frame, sparse, frame.depth, "dense", split.kept)
     if not len(split.heldout):  # the whole scan is the input: nothing held out to score against
         return EvalSample(frame, sparse, np.zeros(frame.shape, np.float32), "none", split.kept)
+    heldout = split.heldout if truth_scan is None else TruthScan(truth_scan, split.heldout_index)
     if not truth:
-        return EvalSample(frame, sparse, None, "deferred", split.kept, split.heldout)
-    return EvalSample(frame, sparse, heldout_truth(frame, split.heldout, cfg), "heldout", split.kept)
+        return EvalSample(frame, sparse, None, "deferred", split.kept, heldout)
+    return with_truth(EvalSample(frame, sparse, None, "deferred", split.kept, heldout), cfg)
 
 
 def warn_empty_input(seq: Sequence, frames: list[int]) -> None:

@@ -3,6 +3,8 @@ input (deskewed) and the depth the graph starts from when no trained network may
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from leovr.config import CompleteConfig, FrameSelection, RefineConfig
@@ -68,20 +70,50 @@ def stereo_image(seq: Sequence, j: int) -> np.ndarray | None:
         return None
 
 
+def ground_truth_motion(seq: Sequence, i: int) -> tuple[np.ndarray, float] | None:
+    """The camera's ground-truth motion over one frame interval at frame i (to the next frame, at the last one
+    from the previous) and that interval's seconds; None without poses."""
+    if not seq.has_poses or len(seq) < 2:
+        return None
+    a, b = (i, i + 1) if i + 1 < len(seq) else (i - 1, i)
+    Ta, Tb = seq.pose(a), seq.pose(b)
+    times = seq.timestamps()
+    dt = float(times[b] - times[a])
+    if Ta is None or Tb is None or not dt > 0:
+        return None
+    return np.linalg.inv(Ta) @ Tb, dt
+
+
+TRUTH_DESKEW_NOTE = ("scans with point times deskewed with the ground-truth motion where the recording has poses, "
+                     "else with the run's own")
+
+
+def truth_scan(seq: Sequence, i: int, frame: Frame) -> Callable[[], np.ndarray] | None:
+    """Where the recording has poses and point times: a function giving frame i's scan deskewed with the
+    ground-truth motion, so that the held-out truth does not depend on the run's own motion estimate (without
+    poses it is deskewed like the input: None)."""
+    if frame.depth is not None or frame.point_times is None or frame.points is None:
+        return None
+    motion = ground_truth_motion(seq, i)
+    return None if motion is None else (lambda: deskew_frame(frame, *motion).points)
+
+
 def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.ndarray | None = None,
                  frame_dt: float = 0.1, camera_only: bool = False, truth: bool = True,
                  frame: Frame | None = None) -> EvalSample:
     """The frame with its cheap LiDAR input (deskewed when a motion is given) and ground truth; without
     LiDAR (or `camera_only`, `--input none`) an empty input, and the whole scan, if any, held out.
     `truth=False`: a held-out truth is left for `with_truth` (prepare_sample). `frame`: seq[i], read already."""
-    f = deskew_frame(seq[i] if frame is None else frame, motion_cam, frame_dt)
+    raw = seq[i] if frame is None else frame
+    f = deskew_frame(raw, motion_cam, frame_dt)
     has_points = f.points is not None and len(f.points) > 0
     if has_points and not camera_only:
-        return prepare_sample(f, ccfg, truth)
+        return prepare_sample(f, ccfg, truth, truth_scan(seq, i, raw))
     empty = np.zeros(f.shape, np.float32)
     if f.depth is not None:
         return EvalSample(f, empty, f.depth, "dense", None)
     if has_points:
-        every = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+        scan = truth_scan(seq, i, raw)
+        every = sparse_depth(f.points if scan is None else scan(), f.K, f.T_cam_lidar, f.shape)
         return EvalSample(f, empty, parallax_filter(every, every, ccfg.parallax_window, ccfg.parallax_rel), "heldout", None)
     return EvalSample(f, empty, empty, "none", None)

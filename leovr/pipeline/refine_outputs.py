@@ -24,7 +24,7 @@ from leovr.eval.trajectory import trajectory_metrics
 from leovr.geometry import invert_T
 from leovr.pipeline.accumulated_baseline import ACCUMULATED
 from leovr.pipeline.completion import EvalSample, ground_truth_note
-from leovr.pipeline.refine_input import frame_sample
+from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE, frame_sample
 
 # per frame, in timing.json as means: the generator (prior included, and the sweep's motion read from the
 # images when it is), the front end, the graph update, and the
@@ -242,7 +242,8 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         "input_note": input_label(cfg.input, has_lidar),
         "frames": len(indices), "window": cfg.window, "causal": cfg.causal,
         "mode": "visual-LiDAR" if has_lidar else input_label(cfg.input, has_lidar),
-        "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds)),
+        "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds))
+        + ("; " + TRUTH_DESKEW_NOTE if "heldout" in kinds else ""),
         "depth": {m: a.result() for m, a in accs.items() if not a.empty},
         "timing": {k: v for k, v in timing.items() if k != "series"},  # the series is in timing.json
     }
