@@ -114,18 +114,10 @@ class FrontEnd:
             matches_prev = (p.index, p.feats.uv[ia].astype(np.float64), feats.uv[ib].astype(np.float64))
             obj = (p.cam_pts[ia] @ T_prev[:3, :3].T + T_prev[:3, 3]) if len(ia) else np.zeros((0, 3))
             img = feats.uv[ib].astype(np.float64)
-            cands: dict[str, np.ndarray | None] = {}
-            if T_icp is not None and p.T_icp is not None:
-                cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
             if step is not None:  # camera only: the epipolar motion, else PnP if the epipolar test agrees
                 T_init, source, odo_cov = self._camera_only_pose(step, T_prev, obj, img, p.feats.uv[ia], feats.uv[ib])
             else:
-                cands["pnp"] = pnp_pose(obj, img, self.K, cfg.frontend.pnp_reproj_px)[0]
-                guess = choose_pose(cands, obj, img, self.K, cfg.frontend.pnp_reproj_px)
-                if guess is None or guess.inliers < 6 and "icp" not in cands:
-                    T_init, source = T_prev @ self.velocity, "constant_velocity"
-                else:
-                    T_init, source = guess.T_world_cam, guess.source
+                T_init, source = self._lidar_pose(T_prev, T_icp, obj, img)
             T_rel = invert_T(T_prev) @ T_init
             triangulated = np.zeros(len(ia), bool)
             if not len(ia):
@@ -143,19 +135,9 @@ class FrontEnd:
                 inl = reprojection_inliers(T_init, obj, img, self.K, cfg.frontend.pnp_reproj_px)
             if inl.sum() >= 6:
                 trusted = convex_hull_mask(img[inl], self.shape) & (depth > 0)
-            for m in np.nonzero(inl)[0]:
-                a, b = ia[m], ib[m]
-                k = int(p.landmark[a])
-                if k < 0 or not graph.has_landmark(k):
-                    k = self.next_landmark
-                    self.next_landmark += 1
-                    new_landmarks[k] = obj[m]
-                    if triangulated[m] and step is not None and step.scale_source.startswith("ground"):
-                        # placed by the metric motion, not by the generator's depth: its own depth prior
-                        prior_rel[k] = cfg.camera_only.triangulated_prior_rel
-                    observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
-                landmark[b] = k
-                observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b]))
+            road_placed = triangulated & (step is not None and step.scale_source.startswith("ground"))
+            self._observe(index, feats, lidar_cam, landmark, ia[inl], ib[inl], obj[inl], road_placed[inl], graph,
+                          observations, new_landmarks, prior_rel)
             self.velocity = T_rel
         self.sources.append(source)
         lidar_uvz = None
@@ -170,6 +152,42 @@ class FrontEnd:
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
                           trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
                           step.road_normal if step is not None else None, matches_prev=matches_prev)
+
+    def _lidar_pose(self, T_prev: np.ndarray, T_icp: np.ndarray | None, obj: np.ndarray, img: np.ndarray
+                    ) -> tuple[np.ndarray, str]:
+        """Initial pose with LiDAR and its source: KISS-ICP's step or PnP on the previous frame's points, whichever
+        reprojects more matches; the last step again when neither holds (PnP on under 6 inliers, no ICP)."""
+        p, px = self.prev, self.cfg.frontend.pnp_reproj_px
+        cands: dict[str, np.ndarray | None] = {}
+        if T_icp is not None and p.T_icp is not None:
+            cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
+        cands["pnp"] = pnp_pose(obj, img, self.K, px)[0]
+        guess = choose_pose(cands, obj, img, self.K, px)
+        if guess is None or guess.inliers < 6 and "icp" not in cands:
+            return T_prev @ self.velocity, "constant_velocity"
+        return guess.T_world_cam, guess.source
+
+    def _observe(self, index: int, feats: Features, lidar_cam: np.ndarray, landmark: np.ndarray, ia: np.ndarray,
+                 ib: np.ndarray, obj: np.ndarray, road_placed: np.ndarray, graph: WindowGraph,
+                 observations: list[Observation], new_landmarks: dict[int, np.ndarray], prior_rel: dict[int, float]
+                 ) -> None:
+        """The inlier matches (previous frame's feature ia[m], this frame's ib[m]) as observations: of the
+        previous frame's landmark where the graph still holds it, else of a new one at `obj[m]` (world), observed
+        from both frames; `road_placed`: placed by the road's metric motion, not the generator's depth, so given
+        its own depth prior."""
+        p = self.prev
+        for m in range(len(ia)):
+            a, b = ia[m], ib[m]
+            k = int(p.landmark[a])
+            if k < 0 or not graph.has_landmark(k):
+                k = self.next_landmark
+                self.next_landmark += 1
+                new_landmarks[k] = obj[m]
+                if road_placed[m]:
+                    prior_rel[k] = self.cfg.camera_only.triangulated_prior_rel
+                observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
+            landmark[b] = k
+            observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b]))
 
     def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
                           uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:

@@ -193,6 +193,30 @@ class MonoMotion:
             self.last = result
         return result
 
+    def _checked_ground(self, ground: tuple[float, float] | None) -> tuple[float, float] | None:
+        """The road's step-length reading (log length, sigma), None where the filter finds it implausible; three
+        refused readings in a row that agree with each other mean the filter, whose state is only inertia
+        since, is what is wrong: it restarts from the road."""
+        if ground is None:
+            return None
+        if self.log_len is None or not self._implausible(*ground):
+            self.ground_rejected = []
+            return ground
+        self.ground_rejected = (self.ground_rejected + [ground[0]])[-3:]
+        recent = np.array(self.ground_rejected)
+        if len(recent) == 3 and np.ptp(recent) < 3 * self.ground_sigma_log:
+            self.log_len, self.ground_rejected = None, []
+            return float(np.median(recent)), ground[1]
+        return None
+
+    def _carry(self, T: np.ndarray, X: np.ndarray, front: np.ndarray, uv1: np.ndarray) -> None:
+        """Carry this step's corners on (`X`: metric, first camera; `uv1`: where they are in the new image)
+        with their metric depth in the new frame, for the next step's relative length."""
+        T_1_0 = invert_T(T)
+        X1 = X @ T_1_0[:3, :3].T + T_1_0[:3, 3]
+        carry = front & (X1[:, 2] > 0.5)
+        self.carried_uv, self.carried_z = uv1[carry], X1[carry, 2]
+
     def _motion(self, prev: np.ndarray, cur: np.ndarray, p0: np.ndarray, n_old: int, road: np.ndarray) -> MonoStep:
         keep_last = MonoStep(self.last.T_rel, 0, 0.0, "constant_speed")
         if len(p0) < 8:
@@ -240,18 +264,7 @@ class MonoMotion:
             log_ratio = float(np.log(weighted_median(self.carried_z[good[old]] / z[old], 1.0 / tri_var[old])))
             log_ratio -= float(self.log_len)
         ground, road_normal = self._road_reading(p0[road_idx], p1[road_idx], motion)
-        if ground is not None and self.log_len is not None and self._implausible(*ground):
-            self.ground_rejected = (self.ground_rejected + [ground[0]])[-3:]
-            recent = np.array(self.ground_rejected)
-            if len(recent) == 3 and np.ptp(recent) < 3 * self.ground_sigma_log:
-                # three refused readings in a row that agree with each other: the filter, whose state
-                # is only inertia since, is what is wrong; restart from the road
-                self.log_len, self.ground_rejected = None, []
-                ground = (float(np.median(recent)), ground[1])
-            else:
-                ground = None
-        elif ground is not None:
-            self.ground_rejected = []
+        ground = self._checked_ground(ground)
         bias = self.depth_log_bias or 0.0
         depth = None if log_meas is None else (log_meas - bias, self.depth_sigma_log)
         if ground is None and self.log_len is not None and depth is not None and self._implausible(*depth):
@@ -275,9 +288,5 @@ class MonoMotion:
         self.heading = motion[:3, 3].copy()
         T = motion.copy()
         T[:3, 3] *= length
-        # carry this step's corners on, with metric depth in the new frame
-        T_1_0 = invert_T(T)
-        X1 = (X * length) @ T_1_0[:3, :3].T + T_1_0[:3, 3]
-        carry = front & (X1[:, 2] > 0.5)
-        self.carried_uv, self.carried_z = p1[good][carry], X1[carry, 2]
+        self._carry(T, X * length, front, p1[good])
         return MonoStep(T, len(good), parallax, source, road_normal if ground is not None else None, reading)

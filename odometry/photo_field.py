@@ -46,17 +46,11 @@ class _Votes:
 _votes_cache: dict[CorrectionGrid, _Votes] = {}
 
 
-def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
-                        K: np.ndarray, free: np.ndarray, s: PhotometricConfig = PhotometricConfig(),
-                        stats: dict | None = None) -> np.ndarray:
-    """Per-node log offsets (grid `s.rows` x `s.cols`, flat) for a frame's depth (H x W, 0 = unknown).
-    `gray`: the frame's image (H x W); `neighbours`: (image, T_j_i) pairs, T_j_i mapping this camera's
-    coordinates into neighbour j's; `free`: per node, whether it may move (no LiDAR returns). Nodes
-    without enough textured, visible pixels or a clear minimum stay at 0, and so does every node when the
-    nodes with returns disagree with the depth (see below). `stats` receives the check's figures."""
-    out = np.zeros(s.rows * s.cols)
-    if not neighbours or not free.any() or free.all():
-        return out
+def _working_scale(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
+                   K: np.ndarray, s: PhotometricConfig
+                   ) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """Depth, images and intrinsics at the sweep's working resolution (about `s.sweep_pixels` pixels, or
+    `s.downsample`): the depth sampled at the pixel centres, the images area-averaged."""
     f = s.downsample or max(int(round(np.sqrt(depth.size / s.sweep_pixels))), 1)
     if f > 1:  # pixel centres: (x + 0.5) / f - 0.5
         def small(im: np.ndarray) -> np.ndarray:
@@ -64,6 +58,14 @@ def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tu
         depth = depth[f // 2::f, f // 2::f][: depth.shape[0] // f, : depth.shape[1] // f]
         gray, neighbours = small(gray), [(small(im), T) for im, T in neighbours]
         K = np.array([[K[0, 0] / f, 0, (K[0, 2] + 0.5) / f - 0.5], [0, K[1, 1] / f, (K[1, 2] + 0.5) / f - 0.5], [0, 0, 1]])
+    return depth, gray, neighbours, K
+
+
+def _sweep_costs(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
+                 K: np.ndarray, s: PhotometricConfig) -> tuple[CorrectionGrid, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid, the candidate log offsets (the far candidate last when `s.far_log`) and, per candidate and
+    node, the summed patch cost (1 - ZNCC with each neighbour's image warped by the scaled depth) and the
+    number of pixels that saw it."""
     h, w = depth.shape
     grid = CorrectionGrid(s.rows, s.cols, h, w)
     votes = _votes_cache.setdefault(grid, _Votes(grid))
@@ -100,6 +102,22 @@ def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tu
             ok &= vb > 1e-3
             cost[n] += votes(np.where(ok, 1.0 - zncc, 0.0))
             weight[n] += votes(ok)
+    return grid, cands, cost, weight
+
+
+def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
+                        K: np.ndarray, free: np.ndarray, s: PhotometricConfig = PhotometricConfig(),
+                        stats: dict | None = None) -> np.ndarray:
+    """Per-node log offsets (grid `s.rows` x `s.cols`, flat) for a frame's depth (H x W, 0 = unknown).
+    `gray`: the frame's image (H x W); `neighbours`: (image, T_j_i) pairs, T_j_i mapping this camera's
+    coordinates into neighbour j's; `free`: per node, whether it may move (no LiDAR returns). Nodes
+    without enough textured, visible pixels or a clear minimum stay at 0, and so does every node when the
+    nodes with returns disagree with the depth (see below). `stats` receives the check's figures."""
+    out = np.zeros(s.rows * s.cols)
+    if not neighbours or not free.any() or free.all():
+        return out
+    depth, gray, neighbours, K = _working_scale(depth, gray, neighbours, K, s)
+    grid, cands, cost, weight = _sweep_costs(depth, gray, neighbours, K, s)
     mean = cost / np.maximum(weight, 1e-9)
     if s.far_log:
         far_mean, far_weight = mean[-1], weight[-1]

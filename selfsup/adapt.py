@@ -32,185 +32,25 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
-import cv2
-import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
 from leovr.config import AdaptConfig
 from leovr.data.io import write_text
 from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
-from leovr.depth.inference import _pad32, load_generator, network_priors, rescale_sparse
-from leovr.depth.layers import gaussian_nll
+from leovr.depth.inference import load_generator
 from leovr.depth.network import DepthGenerator, blend_log_depth
 from leovr.depth.runtime import calibrate_generator
-from leovr.depth.train import edge_aware_smoothness, save_checkpoint
+from leovr.depth.train import save_checkpoint
 from leovr.errors import DataError
-from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
-from leovr.lidar.projection import sparse_depth
 from leovr.threads import single_threaded_blas
+from selfsup.adapt_data import AdaptFrame, input_frames, network_feeds
+from selfsup.adapt_loss import StepLoss, at_hidden, batch_loss, batches, forward_parts, set_teachers, share
 from selfsup.distributed import all_max, all_sum, barrier, distributed, raise_shared
-from selfsup.masked_lidar import masked_split
-
-
-@dataclass
-class SplitSample:
-    """One masked split of one frame, ready for the network: small input and full-resolution targets."""
-
-    sparse: torch.Tensor  # 1 x hs x ws, metres (the thinner input at the network's focal length)
-    prior: torch.Tensor  # 1 x hs x ws, its prior
-    grid: torch.Tensor  # N x 2, hidden returns' full-resolution pixel centres in [-1, 1] (x, y)
-    target: torch.Tensor  # N, metres
-    prior_at: torch.Tensor  # N, full-resolution prior at the hidden returns
-    measured_at: torch.Tensor  # N, kept input depth at those pixels (0 = none)
-
-
-@dataclass
-class AdaptFrame:
-    image: torch.Tensor  # 3 x hs x ws
-    splits: list[SplitSample]
-    sparse: torch.Tensor  # 1 x hs x ws, the whole input (what inference sees)
-    prior: torch.Tensor  # 1 x hs x ws, its prior
-    teacher: torch.Tensor | None = None  # 1 x hs x ws, the starting network's log depth on the whole input
-
-
-def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray,
-                 shape: tuple[int, int], scale: float, n: int, rng: np.random.Generator,
-                 span_rings: bool = False) -> AdaptFrame:
-    """`n` masked splits of one frame's input scan (`points`) with the resampled image."""
-    h, w = shape
-    hs, ws = (max(8, int(round(h * scale))), max(8, int(round(w * scale)))) if scale != 1.0 else shape
-    small = image if (hs, ws) == shape else cv2.resize(image, (ws, hs), interpolation=cv2.INTER_AREA)
-    img = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1).float() / 255.0
-    whole = sparse_depth(points, K, T_cam_lidar, shape).astype(np.float32)
-    image_full = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
-
-    def priors(sparse: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
-        """The network's input map, its prior and the full-resolution prior, built as at inference
-        (leovr.depth.inference.network_priors; the side of depth edges taken from the image)."""
-        same = (hs, ws) == shape
-        small = sparse if same else rescale_sparse(sparse, scale, (hs, ws))
-        small_prior, full_prior = network_priors(torch.from_numpy(sparse)[None, None], image_full, small,
-                                                 1.0 if same else scale)
-        return torch.from_numpy(small)[None], small_prior[0], full_prior[0, 0].numpy()
-
-    whole_small, whole_prior, _ = priors(whole)
-    splits = []
-    for _ in range(n):
-        sp = masked_split(points, K, T_cam_lidar, shape, rng, span_rings=span_rings, every=whole)
-        rows, cols = np.nonzero(sp.target > 0)
-        s, small_prior, full_prior = priors(sp.sparse.astype(np.float32))
-        grid = np.stack([(cols + 0.5) / w * 2 - 1, (rows + 0.5) / h * 2 - 1], 1).astype(np.float32)
-        splits.append(SplitSample(s, small_prior, torch.from_numpy(grid),
-                                  torch.from_numpy(sp.target[rows, cols]),
-                                  torch.from_numpy(np.ascontiguousarray(full_prior[rows, cols])),
-                                  torch.from_numpy(sp.sparse[rows, cols])))
-    return AdaptFrame(img, splits, whole_small, whole_prior)
-
-
-def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) -> list[AdaptFrame]:
-    """Every selected frame of every sequence with its masked splits (seeded by sequence and frame)."""
-    sensor = parse_input(cfg.input)
-    out = []
-    jobs = [(k, seq, i) for k, seq in enumerate(seqs) for i in range(len(seq))[cfg.start:cfg.end]]
-    if not jobs:
-        raise DataError("frames", f"no frame selected (start={cfg.start}, end={cfg.end})")
-    for k, seq, i in tqdm(jobs, desc="adapt: prepare frames", unit="frame", disable=not progress):
-        f = seq[i]
-        if f.points is None or not len(f.points):
-            raise DataError(seq.path, f"frame {f.index} has no LiDAR scan; adaptation needs the LiDAR input")
-        kept = simulate_cheap_sensor(f.points, sensor, f.index, cfg.seed, f.K, f.T_cam_lidar, f.shape).kept
-        image = f.image if f.image.ndim == 3 else np.repeat(f.image[..., None], 3, axis=2)
-        scale = 1.0 if cfg.generator_focal_px is None else cfg.generator_focal_px / float(f.K[0, 0])
-        scale = 1.0 if abs(scale - 1.0) < 0.05 else scale
-        rng = np.random.default_rng([cfg.seed, k, f.index])
-        out.append(frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng,
-                                cfg.span_rings))
-    return out
-
-
-def _forward(model: DepthGenerator, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor) -> dict:
-    hs, ws = sparse.shape[-2:]
-    img_p, sp_p, prior_p = _pad32(image, sparse, prior)
-    return {k: v[..., :hs, :ws] for k, v in model.parts(img_p, sp_p, prior_p).items()}
-
-
-def _log(depth: torch.Tensor) -> torch.Tensor:
-    return torch.log(depth.clamp(min=1e-3))
-
-
-def whole_log_depth(model: DepthGenerator, frames: list[AdaptFrame]) -> torch.Tensor:
-    """B x 1 x hs x ws log depth of the frames' whole input (what inference sees)."""
-    image = torch.stack([fr.image for fr in frames])
-    sparse = torch.stack([fr.sparse for fr in frames])
-    prior = torch.stack([fr.prior for fr in frames])
-    return _log(model.combine(_forward(model, image, sparse, prior), prior, sparse))
-
-
-def anchor_loss(model: DepthGenerator, frames: list[AdaptFrame]) -> torch.Tensor:
-    """Mean |log depth - the starting network's log depth| on the frames' whole input: the masked
-    task may teach what the thinner input needs, but not move the inference output without a cost."""
-    return (whole_log_depth(model, frames) - torch.stack([fr.teacher for fr in frames])).abs().mean()
-
-
-@torch.no_grad()
-def set_teachers(model: DepthGenerator, frames: list[AdaptFrame]) -> None:
-    """The starting network's log depth on each frame's whole input (AdaptFrame.teacher)."""
-    model.eval()
-    for fr in frames:
-        fr.teacher = whole_log_depth(model, [fr])[0]
-
-
-def _at_hidden(model: DepthGenerator, parts: dict[str, torch.Tensor], b: int,
-               s: SplitSample) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-    """Batch item b's network outputs (1 x 1 x 1 x N each) and final depth (N) at split s's hidden returns."""
-    at = {k: F.grid_sample(v[b:b + 1], s.grid[None, None], mode="bilinear", align_corners=False) for k, v in parts.items()}
-    return at, model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
-
-
-def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]], weight_smooth: float,
-               weight_nll: float, weight_anchor: float = 0.0, log_loss: bool = False) -> tuple[torch.Tensor, float, int]:
-    """Mean loss of a batch of (frame, split) of one size; also the summed absolute error (metres)
-    at the hidden returns and their count."""
-    image = torch.stack([fr.image for fr, _ in batch])
-    sparse = torch.stack([s.sparse for _, s in batch])
-    prior = torch.stack([s.prior for _, s in batch])
-    parts = _forward(model, image, sparse, prior)
-    losses, err_sum, count = [], 0.0, 0
-    for b, (_, s) in enumerate(batch):
-        if not len(s.target):
-            continue
-        at, depth = _at_hidden(model, parts, b, s)
-        err = (depth - s.target).abs()
-        loss = (_log(depth) - torch.log(s.target)).abs().mean() if log_loss else err.mean()
-        if weight_nll > 0:
-            sigma = at["log_sigma"].view(-1)
-            loss = loss + weight_nll * gaussian_nll(depth.detach(), sigma, s.target, torch.ones_like(sigma))
-        losses.append(loss)
-        err_sum, count = err_sum + float(err.detach().sum()), count + len(err)
-    total = torch.stack(losses).mean() if losses else sum(v.sum() for v in parts.values()) * 0.0
-    if weight_smooth > 0:
-        small = model.combine(parts, prior, sparse)
-        total = total + weight_smooth * edge_aware_smoothness(small, image)
-    if weight_anchor > 0:
-        total = total + weight_anchor * anchor_loss(model, [fr for fr, _ in batch])
-    return total, err_sum, count
-
-
-def batches(items: list[tuple[AdaptFrame, SplitSample]], size: int) -> list[list[tuple[AdaptFrame, SplitSample]]]:
-    """Consecutive groups of at most `size` items; a group never mixes image sizes."""
-    out: list[list] = []
-    for it in items:
-        if out and len(out[-1]) < size and out[-1][0][0].image.shape == it[0].image.shape:
-            out[-1].append(it)
-        else:
-            out.append([it])
-    return out
 
 
 @torch.no_grad()
@@ -242,11 +82,11 @@ def choose_blend(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0,
     sums, n = [0.0] * len(BLENDS), 0
     try:
         for b in batches([(fr, s) for fr in frames[rank::world] for s in fr.splits], 4):
-            parts = _forward(model, torch.stack([fr.image for fr, _ in b]), torch.stack([s.sparse for _, s in b]),
+            parts = forward_parts(model, torch.stack([fr.image for fr, _ in b]), torch.stack([s.sparse for _, s in b]),
                              torch.stack([s.prior for _, s in b]))
             for k, (_, s) in enumerate(b):
                 if len(s.target):
-                    net = _at_hidden(model, parts, k, s)[1]
+                    net = at_hidden(model, parts, k, s)[1]
                     for j, w in enumerate(BLENDS):
                         sums[j] += float((blend_log_depth(net, s.prior_at, w) - s.target).abs().sum())
                     n += len(s.target)
@@ -255,31 +95,6 @@ def choose_blend(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0,
     *sums, n = all_sum([*sums, n], world)
     mae = {w: e / max(n, 1) for w, e in zip(BLENDS, sums)}
     return (min(BLENDS, key=lambda w: (mae[w], BLENDS.index(w))) if n else 1.0), mae
-
-
-def share(batch: list, rank: int, world: int) -> tuple[list, float]:
-    """This process's part of a batch and its loss weight. DistributedDataParallel averages the
-    gradients over the processes, so weighting each part's mean loss by its share of the batch times
-    the number of processes gives the gradient of the whole batch's mean: every process takes the same
-    steps as one process would. A process left without an item runs the first one at weight 0 (it
-    must still join each step's gradient exchange)."""
-    part = batch[rank::world]
-    if not part:
-        return batch[:1], 0.0
-    return part, len(part) / len(batch) * world
-
-
-class StepLoss(torch.nn.Module):
-    """`batch_loss` as a module, so that DistributedDataParallel wraps the whole forward of a step
-    (the masked task and, with the anchor, a second pass on the whole input)."""
-
-    def __init__(self, model: DepthGenerator, cfg: AdaptConfig) -> None:
-        super().__init__()
-        self.model, self.cfg = model, cfg
-
-    def forward(self, batch: list[tuple[AdaptFrame, SplitSample]]) -> tuple[torch.Tensor, float, int]:
-        c = self.cfg
-        return batch_loss(self.model, batch, c.weight_smooth, c.weight_nll, c.weight_anchor, c.depth_loss == "log_l1")
 
 
 @single_threaded_blas
@@ -294,6 +109,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     if not model.uses_prior:
         raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
     model.cfg = replace(model.cfg, blend=1.0)  # train the network itself; its blend is chosen after training
+    model.sigma_on_detached = True  # the uncertainty head learns from its NLL, which never reaches the depth path
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
     error = None
@@ -409,15 +225,6 @@ def finish(model: DepthGenerator, frames: list[AdaptFrame], val: list[AdaptFrame
         save_checkpoint(out / "generator.pt", kept)
         write_text(out / "summary.json", json.dumps(record, indent=2) + "\n")
     barrier(world)
-
-
-def network_feeds(frames: list[AdaptFrame]) -> list[dict[str, np.ndarray]]:
-    """Each frame's whole input as the network sees it at inference (padded to 32): int8 calibration."""
-    feeds = []
-    for fr in frames:
-        image, sparse, prior = _pad32(fr.image[None], fr.sparse[None], fr.prior[None])
-        feeds.append({"image": image.numpy(), "sparse": sparse.numpy(), "prior": prior.numpy()})
-    return feeds
 
 
 def save_best(model: DepthGenerator, out: Path, cfg: AdaptConfig, init: Path, seqs: list[Sequence], epoch: int,

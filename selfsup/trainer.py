@@ -179,6 +179,57 @@ def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarr
     return out
 
 
+def resumed_epoch(last: Path, model: DepthGenerator, opt: torch.optim.Optimizer,
+                  sched: torch.optim.lr_scheduler.LRScheduler, cfg: SelfSupConfig) -> int:
+    """The epoch to go on from, the model, optimiser and schedule restored from `last`; a checkpoint trained
+    with other settings (other than the number of epochs) is refused."""
+    state = load_resume(last, model, opt, sched)
+    changed = [k for k in config_changes(state.get("config", {}), cfg) if k != "epochs"]
+    if changed:
+        raise DataError(last, f"was trained with other settings ({', '.join(changed)}); resume with the same "
+                              "config (only epochs may change) or start a new --out folder")
+    return state["epoch"] + 1
+
+
+def epoch_sampler(dataset: SelfSupSamples, cfg: SelfSupConfig, epoch: int, rank: int, world: int):
+    """This process's share of the samples for the epoch, shuffled by (seed, epoch)."""
+    if world > 1:
+        sampler = DistributedSampler(dataset, world, rank, shuffle=True, seed=cfg.seed)
+        sampler.set_epoch(epoch)
+        return sampler
+    return RandomSampler(dataset, generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
+
+
+def train_epoch(net: torch.nn.Module, loader: DataLoader, opt: torch.optim.Optimizer, cfg: SelfSupConfig,
+                refine: bool, desc: str, show: bool) -> dict[str, float]:
+    """One pass over the loader, a step per batch; the mean of each loss term."""
+    net.train()
+    sums, count = dict.fromkeys(TERMS, 0.0), 0
+    bar = tqdm(loader, desc=desc, unit="batch", disable=not show)
+    for b in bar:
+        depth, log_sigma = forward_padded(net, b["image"], b["sparse"])
+        loss, terms, _ = batch_terms(depth, b, cfg, refine, log_sigma)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        for k in TERMS:
+            sums[k] += terms[k]
+        count += 1
+        bar.set_postfix(loss=f"{terms['loss']:.3f}")
+    return {k: sums[k] / max(count, 1) for k in TERMS}
+
+
+def save_epoch(out: Path, model: DepthGenerator, opt: torch.optim.Optimizer,
+               sched: torch.optim.lr_scheduler.LRScheduler, epoch: int, cfg: SelfSupConfig) -> None:
+    """The state to resume from (`checkpoint_last.pt`) and the generator as trained so far (`generator.pt`)."""
+    network, config = generator_config(cfg).__dict__, cfg.model_dump()
+    save_checkpoint(out / "checkpoint_last.pt", {"model": model.state_dict(), "optimizer": opt.state_dict(),
+                                                 "scheduler": sched.state_dict(), "epoch": epoch, "config": config,
+                                                 "network": network})
+    save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": network, "config": config,
+                                           "epoch": epoch + 1, "mode": "selfsup"})
+
+
 def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePass, resume: bool = False,
         progress: bool = True, rerun: Path | None = None, oracle_masks: bool = False) -> tuple[dict, DepthGenerator]:
     """`train_selfsup`, also returning this process's model."""
@@ -200,15 +251,8 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePas
     params = model.parameters() if cfg.weight_nll > 0 else model.depth_parameters()
     opt = torch.optim.Adam(params, lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
-    start = 0
     last = out / "checkpoint_last.pt"
-    if resume:
-        state = load_resume(last, model, opt, sched)
-        changed = [k for k in config_changes(state.get("config", {}), cfg) if k != "epochs"]
-        if changed:
-            raise DataError(last, f"was trained with other settings ({', '.join(changed)}); resume with the same "
-                                  "config (only epochs may change) or start a new --out folder")
-        start = state["epoch"] + 1
+    start = resumed_epoch(last, model, opt, sched, cfg) if resume else 0
     net = torch.nn.parallel.DistributedDataParallel(model, find_unused_parameters=True) if world > 1 else model
     network = generator_config(cfg).__dict__
 
@@ -244,39 +288,21 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePas
             raise DataError(sequences[0], "no frame has both neighbours: sequences need at least 3 frames")
         if rerun is not None and rank == 0 and viewer is None:
             viewer = _Rerun(Path(rerun), cfg, dataset)
-        if world > 1:
-            sampler = DistributedSampler(dataset, world, rank, shuffle=True, seed=cfg.seed)
-            sampler.set_epoch(epoch)
-        else:
-            sampler = RandomSampler(dataset, generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
-        loader = DataLoader(dataset, cfg.batch_size, sampler=sampler)
-        net.train()
-        t0, sums, count = time.time(), dict.fromkeys(TERMS, 0.0), 0
-        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})",
-                   unit="batch", disable=not progress or rank != 0)
-        for b in bar:
-            depth, log_sigma = forward_padded(net, b["image"], b["sparse"])
-            loss, terms, _ = batch_terms(depth, b, cfg, refine, log_sigma)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            for k in TERMS:
-                sums[k] += terms[k]
-            count += 1
-            bar.set_postfix(loss=f"{terms['loss']:.3f}")
+        loader = DataLoader(dataset, cfg.batch_size, sampler=epoch_sampler(dataset, cfg, epoch, rank, world))
+        t0 = time.time()
+        means = train_epoch(net, loader, opt, cfg, refine,
+                            f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})",
+                            progress and rank == 0)
         sched.step()
         if world > 1:  # gradients are averaged every step; BatchNorm statistics only at the next forward, so sync them now
             for buf in model.buffers():
                 dist.broadcast(buf, 0)
         if rank == 0:
             record = {"epoch": epoch + 1, "stage": "refinement" if refine else "initialisation", "graph_pass": tag,
-                      **{k: sums[k] / max(count, 1) for k in TERMS}, "lr": opt.param_groups[0]["lr"],
+                      **means, "lr": opt.param_groups[0]["lr"],
                       "seconds": round(time.time() - t0, 1), "processes": world}
             _append_logs(out, record)
-            save_checkpoint(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                         "epoch": epoch, "config": cfg.model_dump(), "network": network})
-            save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": network, "config": cfg.model_dump(),
-                                         "epoch": epoch + 1, "mode": "selfsup"})
+            save_epoch(out, model, opt, sched, epoch, cfg)
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)
         barrier(world)

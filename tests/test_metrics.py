@@ -73,6 +73,20 @@ def test_ate_alignment_modes():
     assert np.allclose(scaled[:, :3, 3], ref[:, :3, 3] * 0.5)  # inputs untouched
 
 
+def test_ate_split_along_the_reference_cameras_axes():
+    """A camera driving forward (its z) with a lateral wobble in its x: the ATE lies in the lateral part;
+    the same wobble in a camera turned 90 degrees about y shows in that camera's own x."""
+    n = 30
+    wobble = 0.1 * np.sin(np.linspace(0, 4 * np.pi, n))
+    for yaw in (0.0, np.pi / 2):
+        R = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+        ref = np.stack([make_T(R, R @ [0, 0, 1.0 * i]) for i in range(n)])
+        est = np.stack([make_T(R, R @ [wobble[i], 0, 1.0 * i]) for i in range(n)])
+        m = trajectory_metrics(est, ref, "none")
+        assert m["ate_lateral_m"] == pytest.approx(m["ate_m"]) and m["ate_lateral_m"] > 0.05
+        assert m["ate_vertical_m"] == pytest.approx(0.0, abs=1e-12) and m["ate_forward_m"] == pytest.approx(0.0, abs=1e-12)
+
+
 def test_trajectory_metrics_reject_bad_shapes():
     with pytest.raises(ValueError):
         trajectory_metrics(_line(5), _line(6))

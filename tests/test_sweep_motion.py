@@ -1,7 +1,6 @@
 """The sweep's motion for deskewing: read from the two images where the last step is wrong (a turn's
 start), the last step kept where it is right, and the first two scans' own motion before any step."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -133,7 +133,8 @@ def add_adapted(shipped: FrameScore, adapted: FrameScore) -> None:
 def trajectory_entry(metrics: dict) -> dict:
     """ATE and RPE of leovr and the baselines of one refine run, and leovr's ATE over KISS-ICP's (the
     better of its two deskew settings)."""
-    t = {k: {key: v[key] for key in ("ate_m", "rpe_m")} for k, v in metrics["trajectory"].items()}
+    keys = ("ate_m", "ate_lateral_m", "ate_vertical_m", "ate_forward_m", "rpe_m")
+    t = {k: {key: v[key] for key in keys if key in v} for k, v in metrics["trajectory"].items()}
     kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
     return t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
 

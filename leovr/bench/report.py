@@ -34,7 +34,8 @@ GLOSSARY = [
     "same frames' returns placed with KISS-ICP's poses).",
     "- Trajectories: `leovr`, `leovr_window` (the window pass alone), `kiss_icp` (KISS-ICP on the same LiDAR input), "
     "`kiss_icp_no_deskew` (without its deskew), `mono_vo` (textbook monocular VO, Sim(3)-aligned).",
-    "- MAE, RMSE, ATE (RMSE of the aligned positions) and RPE (frame to frame) in metres; AbsRel = mean "
+    "- MAE, RMSE, ATE (RMSE of the aligned positions; lateral, vertical, forward: its parts along the true "
+    "camera's x, y, z axes) and RPE (frame to frame) in metres; AbsRel = mean "
     "|error| / depth; delta1 = share of pixels within 1.25x of the truth. `A ÷ B` ratios below 1.00x favour A.",
 ]
 
@@ -163,8 +164,12 @@ def alignment(r: dict) -> str:
     return f"{name}, scale {r['scale']:.2f}" if name == "Sim(3)" and isinstance(r.get("scale"), float) else name
 
 
+AXES = ("lateral", "vertical", "forward")  # the ATE's parts along the reference camera's x, y, z
+
+
 def traj_table(groups: dict[str, Any]) -> list[str]:
-    """ATE / RPE per data set and trajectory method, leovr's ATE as a ratio of each baseline's."""
+    """ATE (and its lateral / vertical / forward parts where recorded) and RPE per data set and trajectory
+    method, leovr's ATE as a ratio of each baseline's."""
     rows = []
     for label, g in groups.items():
         ms = {k: v for k, v in (g.items() if isinstance(g, dict) else []) if isinstance(v, dict) and "ate_m" in v}
@@ -173,10 +178,13 @@ def traj_table(groups: dict[str, Any]) -> list[str]:
         for i, name in enumerate(order):
             r = ms[name]
             vs = "" if name.startswith("leovr") else ratio(get(ms, "leovr", "ate_m"), r.get("ate_m"))
-            rows.append([label if i == 0 else "", name, num(r.get("ate_m")), num(r.get("rpe_m")), alignment(r), vs])
-    head = ["data", "method", "ATE (m)", "RPE (m)", "alignment", "leovr ÷ this (ATE)"]
-    if all(r[4] == "-" for r in rows):  # no alignment recorded: drop the column
-        head, rows = head[:4] + head[5:], [r[:4] + r[5:] for r in rows]
+            rows.append([label if i == 0 else "", name, num(r.get("ate_m")),
+                         *(num(r.get(f"ate_{axis}_m")) for axis in AXES), num(r.get("rpe_m")), alignment(r), vs])
+    head = ["data", "method", "ATE (m)", *(f"{axis} (m)" for axis in AXES), "RPE (m)", "alignment",
+            "leovr ÷ this (ATE)"]
+    for col in (7, 5, 4, 3):  # drop what no run recorded (alignment; the ATE's parts)
+        if all(r[col] == "-" for r in rows):
+            head, rows = head[:col] + head[col + 1:], [r[:col] + r[col + 1:] for r in rows]
     return table(head, rows)
 
 

@@ -17,7 +17,9 @@ def trajectory_metrics(
     """ATE (RMSE of translation after alignment) and RPE (translation, `rpe_delta` frames apart).
 
     `estimate` and `reference` are F x 4 x 4 camera-to-world poses of the same frames. `align` is
-    'se3' (rigid), 'sim3' (rigid + scale, for monocular estimates) or 'none'.
+    'se3' (rigid), 'sim3' (rigid + scale, for monocular estimates) or 'none'. The ATE is also split along
+    the reference camera's axes (`ate_lateral_m`: x, right; `ate_vertical_m`: y, down; `ate_forward_m`: z,
+    the view direction): where the error lies, e.g. a step length wrong (forward) or a heading drift (lateral).
     """
     if estimate.shape != reference.shape or estimate.ndim != 3 or estimate.shape[1:] != (4, 4):
         raise ValueError(f"estimate {estimate.shape} and reference {reference.shape} must both be F x 4 x 4")
@@ -35,8 +37,14 @@ def trajectory_metrics(
         metrics.PoseRelation.translation_part, delta=rpe_delta, delta_unit=metrics.Unit.frames, all_pairs=False
     )
     rpe.process_data((ref, est))
+    # the aligned error of each frame in its reference camera's axes
+    err = np.einsum("fji,fj->fi", reference[:, :3, :3], est.positions_xyz - ref.positions_xyz)
+    axes = np.sqrt(np.mean(err**2, axis=0))
     return {
         "ate_m": float(ape.get_statistic(metrics.StatisticsType.rmse)),
+        "ate_lateral_m": float(axes[0]),
+        "ate_vertical_m": float(axes[1]),
+        "ate_forward_m": float(axes[2]),
         "ate_mean_m": float(ape.get_statistic(metrics.StatisticsType.mean)),
         "ate_max_m": float(ape.get_statistic(metrics.StatisticsType.max)),
         "rpe_m": float(rpe.get_statistic(metrics.StatisticsType.rmse)),

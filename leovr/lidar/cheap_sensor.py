@@ -53,11 +53,12 @@ def parse_input(text: str) -> CheapSensor:
 
 @dataclass
 class ScanSplit:
-    """Points given to the method (`kept`) and points held out for evaluation (`heldout`, the scan's points at
-    `heldout_index`: the same returns can be taken from the scan deskewed another way)."""
+    """Points given to the method (`kept`) and points held out for evaluation (`heldout`): the scan's points at
+    `kept_index` and `heldout_index`, so that the same returns can be taken from the scan deskewed another way."""
 
     kept: np.ndarray
     heldout: np.ndarray
+    kept_index: np.ndarray
     heldout_index: np.ndarray
 
 
@@ -135,19 +136,19 @@ def simulate_cheap_sensor(
     that win a pixel; it is seeded by (seed, frame_index) so runs are repeatable.
     """
     if sensor.kind == "full":
-        return ScanSplit(points, points[:0], np.zeros(0, np.int64))
+        return ScanSplit(points, points[:0], np.arange(len(points)), np.zeros(0, np.int64))
     if sensor.kind == "vlp16":
         m = vlp16_mask(points)
-        return ScanSplit(points[m], points[~m], np.flatnonzero(~m))
+        return ScanSplit(points[m], points[~m], np.flatnonzero(m), np.flatnonzero(~m))
     if sensor.kind == "mid40":
         m = mid40_mask(points, frame_index)
-        return ScanSplit(points[m], points[~m], np.flatnonzero(~m))
+        return ScanSplit(points[m], points[~m], np.flatnonzero(m), np.flatnonzero(~m))
     if sensor.kind == "ratio":
         if K is None or T_cam_lidar is None or shape is None:
             raise ValueError("ratio input needs the camera intrinsics, extrinsic and image shape")
         proj = project_points(points, K, T_cam_lidar, shape)
         rng = np.random.default_rng([seed, frame_index])
         chosen = rng.random(len(proj.index)) < sensor.ratio
-        held = proj.index[~chosen]
-        return ScanSplit(points[proj.index[chosen]], points[held], held)
+        kept, held = proj.index[chosen], proj.index[~chosen]
+        return ScanSplit(points[kept], points[held], kept, held)
     raise ValueError(f"unknown sensor kind {sensor.kind}")

@@ -73,16 +73,21 @@ def with_truth(sample: EvalSample, cfg: CompleteConfig) -> EvalSample:
 
 
 def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True,
-                   truth_scan: Callable[[], np.ndarray] | None = None) -> EvalSample:
+                   truth_scan: Callable[[], np.ndarray] | None = None, recorded: np.ndarray | None = None
+                   ) -> EvalSample:
     """Split the frame's scan into the cheap input and the held-out rest; build the ground truth (with
     `truth=False` a held-out truth is left "deferred": `with_truth` builds it, e.g. off a run's critical path).
     `truth_scan`: gives the same scan deskewed with the ground-truth motion; the held-out returns are taken
-    from it (`TruthScan`)."""
+    from it (`TruthScan`). `recorded`: the scan as recorded, point for point, where the frame's is deskewed: the
+    cheap sensor's returns are chosen on it, so the choice does not depend on a run's motion estimate."""
     if frame.points is None:
         raise DataError(f"frame {frame.index}", "has no LiDAR scan; depth completion needs a range sensor input")
     split = simulate_cheap_sensor(
-        frame.points, parse_input(cfg.input), frame.index, cfg.seed, frame.K, frame.T_cam_lidar, frame.shape
+        frame.points if recorded is None else recorded, parse_input(cfg.input), frame.index, cfg.seed, frame.K,
+        frame.T_cam_lidar, frame.shape
     )
+    if recorded is not None:
+        split = replace(split, kept=frame.points[split.kept_index], heldout=frame.points[split.heldout_index])
     sparse = sparse_depth(split.kept, frame.K, frame.T_cam_lidar, frame.shape)
     if frame.depth is not None:
         return EvalSample(frame, sparse, frame.depth, "dense", split.kept)

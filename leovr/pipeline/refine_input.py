@@ -108,7 +108,7 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
     f = deskew_frame(raw, motion_cam, frame_dt)
     has_points = f.points is not None and len(f.points) > 0
     if has_points and not camera_only:
-        return prepare_sample(f, ccfg, truth, truth_scan(seq, i, raw))
+        return prepare_sample(f, ccfg, truth, truth_scan(seq, i, raw), None if f is raw else raw.points)
     empty = np.zeros(f.shape, np.float32)
     if f.depth is not None:
         return EvalSample(f, empty, f.depth, "dense", None)
