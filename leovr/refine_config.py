@@ -181,11 +181,6 @@ class CameraOnlyConfig(_Model):
     depth_sigma_log: float = 0.2  # how far one frame's depth-based step length may be off (log)
     track_sigma_log: float = 0.05  # how far the tracks' relative scale may be off (log)
     speed_sigma_log: float = 0.005  # step-length change per frame (log; inertia; chosen on development clips)
-    # road scale: every step's length solved again over the whole recording after the window pass
-    # (odometry/step_length.py)
-    length_smoothing: bool = True
-    # ... the step length changing by this much a frame (m; 0.005 at 10 Hz is 0.5 m/s^2; chosen on development clips)
-    length_change_sigma_m: float = Field(0.005, gt=0)
     odometry_sigma_rad: float = 0.005  # the epipolar motion's rotation sigma in the graph (rad)
     odometry_sigma_rel: float = 0.05  # its translation sigma per metre of step
     # the camera's height above the road (m), which sets the metric scale; None: the recording's own

@@ -25,7 +25,6 @@ from odometry.initial_pose import (
 )
 from odometry.lidar_assoc import associate
 from odometry.mono_motion import MonoMotion, MonoStep, rotation_parallax, sampson_px, triangulate
-from odometry.step_length import LengthReading
 from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
 
 
@@ -51,7 +50,6 @@ class FrontEnd:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
-    length_readings: dict[int, LengthReading | None] = field(default_factory=dict)  # camera only: per frame index
 
     def __post_init__(self) -> None:
         cfg = self.cfg
@@ -91,8 +89,6 @@ class FrontEnd:
         from the previous frame read from the images, KISS-ICP's prediction)."""
         cfg = self.cfg
         step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
-        if step is not None:
-            self.length_readings[index] = step.length_reading
         if self.depth_scale != 1.0:  # the generator's depth at the road's metric scale
             depth, log_sigma = depth * self.depth_scale, log_sigma + np.log(self.depth_scale)
         feats = detect(image, cfg.frontend.n_features)

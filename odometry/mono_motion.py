@@ -30,7 +30,6 @@ import numpy as np
 from leovr.geometry import fundamental, invert_T
 from odometry.ground_plane import fit_ground, road_corners
 from odometry.mono_vo import corners, follow, gray, relative_motion
-from odometry.step_length import LengthReading
 
 
 @dataclass
@@ -42,7 +41,6 @@ class MonoStep:
     parallax_px: float
     scale_source: str  # "ground", "depth" (each "+tracks" when tracks gave the change), "standing" or "constant_speed"
     road_normal: np.ndarray | None = None  # the road's normal in the previous frame's camera, where the road was read
-    length_reading: LengthReading | None = None  # what the step-length filter read (None: not filtered)
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -274,9 +272,6 @@ class MonoMotion:
             self.var += self.speed_sigma_log**2
             return MonoStep(self.last.T_rel, 0, parallax, "constant_speed")
         absolute = ground if ground is not None else depth
-        reading = None  # kept for smoothing the lengths over the whole recording (`odometry.step_length`)
-        if absolute is not None or self.log_len is not None:
-            reading = LengthReading(*(absolute or (None, 1.0)), restart=self.log_len is None)
         self._fuse(absolute, log_ratio)
         source = "constant_speed" if absolute is None else ("ground" if ground is not None else "depth")
         source += "+tracks" if log_ratio is not None and absolute is not None else ""
@@ -289,4 +284,4 @@ class MonoMotion:
         T = motion.copy()
         T[:3, 3] *= length
         self._carry(T, X * length, front, p1[good])
-        return MonoStep(T, len(good), parallax, source, road_normal if ground is not None else None, reading)
+        return MonoStep(T, len(good), parallax, source, road_normal if ground is not None else None)

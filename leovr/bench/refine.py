@@ -87,9 +87,8 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
         odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
         if odo.exists():
             m = refine(odo, base, "kitti_odometry")
-            # leovr_window: the window pass alone, before the step lengths were solved over the whole clip
             trajectory["kitti_odometry"] = {k: {kk: m["trajectory"][k][kk] for kk in TRAJ_KEYS}
-                                            for k in ("mono_vo", "leovr", "leovr_window") if k in m["trajectory"]}
+                                            for k in ("mono_vo", "leovr") if k in m["trajectory"]}
     for k in TIMED:
         timing[k] = float(np.mean([r["timing"][k] for r in all_runs]))
     body = {"quick": quick, "synthetic_dataset": str(root), "frames_per_sequence": frames, "window": cfg.window,

@@ -32,7 +32,7 @@ GLOSSARY = [
     "prior alone), `generator` (leovr's network; in refine and real with a cone LiDAR also fed the earlier scans), "
     "`generator_frame` (the frame's own scan only), `refined` (after the graph), `*_accumulated` (the fill on the "
     "same frames' returns placed with KISS-ICP's poses).",
-    "- Trajectories: `leovr`, `leovr_window` (the window pass alone), `kiss_icp` (KISS-ICP on the same LiDAR input), "
+    "- Trajectories: `leovr`, `leovr_no_loop` (before loop closure), `kiss_icp` (KISS-ICP on the same LiDAR input), "
     "`kiss_icp_no_deskew` (without its deskew), `mono_vo` (textbook monocular VO, Sim(3)-aligned).",
     "- MAE, RMSE, ATE (RMSE of the aligned positions; lateral, vertical, forward: its parts along the true "
     "camera's x, y, z axes) and RPE (frame to frame) in metres; AbsRel = mean "

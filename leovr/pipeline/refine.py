@@ -46,7 +46,7 @@ from leovr.pipeline.refine_input import (camera_only_graph_config, classical_sou
 from leovr.pipeline.refine_outputs import (PNG_FOLDER, SCORED, TIMED, WALL, FrameScore, Progress, check_replay,
                                            frame_score, input_label, single_frame_generator, timing_record,
                                            write_outputs)
-from leovr.pipeline.refine_passes import smoothed_step_lengths, whole_recording_passes
+from leovr.pipeline.refine_passes import whole_recording_passes
 from leovr.pipeline.refine_prepare import ConeSteps, PreparedFrame, PrepareStage
 from leovr.threads import single_threaded_blas
 
@@ -56,7 +56,7 @@ if TYPE_CHECKING:
 __all__ = [  # the names other modules import from here
     "run_refine", "RefineRun", "FrameScore", "Progress", "frame_sample", "completion_config", "classical_source",
     "stereo_image", "TIMED", "WALL", "SCORED", "PNG_FOLDER", "write_outputs", "timing_record", "frame_score",
-    "input_label", "check_replay", "road_height", "camera_only_graph_config", "smoothed_step_lengths",
+    "input_label", "check_replay", "road_height", "camera_only_graph_config",
     "single_frame_generator", "torch_threads",
 ]
 
@@ -306,9 +306,7 @@ class RefineRun:
         if self.replayed:
             check_replay(self.out, state, self.replayed)
         landmarks, seen_by = self.graph.all_landmarks()
-        whole_recording_passes(seq, cfg, self.out, indices, state, landmarks, seen_by,
-                               not cfg.causal and not self.has_lidar and bool(self.front.camera_height),
-                               self.front.length_readings)
+        whole_recording_passes(seq, cfg, self.out, indices, state, landmarks, seen_by)
         state.save(self.state_path)
         atomic_write(self.out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
         atomic_write(self.out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))

@@ -73,7 +73,6 @@ class Progress:
     icp_poses: dict[int, list[float]] = field(default_factory=dict)
     sources: dict[int, str] = field(default_factory=dict)
     poses_no_loop: dict[int, list[float]] = field(default_factory=dict)  # before loop closure, when it ran
-    poses_window: dict[int, list[float]] = field(default_factory=dict)  # the window pass's, when a later pass moved them
     times: dict[int, list[float]] = field(default_factory=dict)  # frame -> ms per stage of TIMED
 
     @classmethod
@@ -81,9 +80,8 @@ class Progress:
         try:
             d = json.loads(path.read_text())
             d.setdefault("poses_no_loop", {})  # only runs with loop closure have it
-            d.setdefault("poses_window", {})  # only runs whose poses a whole-recording pass moved
             keyed = {name: {int(k): v for k, v in d[name].items()}
-                     for name in ("poses", "icp_poses", "sources", "poses_no_loop", "poses_window", "times")}
+                     for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times")}
             return cls(**keyed)
         except (OSError, ValueError, KeyError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
@@ -92,7 +90,7 @@ class Progress:
         write_text(path, json.dumps(self.__dict__) + "\n")
 
     def stacked(self, name: str, indices: list[int]) -> np.ndarray | None:
-        """The poses kept under `name` ("poses", "poses_no_loop", "poses_window") as F x 4 x 4 in the order
+        """The poses kept under `name` ("poses", "poses_no_loop") as F x 4 x 4 in the order
         of `indices`; None unless every one of them is there."""
         kept = getattr(self, name)
         if not indices or any(i not in kept for i in indices):
@@ -103,7 +101,7 @@ class Progress:
 def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], tol_m: float = 0.05) -> None:
     """Warn when replaying the finished frames of a resumed run did not give back the poses written
     before the interruption (another leovr version, or the recording changed in between)."""
-    written = state.poses_window or state.poses_no_loop or state.poses  # as the window pass left them
+    written = state.poses_no_loop or state.poses  # as the window pass left them
     gap = {i: float(np.linalg.norm(T[:3, 3] - np.array(written[i]).reshape(4, 4)[:3, 3])) for i, T in replayed.items()
            if i in written}
     if not gap:
@@ -204,15 +202,14 @@ def pooled_depth(scores: list[FrameScore], accs: dict[str, DepthMetricAccumulato
 
 def trajectory_record(poses: np.ndarray, gt_poses: list[np.ndarray], has_lidar: bool, state: Progress,
                       indices: list[int], baselines: dict[str, tuple[np.ndarray, str]] | None) -> dict:
-    """leovr's trajectory against the ground truth, before a whole-recording pass moved it when one did,
-    and the baselines' beside it."""
+    """leovr's trajectory against the ground truth, before loop closure moved it when it ran, and the
+    baselines' beside it."""
     ref = np.stack([invert_T(gt_poses[0]) @ T for T in gt_poses])
     align = "se3" if has_lidar else "sim3"
     record = {"leovr": trajectory_metrics(poses, ref, align)}
-    for name, kept in (("leovr_no_loop", "poses_no_loop"), ("leovr_window", "poses_window")):
-        earlier = state.stacked(kept, indices)  # before a whole-recording pass moved them, when one did
-        if earlier is not None:
-            record[name] = trajectory_metrics(earlier, ref, align)
+    earlier = state.stacked("poses_no_loop", indices)  # before loop closure moved them, when it ran
+    if earlier is not None:
+        record["leovr_no_loop"] = trajectory_metrics(earlier, ref, align)
     for name, (est, how) in (baselines or {}).items():
         record[name] = trajectory_metrics(est, ref, how)
     return record

@@ -1,5 +1,5 @@
-"""The passes of `leovr refine` over the whole recording, after the window has run: the camera-only step
-lengths solved again over all frames, and loop closure. Each moves the poses, and the landmarks with them."""
+"""The pass of `leovr refine` over the whole recording, after the window has run: loop closure. It moves the
+poses, and the landmarks with them."""
 
 from __future__ import annotations
 
@@ -11,15 +11,6 @@ from leovr.config import RefineConfig
 from leovr.data.sequence import Sequence
 from leovr.geometry import invert_T
 from leovr.pipeline.refine_outputs import Progress
-
-
-def smoothed_step_lengths(poses: np.ndarray, indices: list[int], readings: dict, cfg: RefineConfig) -> np.ndarray:
-    """Camera only: the window pass's poses with each step's length solved again over the whole recording
-    from the road's readings (`odometry.step_length`); rotations and directions of travel are kept."""
-    from odometry.step_length import rescale_steps, smooth_log_lengths
-
-    chain = [readings.get(i) for i in indices[1:]]
-    return rescale_steps(poses, np.exp(smooth_log_lengths(chain, cfg.camera_only.length_change_sigma_m)))
 
 
 def move_poses(state: Progress, indices: list[int], before: np.ndarray, after: np.ndarray, landmarks: np.ndarray,
@@ -37,15 +28,8 @@ def move_poses(state: Progress, indices: list[int], before: np.ndarray, after: n
 
 
 def whole_recording_passes(seq: Sequence, cfg: RefineConfig, out: Path, indices: list[int], state: Progress,
-                           landmarks: np.ndarray, seen_by: np.ndarray, smooth_lengths: bool,
-                           length_readings: dict) -> None:
-    """The camera-only step lengths (`smooth_lengths`: a camera-only run with the road's height, not causal)
-    and loop closure (`cfg.loop.enabled`), each keeping the poses it started from in `state`."""
-    if smooth_lengths and cfg.camera_only.length_smoothing and len(indices) > 2:
-        before = state.stacked("poses", indices)
-        state.poses_window = {i: T.ravel().tolist() for i, T in zip(indices, before)}
-        after = smoothed_step_lengths(before, indices, length_readings, cfg)
-        move_poses(state, indices, before, after, landmarks, seen_by)
+                           landmarks: np.ndarray, seen_by: np.ndarray) -> None:
+    """Loop closure (`cfg.loop.enabled`), keeping the poses it started from in `state`."""
     if cfg.loop.enabled:
         from leovr.pipeline.loops import loop_pass
 
