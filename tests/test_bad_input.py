@@ -170,3 +170,23 @@ def test_depth_png_of_another_size_names_file_and_sizes(tmp_path):
     cv2.imwrite(str(tmp_path / "rgb.png"), np.zeros((4, 4, 3), np.uint8))
     with pytest.raises(DataError, match=r"rgb\.png: depth image must be single-channel uint16"):
         read_depth_png(tmp_path / "rgb.png")
+
+
+def test_a_resume_after_an_input_was_edited_in_place_is_refused_naming_the_file(tmp_path):
+    """The recording's fingerprint is its files' contents, not their names and sizes: one scan edited in place
+    (same size) between a run and its resume refuses the resume and names the scan."""
+    from leovr.config import RefineConfig
+    from leovr.pipeline.refine import run_refine
+
+    drive = write_kitti_raw(tmp_path / "raw", frames=3)
+    out = tmp_path / "out"
+    run_refine(open_sequence(drive), RefineConfig(input="vlp16"), out, progress=False, score=False)
+    scan = drive / "velodyne_points" / "data" / "0000000001.bin"
+    size = scan.stat().st_size
+    points = np.fromfile(scan, np.float32)
+    points[0] += 0.5
+    points.tofile(scan)
+    assert scan.stat().st_size == size
+    with pytest.raises(DataError, match=r"contents_sha1.*0000000001\.bin \(changed\)"):
+        run_refine(open_sequence(drive), RefineConfig(input="vlp16"), out, resume=True, progress=False, score=False)
+    run_refine(open_sequence(drive), RefineConfig(input="vlp16"), tmp_path / "fresh", progress=False, score=False)

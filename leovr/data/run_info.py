@@ -2,7 +2,7 @@
 
 It records the depth PNG convention (units per metre), so that files are read back as they were
 written (folders written before `run.json` existed hold millimetre PNGs), and the run's identity
-(command, every setting, the sequences' file listing, the checkpoint's hash, leovr's version), so
+(command, every setting, the sequences' contents, the checkpoint's hash, leovr's version), so
 that `--resume` continues only the very run that wrote the folder.
 """
 
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -26,9 +25,11 @@ from leovr.data.io import (
     read_json_object,
     write_text,
 )
+from leovr.data.file_digests import changed_files, digest_of, file_digests
 from leovr.errors import DataError, brief
 
 RUN_FILE = "run.json"
+INPUTS_FILE = "inputs.json"  # the input files' content digests (naming what changed when a resume is refused)
 
 
 def depth_png_record(scale: float = DEPTH_SCALE) -> dict:
@@ -43,23 +44,9 @@ def write_run_info(out: Path, command: str, **extra) -> None:
 
 
 def folder_fingerprint(path: Path) -> str:
-    """SHA-1 of the relative paths and sizes of every file under `path` (or of the file itself): what
-    a sequence on disk is, without reading its contents."""
-    path = Path(path)
-    h = hashlib.sha1()
-    if path.is_file():
-        h.update(f"{path.name}:{path.stat().st_size}".encode())
-        return h.hexdigest()
-    for root, dirs, files in os.walk(path):
-        dirs.sort()
-        for name in sorted(files):
-            p = Path(root) / name
-            try:
-                size = p.stat().st_size
-            except OSError:
-                continue
-            h.update(f"{p.relative_to(path)}:{size}\n".encode())
-    return h.hexdigest()
+    """SHA-1 over the contents of every file under `path` (or of the file itself): what a sequence on disk
+    is. Each file is read once and its digest cached by size and modification time (file_digests)."""
+    return digest_of(file_digests(path))
 
 
 def _sha256(path: Path) -> str:
@@ -72,7 +59,7 @@ def run_identity(command: str, settings: dict, sequences: list[Path], checkpoint
     return json.loads(json.dumps({
         "command": command,
         "settings": settings,
-        "sequences": [{"path": str(Path(p).resolve()), "files_sha1": folder_fingerprint(p)} for p in sequences],
+        "sequences": [{"path": str(Path(p).resolve()), "contents_sha1": folder_fingerprint(p)} for p in sequences],
         "checkpoint_sha256": _sha256(checkpoint) if checkpoint is not None else None,
         "leovr_version": __version__,
     }, default=str))
@@ -109,7 +96,30 @@ def check_identity(out: Path, identity: dict) -> None:
         raise DataError(path, "records no run identity (written by an older leovr): resume into a new output folder")
     diff = _differences(old, identity)
     if diff:
-        raise DataError(out, "was written by another run; --resume refused: " + brief(diff, 6, "; "))
+        raise DataError(out, "was written by another run; --resume refused: " + brief(diff, 6, "; ")
+                        + _changed_inputs(out, old, identity))
+
+
+def _changed_inputs(out: Path, old: dict, new: dict) -> str:
+    """Which input files changed since the folder's run started (from its `inputs.json`), when the contents
+    of a sequence differ: edited in place, added or removed."""
+    try:
+        before = json.loads((Path(out) / INPUTS_FILE).read_text())
+    except (OSError, ValueError):
+        return ""
+    lines = []
+    for a, b in zip(old.get("sequences") or [], new.get("sequences") or []):
+        if isinstance(a, dict) and a != b and isinstance(before.get(b["path"]), dict):
+            changed = changed_files(before[b["path"]], file_digests(Path(b["path"])))
+            lines += [f"{b['path']}/{c}" for c in changed]
+    return f"; input files changed since: {brief(lines, 6, ', ')}" if lines else ""
+
+
+def write_inputs(out: Path, identity: dict) -> None:
+    """`out/inputs.json`: each sequence's files with their content digests, to name the ones a refused resume
+    found changed."""
+    listing = {s["path"]: file_digests(Path(s["path"])) for s in identity.get("sequences") or []}
+    write_text(Path(out) / INPUTS_FILE, json.dumps(listing) + "\n")
 
 
 def start_run(out: Path, command: str, identity: dict, resume: bool, **extra) -> None:
@@ -120,6 +130,7 @@ def start_run(out: Path, command: str, identity: dict, resume: bool, **extra) ->
         check_resumable(out)
         check_identity(out, identity)
     write_run_info(out, command, identity=identity, **extra)
+    write_inputs(out, identity)
 
 
 def check_resumable(out: Path) -> None:
