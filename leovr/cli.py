@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -185,7 +186,7 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
 def viz(
     target: Path = typer.Argument(..., help="A `leovr refine` output folder or a sequence folder."),
     out: Path = typer.Option(..., "--out", "-o", help="Recording file (.rrd); open it with `rerun FILE.rrd`."),
-    max_frames: Optional[int] = typer.Option(None, "--max-frames"),
+    max_frames: Optional[int] = typer.Option(None, "--max-frames", min=1, help="Record the first N frames only."),
 ) -> None:
     """Write a Rerun recording: trajectories, landmarks, LiDAR, camera, image, depth maps and error."""
     from leovr.viz.recording import write_recording
@@ -203,7 +204,8 @@ def train(
     dataset: Optional[Path] = typer.Option(None, help="Dataset folder with manifest.json (--mode supervised)."),
     epochs: Optional[int] = typer.Option(None),
     batch_size: Optional[int] = typer.Option(None, "--batch-size"),
-    max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Cap on training frames (selfsup: per sequence)."),
+    max_frames: Optional[int] = typer.Option(None, "--max-frames", min=1,
+                                             help="Cap on training frames (selfsup: per sequence)."),
     init_checkpoint: Optional[Path] = typer.Option(None, "--init-checkpoint", help="Start from these weights."),
     rerun: Optional[Path] = typer.Option(None, help="selfsup: log flow masks, warped images and photometric error to this .rrd."),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint_last.pt."),
@@ -263,8 +265,10 @@ def adapt(
                    init_checkpoint=None if init is None else str(init))
     r = run_adapt([open_sequence(s) for s in sequences], cfg, out, resume=resume)
     if distributed()[0] == 0:  # one line from `torchrun --nproc-per-node N leovr adapt ...`
+        val = r["best_val_mae_m"]
         typer.echo(f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
-                   f"validation MAE {r['best_val_mae_m']:.3f} m at the hidden returns"
+                   + (f"validation MAE {val:.3f} m at the hidden returns" if val is not None
+                      else "no validation frames (val_every: 0), the last epoch kept")
                    + (f"; network weight against its prior {r['blend']:g} "
                       f"({r['val_mae_m_by_blend'][str(r['blend'])]:.3f} m)" if "blend" in r else "")
                    + f" -> {out / 'generator.pt'}")
@@ -296,8 +300,18 @@ def batch(
         raise typer.Exit(1)
 
 
+def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line, `warning: ...`, without Python's source location (users did nothing wrong
+    in leovr's code)."""
+    from tqdm import tqdm
+
+    tqdm.write(f"warning: {message}", file=sys.stderr)  # above any progress bar, not inside its line
+
+
 def main() -> None:
-    """Console entry point: run the app, turning user-facing errors into one line and exit code 2."""
+    """Console entry point: run the app, turning user-facing errors into one line and exit code 2, and
+    warnings into one `warning: ...` line each."""
+    warnings.showwarning = _warning_line
     try:
         app()
     except LeovrError as exc:

@@ -160,7 +160,7 @@ class TrainConfig(_Model):
     output: Literal["absolute", "residual", "fusion"] = "fusion"  # what the decoder predicts (leovr.depth.network)
     channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
     blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
-    max_frames: int | None = None  # cap on training frames (quick runs)
+    max_frames: int | None = Field(None, ge=1)  # cap on training frames (quick runs)
     init_checkpoint: str | None = None  # start from these weights (fine-tuning); the network must match
     # the residual networks' classical prior at depth edges: the image's side (as at inference) or the nearest return
     prior_edges: Literal["image", "nearest"] = "image"
@@ -199,7 +199,7 @@ class SelfSupConfig(_Model):
     weight_nll: float = Field(0.1, ge=0)  # Gaussian NLL of the uncertainty head at the LiDAR-backed landmarks (0: head untrained)
     input: str = "full"  # LiDAR input of the generator and the graph (full, vlp16, mid40, ratio:R)
     train_focal_px: float | None = 260.0  # frames resampled to this focal length (px; the generator's camera); None = native
-    max_frames: int | None = None  # first frames of each sequence only (None = all)
+    max_frames: int | None = Field(None, ge=1)  # first frames of each sequence only (None = all)
     loop_closure: bool = True  # pose quality assurance (Sec. IV-B) in every graph pass
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
     landmark_frames: int = Field(4, ge=0)  # a landmark counts as visible in frame i when last observed within this many frames
@@ -228,8 +228,8 @@ class AdaptConfig(_Model):
     init_checkpoint: str | None = None  # None = the shipped generator (must be a residual / fusion network)
     generator_focal_px: float | None = 260.0  # frames resampled to the generator's training focal length (px)
     seed: int = 0  # seeds the masked splits and training
-    start: int = 0  # frames [start:end] of every sequence
-    end: int | None = None  # ... None = to the last frame
+    start: int = Field(0, ge=0)  # frames [start:end] of every sequence
+    end: int | None = Field(None, ge=1)  # ... None = to the last frame
     splits_per_frame: int = Field(4, ge=1)  # masked splits drawn per frame (one per visit, at random)
     val_every: int = Field(8, ge=0)  # every n-th frame validates, never trained on (0 = no validation)
     epochs: int = Field(40, ge=1)  # at most; early stopping usually ends sooner

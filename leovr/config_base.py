@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from leovr.eval.depth_metrics import LEOVR_BINS
 from leovr.lidar.cheap_sensor import parse_input
@@ -28,9 +28,9 @@ class FrameSelection(_Model):
     prior_edges: Literal["image", "nearest"] = "image"
     input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
     seed: int = 0  # seeds the simulated input (ratio:R draws)
-    start: int = 0  # first frame (index into the sequence)
-    end: int | None = None  # frame index to stop before; None = the last frame
-    step: int = 1  # every n-th frame
+    start: int = Field(0, ge=0)  # first frame (index into the sequence)
+    end: int | None = Field(None, ge=1)  # frame index to stop before; None = the last frame
+    step: int = Field(1, ge=1)  # every n-th frame
     bins: list[float] = list(LEOVR_BINS)  # ground-truth distance bins (m) the depth error is also reported in
     parallax_window: int = 7  # held-out point dropped when a return in this window (px, side) is nearer ...
     parallax_rel: float = 0.15  # ... by more than this fraction (LiDAR-camera parallax filter)

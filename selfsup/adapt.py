@@ -35,6 +35,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -110,6 +111,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
     model.cfg = replace(model.cfg, blend=1.0)  # train the network itself; its blend is chosen after training
     model.sigma_on_detached = True  # the uncertainty head learns from its NLL, which never reaches the depth path
+    check_validation_frames(seqs, cfg)
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
     error = None
@@ -142,13 +144,14 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
             log_path.unlink(missing_ok=True)
             save_best(model, out, cfg, init, seqs, 0, best)
             with open(log_path, "a") as fh:
-                fh.write(json.dumps({"epoch": 0, "val_mae_m": best, "note": "before adaptation", "processes": world}) + "\n")
+                fh.write(json.dumps({"epoch": 0, "val_mae_m": finite(best), "note": "before adaptation",
+                                     "processes": world}) + "\n")
     step = StepLoss(model, cfg)
     if world > 1:  # BatchNorm is frozen (below): no buffers to sync per step; without the NLL the sigma head is unused
         step = torch.nn.parallel.DistributedDataParallel(step, forward_sync_buffers=False,
                                                          find_unused_parameters=cfg.weight_nll == 0)
     gen = torch.Generator().manual_seed(cfg.seed)
-    record: dict = {"epoch": start, "best_val_mae_m": best}
+    record: dict = {"epoch": start, "best_val_mae_m": finite(best)}
     for epoch in range(start, cfg.epochs):
         if since_best >= cfg.patience or (cfg.max_minutes and minutes >= cfg.max_minutes):
             break
@@ -163,7 +166,8 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
             if lead:
                 save_best(model, out, cfg, init, seqs, epoch + 1, val_mae)
         record = {"epoch": epoch + 1, "train_loss": loss_sum / max(n_loss, 1), "train_mae_m": err / max(cnt, 1),
-                  "val_mae_m": val_mae, "best_val_mae_m": best, "minutes": round(minutes, 2), "processes": world}
+                  "val_mae_m": finite(val_mae), "best_val_mae_m": finite(best), "minutes": round(minutes, 2),
+                  "processes": world}
         if lead:
             with open(log_path, "a") as fh:
                 fh.write(json.dumps(record) + "\n")
@@ -174,6 +178,16 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     record.update({"frames_train": len(train), "frames_val": len(val), "minutes": round(minutes, 2)})
     finish(model, frames, val, record, out, cfg, init, seqs, rank, world)
     return record
+
+
+def check_validation_frames(seqs: list[Sequence], cfg: AdaptConfig) -> None:
+    """Refuse, before any work, a selection too short to hold a frame out for validation (every `val_every`-th
+    frame from the middle of the first `val_every`)."""
+    n = sum(len(range(len(s))[cfg.start:cfg.end]) for s in seqs)
+    if cfg.val_every and n <= cfg.val_every // 2:
+        raise DataError(seqs[0].path, f"{n} frame(s) selected; adaptation holds every {cfg.val_every}th frame out "
+                                      f"for validation and needs at least {cfg.val_every // 2 + 1} (or set "
+                                      "adapt.val_every: 0 to adapt without validation or early stopping)")
 
 
 def train_epoch(model: DepthGenerator, step: torch.nn.Module, opt: torch.optim.Optimizer, train: list[AdaptFrame],
@@ -227,10 +241,15 @@ def finish(model: DepthGenerator, frames: list[AdaptFrame], val: list[AdaptFrame
     barrier(world)
 
 
+def finite(x: float) -> float | None:
+    """x for a log or checkpoint; None (JSON null) where there is no figure (no validation frames)."""
+    return float(x) if x is not None and np.isfinite(x) else None
+
+
 def save_best(model: DepthGenerator, out: Path, cfg: AdaptConfig, init: Path, seqs: list[Sequence], epoch: int,
               val_mae: float, **extra: float) -> None:
     """The adapted generator in the trainer's checkpoint format (load_generator reads it)."""
     save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": model.cfg.__dict__,
-                                           "config": cfg.model_dump(), "epoch": epoch, "val_mae_m": val_mae,
+                                           "config": cfg.model_dump(), "epoch": epoch, "val_mae_m": finite(val_mae),
                                            "adapted_from": str(init), "sequences": [str(s.path) for s in seqs],
                                            **extra})

@@ -210,3 +210,25 @@ def test_adaptation_learns_the_masked_task_on_real_frames(tmp_path):
     model.load_state_dict(torch.load(tmp_path / "out" / "checkpoint_last.pt", weights_only=False)["model"])
     after = validate(model, frames)
     assert after < 0.98 * before, (before, after)
+
+
+def test_adapt_on_too_few_frames_to_validate_says_how_many_it_needs_and_writes_no_infinity(tmp_path):
+    """Two frames cannot hold one out for validation (every 8th, from the 5th): refused with the count needed;
+    with validation off it adapts, and its log and summary hold plain numbers or null, never NaN / Infinity."""
+    drive = write_kitti_raw(tmp_path / "raw", frames=2)
+    init = small_generator(tmp_path / "init.pt")
+    base = ["adapt", str(drive), "--input", "vlp16", "--init", str(init), "--epochs", "1"]
+    r = runner.invoke(app, base + ["--out", str(tmp_path / "a")])
+    assert isinstance(r.exception, DataError) and "needs at least 5" in str(r.exception)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("adapt:\n  generator_focal_px: null\n  val_every: 0\n  splits_per_frame: 1\n")
+    r = runner.invoke(app, base + ["--out", str(tmp_path / "b"), "-c", str(cfg)])
+    assert r.exit_code == 0, r.output
+    assert "no validation frames" in r.output
+
+    def strict(text: str):
+        return json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} written"))
+
+    log = [strict(line) for line in (tmp_path / "b" / "log.jsonl").read_text().splitlines()]
+    assert log[0]["val_mae_m"] is None and log[1]["best_val_mae_m"] is None
+    strict((tmp_path / "b" / "summary.json").read_text())

@@ -73,6 +73,9 @@ ROWS = [
     ("NaN in a poses file", lambda d, t: _native(d, t, lambda f: (f / "poses_tum.txt").write_text(
         "0 0 0 0 0 0 0 1\n0.1 nan 0 0 0 0 0 1\n")), "info", "poses_tum.txt: line 2 holds NaN"),
     ("unknown input option", lambda d, t: [str(d), "--input", "vlp99"], "complete", "vlp99"),
+    ("negative first frame", lambda d, t: [str(d), "--start", "-2"], "complete", "start: Input should be greater"),
+    ("adapt on too few frames", lambda d, t: [str(d), "--out", str(t / "a"), "--input", "vlp16"], "adapt",
+     "2 frame(s) selected; adaptation holds every 8th frame out for validation and needs at least 5"),
     ("corrupt metrics.json to viz", lambda d, t: ((t / "run").mkdir(), (t / "run" / "metrics.json").write_text("{oops"),
                                                   (t / "run" / "poses_kitti.txt").write_text(" ".join(["0"] * 12) + "\n"),
                                                   [str(t / "run"), "--out", str(t / "r.rrd")])[3], "viz", "metrics.json: not readable JSON"),
@@ -95,7 +98,7 @@ def test_bad_input_is_one_clear_line(tmp_path, name, breaks, command, named):
     left = [p for p in set(tmp_path.rglob("*")) - before if p.is_file()]
     assert not [p for p in left if p.name.startswith(".") or p.suffix == ".part"], left  # no half-written file
     if name in ("corrupt scan size", "image of another size"):  # found at frame 1: frame 0 stays, resumable, with its run.json
-        assert sorted(p.name for p in left) == ["000000.png", "run.json"]
+        assert sorted(p.name for p in left) == ["000000.png", "inputs.json", "run.json"]
     else:  # found before any work
         assert not left, left
 
@@ -108,3 +111,6 @@ def test_a_scan_of_one_point_is_named_in_a_warning(tmp_path):
                         "--out", str(tmp_path / "out")], capture_output=True, text=True, cwd=REPO_ROOT)
     assert r.returncode == 0, r.stderr[-1500:]
     assert "0000000001.bin: only 1 valid point(s)" in r.stderr and "Traceback" not in r.stderr
+    # one line each, `warning: ...`, not Python's format with its source location
+    lines = [ln for ln in r.stderr.splitlines() if "0000000001.bin" in ln]
+    assert lines and all(ln.startswith("warning: ") for ln in lines) and "UserWarning" not in r.stderr, r.stderr
