@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import KITTI_ODOM, KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_shared
+from conftest import KITTI_ODOM, KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_shared, write_kitti_raw
 
 from leovr.data import open_sequence, write_native
 from leovr.data.io import read_matrix_rows
@@ -116,6 +116,28 @@ def test_native_round_trip(kitti_raw_tiny, tmp_path):
     assert b.timestamp == pytest.approx(a.timestamp)
     # the camera's height above the road (camera-only scale) travels with the copy: KITTI's platform
     assert src.camera_height_m == seq.camera_height_m == pytest.approx(1.65)
+
+
+def test_native_copy_keeps_the_drives_frame_numbers_and_warns_of_unread_scans(tmp_path):
+    """A KITTI drive missing its frame 1: the copy names its files by the drive's numbers (0, 2, 3), so outputs
+    of runs on it carry the drive's numbers; scans left in lidar/ without a `lidar:` entry are named unread."""
+    import yaml
+
+    drive = write_kitti_raw(tmp_path / "raw", frames=4)
+    for folder, ext in (("image_02", "png"), ("velodyne_points", "bin")):
+        (drive / folder / "data" / f"0000000001.{ext}").unlink()
+    src = open_sequence(drive)
+    assert src.frame_numbers() == [0, 2, 3]
+    out = write_native(src, tmp_path / "native")
+    assert sorted(p.name for p in (out / "images").iterdir()) == ["000000.png", "000002.png", "000003.png"]
+    seq = open_sequence(out)
+    assert seq.frame_numbers() == [0, 2, 3]
+    np.testing.assert_array_equal(seq[1].points, src[1].points)
+    meta = yaml.safe_load((out / "sequence.yaml").read_text())
+    del meta["lidar"]
+    (out / "sequence.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.warns(UserWarning, match="no 'lidar:' entry, so the scans in .*lidar are not read"):
+        assert not open_sequence(out).has_lidar
 
 
 def test_native_camera_height_must_be_a_positive_number(kitti_raw_tiny, tmp_path):

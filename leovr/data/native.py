@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -110,6 +111,7 @@ class NativeSequence(FileSequence):
         self.image_files = sorted((path / "images").glob("*.png"))
         if n < 0 or len(self.image_files) != n:
             raise DataError(path / "images", f"{len(self.image_files)} images but sequence.yaml says frames: {n}")
+        self.stems = [p.stem for p in self.image_files]  # the recording's frame numbers (gaps kept)
         lidar = meta.get("lidar")
         if lidar and not isinstance(lidar, dict):
             raise DataError(meta_file, "'lidar' must be a mapping (name, fields, T_cam_lidar)")
@@ -124,6 +126,12 @@ class NativeSequence(FileSequence):
             self.scan_files = sorted((path / "lidar").glob("*.bin"))
             if len(self.scan_files) != n:
                 raise DataError(path / "lidar", f"{len(self.scan_files)} scans but {n} images")
+            unpaired = sorted(set(self.stems) ^ {p.stem for p in self.scan_files})
+            if unpaired:
+                raise DataError(path / "lidar", f"scans and images are numbered differently ({', '.join(unpaired[:5])})")
+        elif (path / "lidar").is_dir() and any((path / "lidar").glob("*.bin")):
+            warnings.warn(f"{meta_file}: no 'lidar:' entry, so the scans in {path / 'lidar'} are not read "
+                          "(camera only); add lidar: {fields, T_cam_lidar} to use them", stacklevel=2)
         ts = path / "timestamps.txt"
         self._times = read_timestamp_file(ts, n) if ts.is_file() else np.arange(n) / self.rate_hz
         self._poses = None
@@ -138,6 +146,10 @@ class NativeSequence(FileSequence):
         self.depth_scale = _number(meta, "depth_scale", LEGACY_DEPTH_SCALE, float, meta_file)
         self.has_masks = (path / "masks").is_dir()
 
+    def frame_numbers(self) -> list[int]:
+        """The file names' numbers (the recording's own, gaps kept); positions where a name is not a number."""
+        return [int(s) if s.isdigit() else k for k, s in enumerate(self.stems)]
+
     def _load(self, i: int) -> Frame:
         """As FileSequence, with the scan's own fields (a per-point time among them), depth and masks."""
         points = times = None
@@ -150,10 +162,10 @@ class NativeSequence(FileSequence):
         image = read_image(self.image_files[i])
         depth = None
         if self.has_depth:
-            depth = read_depth_png(self.path / "depth" / frame_name(i, "png"), self.depth_scale, image.shape[:2])
+            depth = read_depth_png(self.path / "depth" / f"{self.stems[i]}.png", self.depth_scale, image.shape[:2])
         mask = None
         if self.has_masks:
-            mask = read_image(self.path / "masks" / frame_name(i, "png"), gray=True) > 0
+            mask = read_image(self.path / "masks" / f"{self.stems[i]}.png", gray=True) > 0
         if self.width and image.shape[:2] != (self.height, self.width):
             raise DataError(
                 self.image_files[i], f"image is {image.shape[1]}x{image.shape[0]}, sequence.yaml says {self.width}x{self.height}"
@@ -190,9 +202,15 @@ class NativeWriter:
         self.poses: list[np.ndarray] = []
         self.first: Frame | None = None
         self.fields: list[str] = []
+        self.numbers: list[int] = []
 
-    def write(self, frame: Frame) -> None:
-        i = len(self.stamps)
+    def write(self, frame: Frame, number: int | None = None) -> None:
+        """Write the next frame, its files named by `number` (the recording's frame number; default: its
+        position); numbers must increase."""
+        i = len(self.stamps) if number is None else int(number)
+        if self.numbers and i <= self.numbers[-1]:
+            raise ValueError(f"frame number {i} after {self.numbers[-1]}: frames must be written in order")
+        self.numbers.append(i)
         if self.first is None:
             self.first = frame
         write_image(self.out / "images" / frame_name(i, "png"), frame.image)
@@ -258,6 +276,6 @@ class NativeWriter:
 def write_native(seq: Sequence, out: str | Path, name: str | None = None) -> Path:
     """Copy any readable sequence into the native format."""
     writer = NativeWriter(out, name=name or Path(seq.path).name, rate_hz=seq.rate_hz, camera_height_m=seq.camera_height_m)
-    for frame in seq:
-        writer.write(frame)
+    for frame, number in zip(seq, seq.frame_numbers()):
+        writer.write(frame, number)
     return writer.close()
