@@ -73,8 +73,10 @@ def convert(
 ) -> None:
     """Copy a sequence into leovr's native format (docs/formats.md)."""
     from leovr.data import open_sequence, write_native
+    from leovr.data.io import check_output_dir
 
-    typer.echo(f"wrote {write_native(open_sequence(seq), out)}")
+    source = open_sequence(seq)
+    typer.echo(f"wrote {write_native(source, check_output_dir(out))}")
 
 
 @app.command()
@@ -90,8 +92,10 @@ def simulate(
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Render a sequence of the procedural city: images, LiDAR, poses, dense depth, moving masks."""
+    from leovr.data.io import check_output_dir
     from leovr.sim.simulate import simulate as run_simulate
 
+    check_output_dir(out)
     cfg = override(load_config(config).simulate, scenario=scenario, lidar=lidar, frames=frames, seed=seed,
                    light=light, speed_kmh=speed_kmh)
     r = run_simulate(cfg, out, preview=preview)
@@ -152,8 +156,11 @@ def poses(
 
 def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path]) -> None:
     from leovr.data import open_sequence
+    from leovr.data.io import check_output_file
     from leovr.pipeline.refine import run_refine
 
+    if rerun is not None:
+        check_output_file(rerun)
     seq = open_sequence(data)
     m = run_refine(seq, cfg, out, resume=resume)
     if cfg.loop.enabled:
@@ -189,9 +196,10 @@ def viz(
     max_frames: Optional[int] = typer.Option(None, "--max-frames", min=1, help="Record the first N frames only."),
 ) -> None:
     """Write a Rerun recording: trajectories, landmarks, LiDAR, camera, image, depth maps and error."""
+    from leovr.data.io import check_output_file
     from leovr.viz.recording import write_recording
 
-    r = write_recording(target, out, max_frames)
+    r = write_recording(target, check_output_file(out), max_frames)
     typer.echo(f"{r['frames']} frames, trajectories: {', '.join(r['trajectories']) or 'none'} -> {r['path']}")
 
 

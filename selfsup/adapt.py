@@ -46,7 +46,7 @@ from leovr.data.sequence import Sequence
 from leovr.depth.inference import load_generator
 from leovr.depth.network import DepthGenerator, blend_log_depth
 from leovr.depth.runtime import calibrate_generator
-from leovr.depth.train import save_checkpoint
+from leovr.depth.train import read_resume_state, save_checkpoint
 from leovr.errors import DataError
 from leovr.threads import single_threaded_blas
 from selfsup.adapt_data import AdaptFrame, input_frames, network_feeds
@@ -122,7 +122,9 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         except Exception as exc:  # noqa: BLE001 (re-raised on every process just below)
             error = exc
     raise_shared(error, world)
-    state = torch.load(last, map_location="cpu", weights_only=False) if resume and last.is_file() else None
+    state = None
+    if resume and last.is_file():
+        state = read_resume_state(last, ("model", "optimizer", "epoch", "best_val_mae_m", "since_best", "minutes"))
     torch.manual_seed(cfg.seed)
     lead = rank == 0
     frames = input_frames(seqs, cfg, progress and lead)
@@ -135,8 +137,11 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     start, best, since_best, minutes = 0, float("inf"), 0, 0.0
     log_path = out / "log.jsonl"
     if state is not None:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
+        try:
+            model.load_state_dict(state["model"])
+            opt.load_state_dict(state["optimizer"])
+        except (RuntimeError, ValueError, KeyError) as exc:
+            raise DataError(last, f"does not fit the network adapted: {exc}") from exc
         start, best, since_best, minutes = state["epoch"] + 1, state["best_val_mae_m"], state["since_best"], state["minutes"]
     else:
         best = validate(model, val, rank, world) if val else float("inf")

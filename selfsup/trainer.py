@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
-from leovr.data.io import write_text
+from leovr.data.io import check_output_dir, check_output_file, write_text
 from leovr.depth.inference import forward_padded
 from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator
@@ -236,8 +236,9 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePas
     if not sequences:
         raise DataError("sequences", "self-supervised training needs at least one sequence folder")
     rank, world = distributed()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(Path(out))
+    if rerun is not None:
+        check_output_file(Path(rerun))
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed)
     seqs = [BlindSequence(open_sequence(p)) for p in sequences]

@@ -100,6 +100,12 @@ def test_adapt_reads_only_the_cheap_input(tmp_path):
     r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "mid40", "--init", str(init),
                             "--epochs", "4", "-c", str(cfg), "--resume"])
     assert isinstance(r.exception, DataError) and "settings.input (folder: \"vlp16\", now: \"mid40\")" in str(r.exception)
+    # a truncated resume checkpoint (an interrupted copy) is one clear error, not torch's
+    last = outs["raw"] / "checkpoint_last.pt"
+    last.write_bytes(last.read_bytes()[:1000])
+    r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "vlp16", "--init", str(init),
+                            "--epochs", "3", "-c", str(cfg), "--resume"])
+    assert isinstance(r.exception, DataError) and "checkpoint_last.pt: unreadable checkpoint (truncated" in str(r.exception)
 
 
 def test_adapt_on_two_processes_matches_one(tmp_path):

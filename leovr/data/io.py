@@ -109,6 +109,19 @@ def check_output_dir(out: Path) -> Path:
     return out
 
 
+def check_output_file(path: Path) -> Path:
+    """Prove a file can be written at `path` before any work starts (its folder created if needed): a path
+    that is a folder, lies under a file, or sits in a read-only folder fails now, not after the run."""
+    path = Path(path)
+    if path.is_dir():
+        raise DataError(path, "output path is a folder, not a file")
+    blocker = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if blocker is not None:
+        raise DataError(path, f"output path lies under {blocker}, which is a file")
+    check_output_dir(path.parent)
+    return path
+
+
 def write_depth_png(path: Path, depth: np.ndarray, scale: float = DEPTH_SCALE) -> None:
     """Write depth in metres as a uint16 PNG (metres x 256 by default), atomically."""
 

@@ -18,7 +18,7 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from leovr.config import SelfSupConfig, TrainConfig
-from leovr.data.io import atomic_write
+from leovr.data.io import atomic_write, check_output_dir
 from leovr.depth.dataset import DepthSamples, split_sequences
 from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator, GeneratorConfig
@@ -96,12 +96,28 @@ def load_resume(path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer,
                 sched: torch.optim.lr_scheduler.LRScheduler) -> dict:
     """Restore model, optimiser and scheduler from a trainer's `checkpoint_last.pt`; returns the whole
     state (epoch and whatever else the trainer stored)."""
+    state = read_resume_state(path, ("model", "optimizer", "scheduler", "epoch"))
+    try:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+    except (RuntimeError, ValueError, KeyError) as exc:
+        raise DataError(path, f"does not fit this network or optimiser: {exc}") from exc
+    return state
+
+
+def read_resume_state(path: Path, keys: tuple[str, ...]) -> dict:
+    """A trainer's `checkpoint_last.pt` with the given entries; one clear error when it is missing, truncated
+    (an interrupted copy) or not a leovr checkpoint."""
     if not path.is_file():
         raise DataError(path, "nothing to resume from")
-    state = torch.load(path, map_location="cpu", weights_only=False)
-    model.load_state_dict(state["model"])
-    opt.load_state_dict(state["optimizer"])
-    sched.load_state_dict(state["scheduler"])
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises many types for corrupt files
+        raise DataError(path, f"unreadable checkpoint (truncated, or not written by leovr): {exc}") from exc
+    missing = [k for k in keys if not isinstance(state, dict) or k not in state]
+    if missing:
+        raise DataError(path, f"not a leovr resume checkpoint (no {', '.join(missing)})")
     return state
 
 
@@ -126,7 +142,7 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
     sigma_opt = torch.optim.Adam(model.sigma_head.parameters(), lr=cfg.lr)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out)
     start, best = 0, float("inf")
     last = out / "checkpoint_last.pt"
     if resume:
