@@ -58,6 +58,11 @@ def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
             write_recording(tmp_path / "run", tmp_path / "bad.rrd")
         assert not (tmp_path / "bad.rrd").exists() and not (tmp_path / "bad.rrd.part").exists()
         (tmp_path / "run" / name).write_text(good)
+    # a pose file shorter than the run's frames (an edit, a partial copy) is named, not an IndexError
+    poses = tmp_path / "run" / "poses_kitti.txt"
+    poses.write_text("".join(poses.read_text().splitlines(keepends=True)[:2]))
+    with pytest.raises(DataError, match=r"poses_kitti\.txt: 2 poses for the run's 4 frames"):
+        write_recording(tmp_path / "run", tmp_path / "bad.rrd")
 
 
 def test_sequence_recording_without_a_run(tmp_path):

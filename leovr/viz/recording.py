@@ -108,11 +108,18 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     """`target` is a refine run folder (with metrics.json) or a sequence folder. Returns a summary."""
     target, out = Path(target), Path(out)
     run = target if (target / "metrics.json").is_file() and (target / "poses_kitti.txt").is_file() else None
+    if run is None and (target / "run.json").is_file():
+        missing = [n for n in ("metrics.json", "poses_kitti.txt") if not (target / n).is_file()]
+        raise DataError(target, f"this run did not finish (no {' or '.join(missing)} yet): resume it with its command "
+                                "and --resume, then record it")
     if run is not None:
         seq = open_sequence(_run_sequence(run))
         poses = read_kitti_poses(run / "poses_kitti.txt")
         progress = read_json_object(run / "progress.json") if (run / "progress.json").is_file() else {}
         indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
+        if len(poses) < len(indices):
+            raise DataError(run / "poses_kitti.txt", f"{len(poses)} poses for the run's {len(indices)} frames "
+                                                     "(progress.json): the run's files disagree")
     else:
         seq, poses = open_sequence(target), None
         indices = list(range(len(seq)))
