@@ -179,9 +179,11 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
         typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m ({t['align']} aligned{scale})")
     t = m["timing"]
     wall = t["stats"].get("wall_ms", {}).get("median")
+    cpu = t["stats"].get("cpu_ms", {}).get("median")
     typer.echo(f"per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
                f"graph {t['graph_ms']:.0f} ms, output {t['output_ms']:.0f} ms"
                + (f"; {wall:.0f} ms end to end (median; the generator runs beside the graph)" if wall else "")
+               + (f", {cpu:.0f} ms of CPU time (all threads)" if cpu else "")
                + f" -> {out}")
     if rerun is not None:
         from leovr.viz.recording import write_recording

@@ -43,7 +43,7 @@ from leovr.pipeline.kiss_baseline import kiss_icp_trajectories
 from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_input import (camera_only_graph_config, classical_source, completion_config, frame_sample,
                                          road_height, stereo_image)
-from leovr.pipeline.refine_outputs import (PNG_FOLDER, SCORED, TIMED, WALL, FrameScore, Progress, check_replay,
+from leovr.pipeline.refine_outputs import (CPU, PNG_FOLDER, SCORED, TIMED, WALL, FrameScore, Progress, check_replay,
                                            frame_score, input_label, single_frame_generator, timing_record,
                                            write_outputs)
 from leovr.pipeline.refine_passes import whole_recording_passes
@@ -55,7 +55,7 @@ if TYPE_CHECKING:
 
 __all__ = [  # the names other modules import from here
     "run_refine", "RefineRun", "FrameScore", "Progress", "frame_sample", "completion_config", "classical_source",
-    "stereo_image", "TIMED", "WALL", "SCORED", "PNG_FOLDER", "write_outputs", "timing_record", "frame_score",
+    "stereo_image", "TIMED", "WALL", "CPU", "SCORED", "PNG_FOLDER", "write_outputs", "timing_record", "frame_score",
     "input_label", "check_replay", "road_height", "camera_only_graph_config",
     "single_frame_generator", "torch_threads",
 ]
@@ -126,6 +126,7 @@ class RefineRun:
                                        keep=cfg.window + 2 * max(cfg.photometric.offsets, default=0) + 3)
         self.photo_free: dict[int, np.ndarray] = {}
         self.t_end = time.perf_counter()  # the end of the last frame's turn on the run's clock
+        self.c_end = time.process_time()  # ... and on the process's CPU clock (every thread, user + system)
 
     def run(self, pool: dict[str, DepthMetricAccumulator] | None, collect: dict[int, FrameScore] | None) -> dict:
         """Every frame through the window, then the whole-recording passes and the outputs; the metrics."""
@@ -140,7 +141,7 @@ class RefineRun:
         with Lookahead(self.seq.__getitem__, threaded=torch_threads() > 1) as ahead:
             self.stage = PrepareStage(self.seq, self.cfg, self.ccfg, self.indices, self.has_lidar, self.frame_dt,
                                       self.generator, self.history, self.cone, ahead)
-            self.t_end = time.perf_counter()
+            self.t_end, self.c_end = time.perf_counter(), time.process_time()
             for n, i in enumerate(tqdm(self.indices, desc=desc, unit="frame", disable=not self.progress)):
                 self.step(ahead, n, i)
         left = self.graph.flush()
@@ -166,24 +167,25 @@ class RefineRun:
         if n + 1 < len(self.indices):
             self.submit_next(ahead, n, i, fi)
         self.pending[i] = p.depth, self.front.depth_scale
-        t_base = time.perf_counter()  # the scoring and the baselines below are not part of a frame's time
+        t_base, c_base = time.perf_counter(), time.process_time()  # scoring and baselines: not a frame's time
         self.score_and_baselines(i, p.sample)
-        t2b = time.perf_counter()
+        t2b, c2b = time.perf_counter(), time.process_time()
         left = self.graph.add_frame(fi)
         t3 = time.perf_counter()
         self.finish([self.graph.current(i)] if self.cfg.causal else left)  # causal: the newest frame's estimate is its output
-        t4 = time.perf_counter()
+        t4, c4 = time.perf_counter(), time.process_time()
         if self.textbook is not None:
             self.textbook.add(p.sample.frame.image)
         # wall: this frame's share of the run's clock (baselines excluded), the generator overlapping the graph
         wall = 1000.0 * ((t4 - self.t_end) - (t2b - t_base))
-        self.t_end = time.perf_counter()
+        cpu = 1000.0 * ((c4 - self.c_end) - (c2b - c_base))  # every thread's CPU time over the same span
+        self.t_end, self.c_end = time.perf_counter(), time.process_time()
         if i in self.done:
             return
         self.state.sources[i] = self.front.sources[-1]
         if self.front.prev is not None and self.front.prev.T_icp is not None:
             self.state.icp_poses[i] = self.front.prev.T_icp.ravel().tolist()
-        self.state.times[i] = [p.generator_ms, 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3), wall]
+        self.state.times[i] = [p.generator_ms, 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3), wall, cpu]
 
     def front_end(self, n: int, i: int, p: PreparedFrame) -> FrameInput:
         """Frame i's initial pose and observations for the graph, with its pair motions and motion-stereo

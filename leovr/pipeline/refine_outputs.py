@@ -32,7 +32,8 @@ from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE, frame_sample
 # `total_ms` is their sum (the cost of a sequential run); `wall_ms` the frame's time on the run's clock, shorter
 # because the generator of the next frame runs while the graph updates
 TIMED = ("generator_ms", "frontend_ms", "graph_ms", "output_ms")
-WALL = "wall_ms"
+WALL = "wall_ms"  # a frame's time on the run's clock (the next frame's generator overlapping this one's graph)
+CPU = "cpu_ms"  # the CPU time of every thread of the process over that span (user + system)
 SCORED = ("nearest", "ipbasic", *ACCUMULATED, "generator", "generator_frame", "refined")  # depth methods in metrics.json, same pixels
 # generator: as it ran in the graph (with earlier scans for a cone LiDAR); generator_frame: on the frame's own scan alone;
 # nearest / ipbasic_accumulated: the fills of the same frames' returns placed with KISS-ICP's poses (cone LiDAR only)
@@ -152,13 +153,13 @@ def frame_score(seq: Sequence, ccfg: CompleteConfig, out: Path, i: int, has_lida
 
 def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
     """timing.json: per stage the mean (`generator_ms`, ...), median, p95 and max over the frames, and
-    the per-frame series (to see whether a stage grows along the sequence). Runs from before a stage was
-    recorded (the output stage, the wall time) have none for it: NaN in the series, left out of the stats."""
+    the per-frame series (to see whether a stage grows along the sequence), with each frame's wall and CPU
+    time. Runs from before a figure was recorded have none for it: null in the series, left out of the stats."""
     timed = [i for i in indices if i in times]
-    width = len(TIMED) + 1
+    width = len(TIMED) + 2
     ms = np.array([list(times[i])[:width] + [np.nan] * (width - len(times[i])) for i in timed], float).reshape(-1, width)
     stages = ({k: np.nan_to_num(ms[:, n]) for n, k in enumerate(TIMED)}
-              | {"total_ms": np.nansum(ms[:, :len(TIMED)], axis=1), WALL: ms[:, len(TIMED)]})
+              | {"total_ms": np.nansum(ms[:, :len(TIMED)], axis=1), WALL: ms[:, len(TIMED)], CPU: ms[:, len(TIMED) + 1]})
     record: dict = {k: float(np.mean(v)) if len(v) and np.isfinite(v).all() else None for k, v in stages.items()}
     record["frames_timed"] = len(timed)
     record["stats"] = {k: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}

@@ -25,7 +25,7 @@ from leovr.data.run_info import run_depth_scale, run_frame_png
 from leovr.errors import DataError
 from leovr.geometry import back_project, invert_T, transform_points
 from leovr.pipeline.completion import prepare_sample
-from leovr.pipeline.refine import TIMED, WALL, completion_config
+from leovr.pipeline.refine import CPU, TIMED, WALL, completion_config
 
 COLOURS = {"ground_truth": (40, 200, 80), "leovr": (255, 140, 0), "kiss_icp": (60, 120, 255)}
 LANDMARK_COLOUR = (0, 150, 170)  # dark cyan: visible on the dark and the light theme
@@ -241,7 +241,7 @@ def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, 
     if (run / "timing.json").is_file():
         series = read_json_object(run / "timing.json").get("series", {})
         for k, name in enumerate(series.get("frame", [])):
-            for stage in (*TIMED, WALL):  # the stages, and the frame's end-to-end time (none in old runs)
+            for stage in (*TIMED, WALL, CPU):  # the stages, the frame's end-to-end and CPU time (none in old runs)
                 if name in out and stage in series and series[stage][k] is not None:
                     out[name][f"time_ms/{stage}"] = float(series[stage][k])
     if (run / "landmarks_frame.npy").is_file():
