@@ -236,6 +236,8 @@ def train(
         if r:
             typer.echo(f"epoch {r['epoch']} ({r['stage']}): loss {r['loss']:.4f}, photometric {r['photometric']:.4f}, "
                        f"masks keep {100 * r['mask_kept']:.0f}% -> {out}/generator.pt")
+        elif resume:
+            typer.echo(f"nothing to train: {out} already holds {cfg.epochs} epoch(s); give more with --epochs")
         return
     if mode != "supervised":
         raise typer.BadParameter("--mode is supervised or selfsup", param_hint="--mode")

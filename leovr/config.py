@@ -40,7 +40,7 @@ class BenchBaselineConfig(_Model):
     inputs: list[str] = ["vlp16", "mid40"]  # cheap LiDAR inputs simulated from the clip's scans
     methods: list[Literal["nearest", "ipbasic", "interp"]] = ["nearest", "ipbasic", "interp"]  # methods scored
     quick_step: int = 6  # --quick scores every 6th frame
-    seed: int = 0  # seeds the simulated inputs
+    seed: int = Field(0, ge=0)  # seeds the simulated inputs
 
 
 class SimulateConfig(_Model):
@@ -49,7 +49,7 @@ class SimulateConfig(_Model):
     scenario: Scenario = "city_loop"  # the procedural world's route and traffic
     lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"  # simulated LiDAR
     frames: int = Field(20, ge=1)  # frames rendered
-    seed: int = 0  # seeds the world and the drive
+    seed: int = Field(0, ge=0)  # seeds the world and the drive
     light: Literal["day", "dusk", "night"] = "day"  # lighting of the rendered images
     speed_kmh: float = Field(30.0, ge=0.0)  # driving speed (km/h)
     rate_hz: float = Field(10.0, gt=0.0)  # frame rate (Hz)
@@ -65,7 +65,7 @@ class DemoConfig(_Model):
     frames: int = Field(12, ge=1)  # frames generated and refined
     scenario: Scenario = "city_loop"  # generated sequence's scenario
     lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"  # generated sequence's LiDAR
-    seed: int = 0  # seeds the generated sequence
+    seed: int = Field(0, ge=0)  # seeds the generated sequence
     input: str | None = None  # None: all of the generated scan, or mid40 on a recorded dense scan
 
 
@@ -89,7 +89,7 @@ class BenchDepthConfig(_Model):
     synthetic_step: int = Field(1, ge=1)  # every n-th test frame
     kitti_inputs: list[str] = ["vlp16", "mid40"]  # cheap inputs simulated from the KITTI scans
     quick_step: int = Field(6, ge=1)  # --quick: every 6th KITTI frame and a 4-frame rendered test set
-    seed: int = 0  # seeds the simulated inputs
+    seed: int = Field(0, ge=0)  # seeds the simulated inputs
 
 
 class BenchRefineConfig(_Model):
@@ -129,7 +129,7 @@ class BenchSpeedConfig(_Model):
     frames: int = Field(200, ge=10)  # rendered 448 x 256 drive
     scenario: Scenario = "city_loop"  # the rendered drive's scenario
     lidar: Literal["mid40", "vlp16"] = "mid40"  # the rendered drive's LiDAR
-    seed: int = 3200  # a drive used for nothing else
+    seed: int = Field(3200, ge=0)  # a drive used for nothing else
     clips: list[str] | None = None  # KITTI raw drives; None = every one under ../shared/data (none: skipped)
     # inputs each real clip is refined with: its own scan, simulated cheap LiDARs, camera only
     real_inputs: list[str] = ["full", "vlp16", "mid40", "none"]
@@ -166,7 +166,7 @@ class TrainConfig(_Model):
     init_checkpoint: str | None = None  # start from these weights (fine-tuning); the network must match
     # the residual networks' classical prior at depth edges: the image's side (as at inference) or the nearest return
     prior_edges: Literal["image", "nearest"] = "image"
-    seed: int = 0  # seeds sampling and initialisation
+    seed: int = Field(0, ge=0)  # seeds sampling and initialisation
 
 
 class SelfSupConfig(_Model):
@@ -214,7 +214,7 @@ class SelfSupConfig(_Model):
     blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
     init_checkpoint: str | None = None  # start from these weights instead of random ones
     rerun_frames: int = Field(2, ge=1)  # frames logged to --rerun each epoch
-    seed: int = 0  # seeds sampling and initialisation
+    seed: int = Field(0, ge=0)  # seeds sampling and initialisation
 
     @field_validator("input")
     @classmethod
@@ -229,7 +229,7 @@ class AdaptConfig(_Model):
     input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R when evaluating a cheaper sensor
     init_checkpoint: str | None = None  # None = the shipped generator (must be a residual / fusion network)
     generator_focal_px: float | None = 260.0  # frames resampled to the generator's training focal length (px)
-    seed: int = 0  # seeds the masked splits and training
+    seed: int = Field(0, ge=0)  # seeds the masked splits and training
     start: int = Field(0, ge=0)  # frames [start:end] of every sequence
     end: int | None = Field(None, ge=1)  # ... None = to the last frame
     splits_per_frame: int = Field(4, ge=1)  # masked splits drawn per frame (one per visit, at random)
@@ -271,7 +271,7 @@ class BenchRealConfig(_Model):
     quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames ...
     quick_train_frames: int = Field(8, ge=1)  # ... adapted on the first 8
     quick_epochs: int = Field(1, ge=1)  # --quick: adaptation epochs
-    seed: int = 0  # seeds the simulated inputs and adaptation
+    seed: int = Field(0, ge=0)  # seeds the simulated inputs and adaptation
 
 
 class BenchSelfSupConfig(_Model):
@@ -318,7 +318,7 @@ class BenchBatchConfig(_Model):
     sequences: int = Field(4, ge=1)  # rendered sequences
     frames: int = Field(16, ge=3)  # frames per sequence
     lidar: Literal["mid40", "vlp16"] = "mid40"  # the sequences' LiDAR
-    seed: int = 3300  # drives used for nothing else
+    seed: int = Field(3300, ge=0)  # drives used for nothing else
     target_speedup: float = 1.7  # target: wall time with 1 worker over 2 workers
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -13,7 +13,8 @@ GeneratorRuntime = Literal["torch", "onnxruntime", "onnxruntime_int8"]  # leovr.
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    # no NaN or infinity in a setting (the distance bins' open end is the one exception: `bins`)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 class FrameSelection(_Model):
@@ -27,11 +28,12 @@ class FrameSelection(_Model):
     # the classical prior at depth edges (generator and `interp`): the side the image puts a pixel on, or the nearest return
     prior_edges: Literal["image", "nearest"] = "image"
     input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
-    seed: int = 0  # seeds the simulated input (ratio:R draws)
+    seed: int = Field(0, ge=0)  # seeds the simulated input (ratio:R draws)
     start: int = Field(0, ge=0)  # first frame (index into the sequence)
     end: int | None = Field(None, ge=1)  # frame index to stop before; None = the last frame
     step: int = Field(1, ge=1)  # every n-th frame
-    bins: list[float] = list(LEOVR_BINS)  # ground-truth distance bins (m) the depth error is also reported in
+    # ground-truth distance bins (m) the depth error is also reported in (increasing; the last may be .inf)
+    bins: list[Annotated[float, Field(allow_inf_nan=True)]] = list(LEOVR_BINS)
     parallax_window: int = 7  # held-out point dropped when a return in this window (px, side) is nearer ...
     parallax_rel: float = 0.15  # ... by more than this fraction (LiDAR-camera parallax filter)
 
@@ -39,6 +41,13 @@ class FrameSelection(_Model):
     @classmethod
     def _check_input(cls, v: str) -> str:
         return str(parse_input(v))
+
+    @field_validator("bins")
+    @classmethod
+    def _check_bins(cls, v: list[float]) -> list[float]:
+        if len(v) < 2 or any(b != b for b in v) or v[0] < 0 or any(b >= a for a, b in zip(v[1:], v)):
+            raise ValueError(f"bins must be at least two increasing distances from 0 or more, not {v}")
+        return v
 
     @field_validator("step")
     @classmethod

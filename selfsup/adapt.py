@@ -103,6 +103,9 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     """Adapt the generator to `seqs`; returns the last log record (with the best validation MAE)."""
     from leovr.paths import shipped_checkpoint
 
+    twice = sorted({str(s.path) for s in seqs if sum(t.path == s.path for t in seqs) > 1})
+    if twice:
+        raise DataError(twice[0], "given more than once: each sequence adapts the generator once")
     out = Path(out)
     rank, world = distributed()
     init = Path(cfg.init_checkpoint) if cfg.init_checkpoint else shipped_checkpoint()

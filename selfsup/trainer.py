@@ -28,6 +28,7 @@ from tqdm import tqdm
 from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
 from leovr.data.io import check_output_dir, check_output_file, write_text
+from leovr.data.run_info import folder_fingerprint
 from leovr.depth.inference import forward_padded
 from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator
@@ -180,14 +181,20 @@ def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarr
 
 
 def resumed_epoch(last: Path, model: DepthGenerator, opt: torch.optim.Optimizer,
-                  sched: torch.optim.lr_scheduler.LRScheduler, cfg: SelfSupConfig) -> int:
+                  sched: torch.optim.lr_scheduler.LRScheduler, cfg: SelfSupConfig, inputs: dict[str, str]) -> int:
     """The epoch to go on from, the model, optimiser and schedule restored from `last`; a checkpoint trained
-    with other settings (other than the number of epochs) is refused."""
+    with other settings (other than the number of epochs) or on other recordings (`inputs`: path -> content
+    fingerprint) is refused."""
     state = load_resume(last, model, opt, sched)
     changed = [k for k in config_changes(state.get("config", {}), cfg) if k != "epochs"]
     if changed:
         raise DataError(last, f"was trained with other settings ({', '.join(changed)}); resume with the same "
                               "config (only epochs may change) or start a new --out folder")
+    before = state.get("sequences")
+    if before is not None and before != inputs:
+        other = sorted(set(before.items()) ^ set(inputs.items()))
+        raise DataError(last, f"was trained on other recordings or other contents ({', '.join(p for p, _ in other)}); "
+                              "resume with the same sequences or start a new --out folder")
     return state["epoch"] + 1
 
 
@@ -220,12 +227,14 @@ def train_epoch(net: torch.nn.Module, loader: DataLoader, opt: torch.optim.Optim
 
 
 def save_epoch(out: Path, model: DepthGenerator, opt: torch.optim.Optimizer,
-               sched: torch.optim.lr_scheduler.LRScheduler, epoch: int, cfg: SelfSupConfig) -> None:
-    """The state to resume from (`checkpoint_last.pt`) and the generator as trained so far (`generator.pt`)."""
+               sched: torch.optim.lr_scheduler.LRScheduler, epoch: int, cfg: SelfSupConfig, inputs: dict[str, str]
+               ) -> None:
+    """The state to resume from (`checkpoint_last.pt`, with the recordings' fingerprints `inputs`) and the
+    generator as trained so far (`generator.pt`)."""
     network, config = generator_config(cfg).__dict__, cfg.model_dump()
     save_checkpoint(out / "checkpoint_last.pt", {"model": model.state_dict(), "optimizer": opt.state_dict(),
                                                  "scheduler": sched.state_dict(), "epoch": epoch, "config": config,
-                                                 "network": network})
+                                                 "network": network, "sequences": inputs})
     save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": network, "config": config,
                                            "epoch": epoch + 1, "mode": "selfsup"})
 
@@ -253,7 +262,8 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePas
     opt = torch.optim.Adam(params, lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
     last = out / "checkpoint_last.pt"
-    start = resumed_epoch(last, model, opt, sched, cfg) if resume else 0
+    inputs = {str(Path(p).resolve()): folder_fingerprint(Path(p)) for p in sequences}
+    start = resumed_epoch(last, model, opt, sched, cfg, inputs) if resume else 0
     net = torch.nn.parallel.DistributedDataParallel(model, find_unused_parameters=True) if world > 1 else model
     network = generator_config(cfg).__dict__
 
@@ -303,7 +313,7 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePas
                       **means, "lr": opt.param_groups[0]["lr"],
                       "seconds": round(time.time() - t0, 1), "processes": world}
             _append_logs(out, record)
-            save_epoch(out, model, opt, sched, epoch, cfg)
+            save_epoch(out, model, opt, sched, epoch, cfg, inputs)
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)
         barrier(world)

@@ -190,3 +190,32 @@ def test_a_resume_after_an_input_was_edited_in_place_is_refused_naming_the_file(
     with pytest.raises(DataError, match=r"contents_sha1.*0000000001\.bin \(changed\)"):
         run_refine(open_sequence(drive), RefineConfig(input="vlp16"), out, resume=True, progress=False, score=False)
     run_refine(open_sequence(drive), RefineConfig(input="vlp16"), tmp_path / "fresh", progress=False, score=False)
+
+
+@pytest.mark.parametrize("poses", ['{"0": [1, 2, 3]}', '{"0": [NaN, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]}'])
+def test_a_tampered_progress_file_is_refused_naming_it(tmp_path, poses):
+    """A resume reads back the finished frames' poses: one that is not 16 finite numbers is refused, not
+    written into the outputs (NaN) or failed on deep in the pipeline."""
+    from leovr.pipeline.refine_outputs import Progress
+
+    path = tmp_path / "progress.json"
+    path.write_text('{"poses": %s, "icp_poses": {}, "sources": {}, "times": {}}' % poses)
+    with pytest.raises(DataError, match=r"progress\.json: cannot resume from this progress file: poses of frame 0"):
+        Progress.load(path)
+    path.write_text("[1, 2]")
+    with pytest.raises(DataError, match="not a JSON object"):
+        Progress.load(path)
+
+
+def test_simulate_replaces_an_earlier_rendering_and_convert_refuses_to_mix(tmp_path):
+    """Rendering again into a folder replaces the earlier sequence (no frame of it is left); converting into a
+    folder that holds a sequence is refused."""
+    from leovr.config import SimulateConfig
+    from leovr.data import write_native
+    from leovr.sim.simulate import simulate
+
+    simulate(SimulateConfig(lidar="vlp16", frames=3, seed=5), tmp_path / "s", progress=False)
+    simulate(SimulateConfig(lidar="vlp16", frames=2, seed=5), tmp_path / "s", progress=False)
+    assert len(open_sequence(tmp_path / "s")) == 2 and len(list((tmp_path / "s" / "images").iterdir())) == 2
+    with pytest.raises(DataError, match="already holds a sequence"):
+        write_native(open_sequence(tmp_path / "s"), tmp_path / "s")

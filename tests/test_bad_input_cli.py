@@ -43,6 +43,19 @@ def _native(drive: Path, tmp: Path, edit) -> list[str]:
     return [str(out)]
 
 
+def _nan_K(folder: Path) -> None:
+    import yaml
+
+    meta = yaml.safe_load((folder / "sequence.yaml").read_text())
+    meta["camera"]["K"][0][0] = float("nan")
+    (folder / "sequence.yaml").write_text(yaml.safe_dump(meta))
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
 def _yaml_value(folder: Path, line: str, new: str) -> None:
     y = folder / "sequence.yaml"
     y.write_text(y.read_text().replace(line, new))
@@ -88,6 +101,19 @@ ROWS = [
     ("viz of an unfinished run", lambda d, t: ((t / "run").mkdir(), (t / "run" / "run.json").write_text("{}"),
                                                [str(t / "run"), "--out", str(t / "r.rrd")])[2], "viz",
      "this run did not finish (no metrics.json or poses_kitti.txt yet)"),
+    ("negative seed", lambda d, t: [str(d), "--seed", "-1"], "complete", "seed: Input should be greater than or equal to 0"),
+    ("infinite speed", lambda d, t: ["--out", str(t / "s"), "--frames", "2", "--speed-kmh", "inf"], "simulate",
+     "speed_kmh: Input should be a finite number"),
+    ("NaN camera matrix", lambda d, t: _native(d, t, _nan_K), "info", "sequence.yaml: 'K' holds NaN or infinite values"),
+    ("convert into a folder holding a sequence", lambda d, t: (_native(d, t, lambda f: None),
+                                                               [str(d), "--out", str(t / "native")])[1], "convert",
+     "native: already holds a sequence"),
+    ("distance bins out of order", lambda d, t: [str(d), "-c", str(_write(t / "c.yaml", "complete:\n  bins: [40, 20, 0]\n"))],
+     "complete", "bins must be at least two increasing distances"),
+    ("batch name leaving --out", lambda d, t: [str(_write(t / "m.yaml", f"- {{path: {d}, name: ../escape}}\n")),
+                                               "--out", str(t / "b"), "--job", "complete"], "batch",
+     "name '../escape' must be a plain folder name"),
+    ("adapt on one sequence twice", lambda d, t: [str(d), str(d), "--out", str(t / "a")], "adapt", "given more than once"),
     ("negative first frame", lambda d, t: [str(d), "--start", "-2"], "complete", "start: Input should be greater"),
     ("adapt on too few frames", lambda d, t: [str(d), "--out", str(t / "a"), "--input", "vlp16"], "adapt",
      "2 frame(s) selected; adaptation holds every 8th frame out for validation and needs at least 5"),

@@ -143,6 +143,15 @@ def write_image(path: Path, image: np.ndarray) -> None:
     atomic_write(path, _write)
 
 
+def require_intrinsics(K: np.ndarray, source: Path) -> np.ndarray:
+    """The 3 x 3 camera matrix, refused (naming `source`) unless finite with positive focal lengths."""
+    if not np.isfinite(K).all():
+        raise DataError(source, "the camera matrix holds NaN or infinite values")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise DataError(source, f"the camera matrix needs positive focal lengths, not fx={K[0, 0]:g}, fy={K[1, 1]:g}")
+    return K
+
+
 def require_finite_rows(rows: np.ndarray, path: Path) -> np.ndarray:
     """`rows` (one per line of `path`) unchanged, or a DataError naming the first line with NaN or inf."""
     bad = np.nonzero(~np.isfinite(rows).all(1))[0]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.data.io import read_timestamp_file, require_file
+from leovr.data.io import read_timestamp_file, require_file, require_intrinsics
 from leovr.data.kitti_common import KITTI_CAMERA_HEIGHT_M, read_kitti_poses, split_projection
 from leovr.data.sequence import FileSequence
 from leovr.errors import DataError
@@ -63,7 +63,10 @@ class KittiOdometrySequence(FileSequence):
         calib = read_odometry_calib(path / "calib.txt")
         if f"P{cam}" not in calib:
             raise DataError(path / "calib.txt", f"no P{cam} row for image_{cam}")
+        if not np.isfinite(calib[f"P{cam}"]).all():
+            raise DataError(path / "calib.txt", f"'P{cam}' holds NaN or infinite values")
         self.K, T_cam_cam0 = split_projection(calib[f"P{cam}"])
+        require_intrinsics(self.K, path / "calib.txt")
         self.T_cam_lidar = np.eye(4)
         velo = path / "velodyne"
         self.scan_files = sorted(velo.glob("*.bin")) if velo.is_dir() else []

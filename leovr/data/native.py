@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import warnings
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from leovr.data.io import (
     read_timestamp_file,
     require_file,
     require_finite_rows,
+    require_intrinsics,
     write_depth_png,
     write_image,
     write_text,
@@ -31,6 +33,8 @@ from leovr.geometry import pose_from_tum, pose_to_tum
 FORMAT = "leovr-native"
 VERSION = 1
 ALLOWED_FIELDS = {"x", "y", "z", "intensity", "time"}
+# what a native folder holds, the description first (NativeWriter's `overwrite` removes them in this order)
+SEQUENCE_PARTS = ("sequence.yaml", "images", "lidar", "depth", "masks", "timestamps.txt", "poses_tum.txt")
 
 
 def is_native(path: Path) -> bool:
@@ -67,6 +71,8 @@ def _matrix(meta: dict, key: str, shape: tuple[int, int], path: Path) -> np.ndar
         raise DataError(path, f"missing or non-numeric '{key}'") from None
     if m.shape != shape:
         raise DataError(path, f"'{key}' must be {shape[0]}x{shape[1]}, got shape {m.shape}")
+    if not np.isfinite(m).all():
+        raise DataError(path, f"'{key}' holds NaN or infinite values")
     return m
 
 
@@ -102,7 +108,7 @@ class NativeSequence(FileSequence):
         cam = meta.get("camera") or {}
         if not isinstance(cam, dict):
             raise DataError(meta_file, "'camera' must be a mapping (K, width, height)")
-        self.K = _matrix(cam, "K", (3, 3), meta_file)
+        self.K = require_intrinsics(_matrix(cam, "K", (3, 3), meta_file), meta_file)
         self.width, self.height = _number(cam, "width", 0, int, meta_file), _number(cam, "height", 0, int, meta_file)
         self.rate_hz = _number(meta, "rate_hz", 10.0, float, meta_file)
         if cam.get("height_above_road_m") is not None:
@@ -177,7 +183,8 @@ class NativeWriter:
     """Stream frames into a native-format folder; `close()` writes the description last.
 
     Frames must be written in order. Each file is written atomically; sequence.yaml appears only once
-    all frames are on disk, so a half-written folder is never mistaken for a complete sequence.
+    all frames are on disk, so a half-written folder is never mistaken for a complete sequence. A folder
+    that already holds a sequence is refused, or with `overwrite` cleared of it first.
     """
 
     def __init__(
@@ -190,8 +197,16 @@ class NativeWriter:
         extra: dict[str, Any] | None = None,
         depth_scale: float = DEPTH_SCALE,
         camera_height_m: float | None = None,
+        overwrite: bool = False,
     ) -> None:
         self.out = Path(out)
+        held = [n for n in SEQUENCE_PARTS if (self.out / n).exists()]
+        if held and not overwrite:
+            raise DataError(self.out, f"already holds a sequence ({', '.join(held)}); write into a new or empty folder "
+                                      "(frames left from it would mix with the new ones)")
+        for name in held:  # the description first: a half-cleared folder is never taken for a sequence
+            part = self.out / name
+            shutil.rmtree(part) if part.is_dir() else part.unlink()
         self.out.mkdir(parents=True, exist_ok=True)
         self.name, self.rate_hz = name, rate_hz
         self.camera_name, self.lidar_name = camera_name, lidar_name

@@ -40,7 +40,21 @@ def depth_png_record(scale: float = DEPTH_SCALE) -> dict:
 def write_run_info(out: Path, command: str, **extra) -> None:
     """Write `out/run.json` (the command, leovr's version, the depth PNG convention and `extra`)."""
     body = {"command": command, "leovr_version": __version__, "depth_png": depth_png_record(), **extra}
-    write_text(Path(out) / RUN_FILE, json.dumps(body, indent=2) + "\n")
+    write_text(Path(out) / RUN_FILE, json.dumps(plain_json(body), indent=2, allow_nan=False) + "\n")
+
+
+def plain_json(obj):
+    """`obj` with every infinite or NaN number as the string "inf", "-inf" or "nan": strict JSON (a distance
+    bin's open end, for one)."""
+    if isinstance(obj, float) and obj != obj:
+        return "nan"
+    if isinstance(obj, float) and obj in (float("inf"), float("-inf")):
+        return "inf" if obj > 0 else "-inf"
+    if isinstance(obj, dict):
+        return {k: plain_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [plain_json(v) for v in obj]
+    return obj
 
 
 def folder_fingerprint(path: Path) -> str:
@@ -56,13 +70,13 @@ def _sha256(path: Path) -> str:
 
 def run_identity(command: str, settings: dict, sequences: list[Path], checkpoint: Path | None = None) -> dict:
     """What made a run: compared field by field when it is resumed."""
-    return json.loads(json.dumps({
+    return plain_json(json.loads(json.dumps({
         "command": command,
         "settings": settings,
         "sequences": [{"path": str(Path(p).resolve()), "contents_sha1": folder_fingerprint(p)} for p in sequences],
         "checkpoint_sha256": _sha256(checkpoint) if checkpoint is not None else None,
         "leovr_version": __version__,
-    }, default=str))
+    }, default=str)))
 
 
 def _differences(old, new, prefix: str = "") -> list[str]:
@@ -94,7 +108,7 @@ def check_identity(out: Path, identity: dict) -> None:
     old = read_json_object(path).get("identity")
     if old is None:
         raise DataError(path, "records no run identity (written by an older leovr): resume into a new output folder")
-    diff = _differences(old, identity)
+    diff = _differences(plain_json(old), identity)  # folders written before run.json was strict JSON too
     if diff:
         raise DataError(out, "was written by another run; --resume refused: " + brief(diff, 6, "; ")
                         + _changed_inputs(out, old, identity))

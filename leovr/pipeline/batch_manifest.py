@@ -51,7 +51,10 @@ def _entry(raw: Any, base: Path, where: str) -> BatchItem:
     opts = {k: v for k, v in raw.items() if k not in ("path", "name") and v is not None and v != ""}
     path = Path(str(raw["path"])).expanduser()
     path = path if path.is_absolute() else base / path
-    return BatchItem(str(raw.get("name") or ""), path, opts)
+    name = str(raw.get("name") or "")
+    if name and (name in (".", "..") or "/" in name or "\\" in name):
+        raise DataError(where, f"name {name!r} must be a plain folder name (the sequence's output folder under --out)")
+    return BatchItem(name, path, opts)
 
 
 def _read_yaml(path: Path) -> list[BatchItem]:

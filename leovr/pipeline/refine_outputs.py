@@ -80,11 +80,18 @@ class Progress:
     def load(cls, path: Path) -> "Progress":
         try:
             d = json.loads(path.read_text())
+            if not isinstance(d, dict):
+                raise ValueError("not a JSON object")
             d.setdefault("poses_no_loop", {})  # only runs with loop closure have it
             keyed = {name: {int(k): v for k, v in d[name].items()}
                      for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times")}
+            for name in ("poses", "icp_poses", "poses_no_loop"):  # 16 finite numbers each (a 4 x 4 pose)
+                bad = [i for i, T in keyed[name].items()
+                       if not isinstance(T, list) or len(T) != 16 or not np.isfinite(np.asarray(T, float)).all()]
+                if bad:
+                    raise ValueError(f"{name} of frame {bad[0]} is not 16 finite numbers")
             return cls(**keyed)
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
 
     def save(self, path: Path) -> None:

@@ -87,6 +87,7 @@ def simulate(cfg: SimulateConfig, out: Path, preview: bool = False, progress: bo
         out, name=f"{cfg.scenario}_{cfg.lidar}_{cfg.light}_s{cfg.seed}", rate_hz=cfg.rate_hz, lidar_name=cfg.lidar,
         extra={"simulation": cfg.model_dump()}, depth_scale=GT_DEPTH_SCALE,
         camera_height_m=float(T_VEHICLE_CAM[2, 3]),  # the vehicle's frame lies on the road
+        overwrite=True,  # rendered again from its settings: an earlier rendering in `out` is replaced
     )
     times = []
     middle = None

@@ -120,6 +120,9 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
         if len(poses) < len(indices):
             raise DataError(run / "poses_kitti.txt", f"{len(poses)} poses for the run's {len(indices)} frames "
                                                      "(progress.json): the run's files disagree")
+        if indices and max(indices) >= len(seq):
+            raise DataError(run, f"the run has frames up to {max(indices)} but its sequence {seq.path} has "
+                                 f"{len(seq)} frames: not the recording the run was made from")
     else:
         seq, poses = open_sequence(target), None
         indices = list(range(len(seq)))
@@ -147,6 +150,14 @@ def _run_sequence(run: Path) -> Path:
         if (base / p).exists():
             return base / p
     return p  # open_sequence names it as missing
+
+
+def _array(path: Path) -> np.ndarray:
+    """A run's .npy file, one clear error when it is truncated or not a NumPy array."""
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise DataError(path, f"unreadable NumPy file (truncated?): {exc}") from exc
 
 
 def _json_field(path: Path, key: str):
@@ -184,7 +195,7 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
             rec.log("world/loops", rr.LineStrips3D([poses[[a, b], :3, 3] for a, b in pairs], colors=[(220, 40, 200)], radii=0.1),
                     static=True)
     if run is not None and (run / "landmarks.npy").is_file():
-        rec.log("world/landmarks", rr.Points3D(np.load(run / "landmarks.npy"), colors=[LANDMARK_COLOUR], radii=0.06),
+        rec.log("world/landmarks", rr.Points3D(_array(run / "landmarks.npy"), colors=[LANDMARK_COLOUR], radii=0.06),
                 static=True)
     first = seq[indices[0]]
     rec.log("world/camera/image", rr.Pinhole(image_from_camera=first.K, resolution=[first.width, first.height],
@@ -245,7 +256,7 @@ def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, 
                 if name in out and stage in series and series[stage][k] is not None:
                     out[name][f"time_ms/{stage}"] = float(series[stage][k])
     if (run / "landmarks_frame.npy").is_file():
-        seen = np.load(run / "landmarks_frame.npy")
+        seen = _array(run / "landmarks_frame.npy")
         counts = np.bincount(seen[seen >= 0], minlength=max(indices) + 1) if len(indices) else []
         for i in indices:
             out[i]["landmarks_last_seen"] = float(counts[i])
