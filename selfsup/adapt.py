@@ -40,7 +40,7 @@ import torch
 from tqdm import tqdm
 
 from leovr.config import AdaptConfig
-from leovr.data.io import write_text
+from leovr.data.io import check_output_dir, write_text
 from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.depth.inference import load_generator
@@ -114,12 +114,13 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
         raise DataError(init, "adaptation needs a residual-mode generator (network output residual or fusion)")
     model.cfg = replace(model.cfg, blend=1.0)  # train the network itself; its blend is chosen after training
     model.sigma_on_detached = True  # the uncertainty head learns from its NLL, which never reaches the depth path
-    check_validation_frames(seqs, cfg)
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
     error = None
     if rank == 0:  # a folder that cannot be written or resumed stops every process, not only this one
         try:
+            check_output_dir(out)  # the output folder's error first, then the frames', before anything is written
+            check_validation_frames(seqs, cfg)
             identity = run_identity("adapt", settings, [s.path for s in seqs], init)
             start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
         except Exception as exc:  # noqa: BLE001 (re-raised on every process just below)

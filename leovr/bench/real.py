@@ -195,8 +195,10 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
             scored_sets[f"shipped_{inp}"] = shipped, list(range(n))
             continue
         for protocol, (adapt_end, scored) in protocols.items():
-            acfg = AdaptConfig(input=inp, end=adapt_end if adapt_end is not None else n, epochs=epochs,
-                               init_checkpoint=cfg.checkpoint, seed=cfg.seed)
+            end = adapt_end if adapt_end is not None else n
+            val_every = AdaptConfig().val_every  # a selection too short to hold a frame out adapts without validation
+            acfg = AdaptConfig(input=inp, end=end, epochs=epochs, init_checkpoint=cfg.checkpoint, seed=cfg.seed,
+                               val_every=val_every if end > val_every // 2 else 0)
             from selfsup.adapt import adapt
 
             record = adapt([seq], acfg, work / f"{inp}_{protocol}_adapt", resume=True, progress=progress)
