@@ -103,9 +103,6 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     """Adapt the generator to `seqs`; returns the last log record (with the best validation MAE)."""
     from leovr.paths import shipped_checkpoint
 
-    twice = sorted({str(s.path) for s in seqs if sum(t.path == s.path for t in seqs) > 1})
-    if twice:
-        raise DataError(twice[0], "given more than once: each sequence adapts the generator once")
     out = Path(out)
     rank, world = distributed()
     init = Path(cfg.init_checkpoint) if cfg.init_checkpoint else shipped_checkpoint()
@@ -116,16 +113,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     model.sigma_on_detached = True  # the uncertainty head learns from its NLL, which never reaches the depth path
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
-    error = None
-    if rank == 0:  # a folder that cannot be written or resumed stops every process, not only this one
-        try:
-            check_output_dir(out)  # the output folder's error first, then the frames', before anything is written
-            check_validation_frames(seqs, cfg)
-            identity = run_identity("adapt", settings, [s.path for s in seqs], init)
-            start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
-        except Exception as exc:  # noqa: BLE001 (re-raised on every process just below)
-            error = exc
-    raise_shared(error, world)
+    start_adapt_run(out, cfg, seqs, init, resume, settings, rank, world)
     state = None
     if resume and last.is_file():
         state = read_resume_state(last, ("model", "optimizer", "epoch", "best_val_mae_m", "since_best", "minutes"))
@@ -141,12 +129,7 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     start, best, since_best, minutes = 0, float("inf"), 0, 0.0
     log_path = out / "log.jsonl"
     if state is not None:
-        try:
-            model.load_state_dict(state["model"])
-            opt.load_state_dict(state["optimizer"])
-        except (RuntimeError, ValueError, KeyError) as exc:
-            raise DataError(last, f"does not fit the network adapted: {exc}") from exc
-        start, best, since_best, minutes = state["epoch"] + 1, state["best_val_mae_m"], state["since_best"], state["minutes"]
+        start, best, since_best, minutes = restored(state, model, opt, last)
     else:
         best = validate(model, val, rank, world) if val else float("inf")
         if lead:
@@ -189,9 +172,39 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     return record
 
 
-def check_validation_frames(seqs: list[Sequence], cfg: AdaptConfig) -> None:
-    """Refuse, before any work, a selection too short to hold a frame out for validation (every `val_every`-th
-    frame from the middle of the first `val_every`)."""
+def start_adapt_run(out: Path, cfg: AdaptConfig, seqs: list[Sequence], init: Path, resume: bool, settings: dict,
+                    rank: int, world: int) -> None:
+    """Process 0 checks the output folder, then the selection, then records the run (run.json); an error stops
+    every process, not only process 0, and nothing is written before the checks pass."""
+    error = None
+    if rank == 0:
+        try:
+            check_output_dir(out)
+            check_selection(seqs, cfg)
+            identity = run_identity("adapt", settings, [s.path for s in seqs], init)
+            start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
+        except Exception as exc:  # noqa: BLE001 (re-raised on every process just below)
+            error = exc
+    raise_shared(error, world)
+
+
+def restored(state: dict, model: DepthGenerator, opt: torch.optim.Optimizer, last: Path) -> tuple[int, float, int, float]:
+    """Model and optimiser from a resume state; the epoch to go on from, the best validation MAE, the epochs since
+    it and the minutes spent."""
+    try:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+    except (RuntimeError, ValueError, KeyError) as exc:
+        raise DataError(last, f"does not fit the network adapted: {exc}") from exc
+    return state["epoch"] + 1, state["best_val_mae_m"], state["since_best"], state["minutes"]
+
+
+def check_selection(seqs: list[Sequence], cfg: AdaptConfig) -> None:
+    """Refuse a sequence given twice, and a selection too short to hold a frame out for validation (every
+    `val_every`-th frame from the middle of the first `val_every`)."""
+    twice = sorted({str(s.path) for s in seqs if sum(t.path == s.path for t in seqs) > 1})
+    if twice:
+        raise DataError(twice[0], "given more than once: each sequence adapts the generator once")
     n = sum(len(range(len(s))[cfg.start:cfg.end]) for s in seqs)
     if cfg.val_every and n <= cfg.val_every // 2:
         raise DataError(seqs[0].path, f"{n} frame(s) selected; adaptation holds every {cfg.val_every}th frame out "
