@@ -58,6 +58,13 @@ def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
             write_recording(tmp_path / "run", tmp_path / "bad.rrd")
         assert not (tmp_path / "bad.rrd").exists() and not (tmp_path / "bad.rrd.part").exists()
         (tmp_path / "run" / name).write_text(good)
+    # a finished run missing a frame's refined depth is recorded with a warning naming the frames
+    png = tmp_path / "run" / "depth" / "000002.png"
+    kept = png.read_bytes()
+    png.unlink()
+    with pytest.warns(UserWarning, match=r"no refined depth for 1 of the run's frames \(2\)"):
+        write_recording(tmp_path / "run", tmp_path / "r2.rrd")
+    png.write_bytes(kept)
     # a pose file shorter than the run's frames (an edit, a partial copy) is named, not an IndexError
     poses = tmp_path / "run" / "poses_kitti.txt"
     poses.write_text("".join(poses.read_text().splitlines(keepends=True)[:2]))

@@ -104,6 +104,9 @@ class NativeSequence(FileSequence):
             raise DataError(meta_file, f"invalid YAML: {exc}") from exc
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise DataError(meta_file, f"not a {FORMAT} description (missing 'format: {FORMAT}')")
+        version = _number(meta, "version", VERSION, int, meta_file)
+        if version > VERSION:
+            raise DataError(meta_file, f"format version {version} is newer than this leovr reads ({VERSION})")
         self.meta = meta
         cam = meta.get("camera") or {}
         if not isinstance(cam, dict):
@@ -132,6 +135,11 @@ class NativeSequence(FileSequence):
             self.scan_files = sorted((path / "lidar").glob("*.bin"))
             if len(self.scan_files) != n:
                 raise DataError(path / "lidar", f"{len(self.scan_files)} scans but {n} images")
+            record = 4 * len(self.fields)  # float32 per field
+            odd = next((p for p in self.scan_files if p.stat().st_size % record), None)
+            if odd is not None:
+                raise DataError(odd, f"size {odd.stat().st_size} bytes is not a whole number of {len(self.fields)}-field "
+                                     f"points ({record} bytes each, lidar.fields in sequence.yaml)")
             unpaired = sorted(set(self.stems) ^ {p.stem for p in self.scan_files})
             if unpaired:
                 raise DataError(path / "lidar", f"scans and images are numbered differently ({', '.join(unpaired[:5])})")

@@ -79,6 +79,8 @@ def _read_csv(path: Path) -> list[BatchItem]:
         raise DataError(path, "a CSV manifest needs a `path` column")
     items = []
     for n, row in enumerate(rows):
+        if None in row:  # csv puts cells beyond the header under None
+            raise DataError(path, f"row {n + 2} has {len(row[None])} more cell(s) than the header's columns")
         parsed = {k: (yaml.safe_load(v) if k not in ("path", "name") and v else v) for k, v in row.items() if k}
         items.append(_entry(parsed, path.parent, f"{path} row {n + 2}"))
     return items

@@ -10,6 +10,7 @@ scalars (MAE per method, time per stage, landmarks, loops) go to a time-series v
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import cv2
@@ -22,7 +23,7 @@ from leovr.data import open_sequence
 from leovr.data.io import read_depth_png, read_json_object
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.data.run_info import run_depth_scale, run_frame_png
-from leovr.errors import DataError
+from leovr.errors import DataError, brief
 from leovr.geometry import back_project, invert_T, transform_points
 from leovr.pipeline.completion import prepare_sample
 from leovr.pipeline.refine import CPU, TIMED, WALL, completion_config
@@ -206,6 +207,10 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
     folders = {"generator": "depth_generator", "refined": "depth"}
     gt: list[np.ndarray] = []  # ground-truth positions relative to the first camera, while every frame has one
     T0_inv = None
+    missing = [i for i in indices if run is not None and not run_frame_png(run, "depth", i).is_file()]
+    if missing:
+        warnings.warn(f"{run / 'depth'}: no refined depth for {len(missing)} of the run's frames "
+                      f"({brief(missing)}); they are recorded without it", stacklevel=2)
     for n, i in enumerate(indices):
         f = seq[i]
         rec.set_time("frame", sequence=i)
