@@ -12,11 +12,12 @@ from leovr.config import load_config, override
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks writing JSON results (see docs/benchmarks.md).")
 
 ConfigOpt = typer.Option(None, "--config", "-c", help="YAML config file (see configs/default.yaml).")
+OutOpt = typer.Option(..., "--out", "-o", help="JSON results file.")
 
 
 @bench_app.command("baseline")
 def bench_baseline(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    out: Path = OutOpt,
     quick: bool = typer.Option(False, help="Every 6th frame only (under 2 minutes)."),
     data: Optional[Path] = typer.Option(None, help="KITTI raw clip (default: ../shared/data/kitti_raw)."),
     config: Optional[Path] = ConfigOpt,
@@ -32,7 +33,7 @@ def bench_baseline(
 
 @bench_app.command("depth")
 def bench_depth(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    out: Path = OutOpt,
     quick: bool = typer.Option(False, help="A 4-frame rendered test set and every 6th KITTI frame."),
     config: Optional[Path] = ConfigOpt,
     checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
@@ -47,7 +48,7 @@ def bench_depth(
 
 @bench_app.command("refine")
 def bench_refine(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    out: Path = OutOpt,
     quick: bool = typer.Option(False, help="8-frame rendered test sequences and 8 KITTI frames."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
@@ -60,7 +61,7 @@ def bench_refine(
 
 @bench_app.command("loop")
 def bench_loop(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    out: Path = OutOpt,
     quick: bool = typer.Option(False, help="One LiDAR, one city loop."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
@@ -73,7 +74,7 @@ def bench_loop(
 
 @bench_app.command("speed")
 def bench_speed(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    out: Path = OutOpt,
     quick: bool = typer.Option(False, help="12 rendered and 12 KITTI frames."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
@@ -133,7 +134,7 @@ def bench_selfsup(
 
 @bench_app.command("simulate")
 def bench_simulate(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file."),
+    out: Path = OutOpt,
     frames: Optional[int] = typer.Option(None, help="Frames per LiDAR model."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
