@@ -70,13 +70,14 @@ def complete(
 def convert(
     seq: Path = typer.Argument(..., help="Sequence folder in any supported layout."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder in the native format."),
+    overwrite: bool = typer.Option(False, help="Replace a sequence (finished or interrupted) already in --out."),
 ) -> None:
     """Copy a sequence into leovr's native format (docs/formats.md)."""
     from leovr.data import open_sequence, write_native
     from leovr.data.io import check_output_dir
 
     source = open_sequence(seq)
-    typer.echo(f"wrote {write_native(source, check_output_dir(out))}")
+    typer.echo(f"wrote {write_native(source, check_output_dir(out), overwrite=overwrite)}")
 
 
 @app.command()

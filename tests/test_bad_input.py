@@ -219,3 +219,10 @@ def test_simulate_replaces_an_earlier_rendering_and_convert_refuses_to_mix(tmp_p
     assert len(open_sequence(tmp_path / "s")) == 2 and len(list((tmp_path / "s" / "images").iterdir())) == 2
     with pytest.raises(DataError, match="already holds a sequence"):
         write_native(open_sequence(tmp_path / "s"), tmp_path / "s")
+    # an interrupted convert (frames on disk, no sequence.yaml) is named as such; overwrite replaces it whole
+    (tmp_path / "s" / "sequence.yaml").unlink()
+    src = simulate(SimulateConfig(lidar="vlp16", frames=1, seed=6), tmp_path / "one", progress=False) and tmp_path / "one"
+    with pytest.raises(DataError, match="unfinished sequence"):
+        write_native(open_sequence(src), tmp_path / "s")
+    write_native(open_sequence(src), tmp_path / "s", overwrite=True)
+    assert len(open_sequence(tmp_path / "s")) == 1 and len(list((tmp_path / "s" / "images").iterdir())) == 1

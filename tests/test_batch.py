@@ -193,3 +193,20 @@ def test_bench_batch_contract(tmp_path):
     assert doc["fixed_s"]["2"] == pytest.approx(doc["wall_s"]["2"] - t2 / 2, abs=0.02)
     for w in ("workers1", "workers2"):
         assert _rows(tmp_path / "batch_work" / w).keys() == {"drive0", "drive1"}
+
+
+def test_a_rerun_with_other_settings_is_refused_before_any_work(drives, tmp_path):
+    """A batch whose output folder holds a sequence's results from other settings is refused in one line
+    naming the sequence and the difference, before any work and without touching those results."""
+    y = tmp_path / "m.yaml"
+    out = tmp_path / "out"
+    for end in (3, 2):
+        y.write_text(f"- {{path: {drives / 'drive0'}, end: {end}}}\n- {drives / 'drive1'}\n")
+        cfg = LeovrConfig.model_validate({"batch": {"job": "complete", "workers": 1}})
+        if end == 3:
+            assert [r["status"] for r in run_batch(read_batch(y), cfg, out, progress=False)] == ["done", "done"]
+            stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+            continue
+        with pytest.raises(DataError, match=r"results of other settings or input files for drive0: config.end \(folder: 3, now: 2\)"):
+            run_batch(read_batch(y), cfg, out, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps

@@ -210,8 +210,10 @@ class NativeWriter:
         self.out = Path(out)
         held = [n for n in SEQUENCE_PARTS if (self.out / n).exists()]
         if held and not overwrite:
-            raise DataError(self.out, f"already holds a sequence ({', '.join(held)}); write into a new or empty folder "
-                                      "(frames left from it would mix with the new ones)")
+            what = ("already holds a sequence" if "sequence.yaml" in held
+                    else "holds an unfinished sequence (no sequence.yaml: an interrupted write?)")
+            raise DataError(self.out, f"{what} ({', '.join(held)}); write into a new or empty folder, or replace it "
+                                      "(convert --overwrite; frames left from it would mix with the new ones)")
         for name in held:  # the description first: a half-cleared folder is never taken for a sequence
             part = self.out / name
             shutil.rmtree(part) if part.is_dir() else part.unlink()
@@ -296,9 +298,10 @@ class NativeWriter:
         return self.out
 
 
-def write_native(seq: Sequence, out: str | Path, name: str | None = None) -> Path:
-    """Copy any readable sequence into the native format."""
-    writer = NativeWriter(out, name=name or Path(seq.path).name, rate_hz=seq.rate_hz, camera_height_m=seq.camera_height_m)
+def write_native(seq: Sequence, out: str | Path, name: str | None = None, overwrite: bool = False) -> Path:
+    """Copy any readable sequence into the native format (`overwrite`: replace a sequence already in `out`)."""
+    writer = NativeWriter(out, name=name or Path(seq.path).name, rate_hz=seq.rate_hz, camera_height_m=seq.camera_height_m,
+                          overwrite=overwrite)
     for frame, number in zip(seq, seq.frame_numbers()):
         writer.write(frame, number)
     return writer.close()

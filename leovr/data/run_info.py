@@ -79,14 +79,15 @@ def run_identity(command: str, settings: dict, sequences: list[Path], checkpoint
     }, default=str)))
 
 
-def _differences(old, new, prefix: str = "") -> list[str]:
+def differences(old, new, prefix: str = "") -> list[str]:
+    """Each leaf where two JSON records differ, as `key.path (folder: old, now: new)`."""
     if isinstance(old, dict) and isinstance(new, dict):
         out = []
         for k in sorted(set(old) | set(new), key=str):
-            out += _differences(old.get(k), new.get(k), f"{prefix}.{k}" if prefix else str(k))
+            out += differences(old.get(k), new.get(k), f"{prefix}.{k}" if prefix else str(k))
         return out
     if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
-        return [d for n, (a, b) in enumerate(zip(old, new)) for d in _differences(a, b, f"{prefix}[{n}]")]
+        return [d for n, (a, b) in enumerate(zip(old, new)) for d in differences(a, b, f"{prefix}[{n}]")]
     return [] if old == new else [f"{prefix} (folder: {_short(old)}, now: {_short(new)})"]
 
 
@@ -108,7 +109,7 @@ def check_identity(out: Path, identity: dict) -> None:
     old = read_json_object(path).get("identity")
     if old is None:
         raise DataError(path, "records no run identity (written by an older leovr): resume into a new output folder")
-    diff = _differences(plain_json(old), identity)  # folders written before run.json was strict JSON too
+    diff = differences(plain_json(old), identity)  # folders written before run.json was strict JSON too
     if diff:
         raise DataError(out, "was written by another run; --resume refused: " + brief(diff, 6, "; ")
                         + _changed_inputs(out, old, identity))

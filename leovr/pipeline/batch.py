@@ -5,7 +5,7 @@ whose worker died (`max_retries`), and each task resumes its sequence from what 
 `leovr refine` writes every finished frame atomically, so a killed worker or driver loses at most the
 frames in flight. A sequence that fails on its data fails alone: its error goes to the summary and the
 others finish. `DIR/<name>/batch.json` records each sequence's state; a re-run skips those done with
-the same settings.
+the same settings, and refuses an output folder holding another run's results of a sequence.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from tqdm import tqdm
 
 from leovr.config import BatchConfig, LeovrConfig, override
 from leovr.data.io import check_output_dir, write_text
-from leovr.data.run_info import folder_fingerprint
-from leovr.errors import ConfigError, DataError, LeovrError
+from leovr.data.run_info import differences, folder_fingerprint
+from leovr.errors import ConfigError, DataError, LeovrError, brief
 from leovr.pipeline.batch_manifest import BatchItem
 from leovr.pipeline.batch_summary import read_json_or_empty, write_summary
 
@@ -48,6 +48,23 @@ def _read_state(folder: Path) -> dict:
 def is_done(folder: Path, settings: dict) -> bool:
     st = _read_state(folder)
     return st.get("status") == "done" and st.get("settings") == settings and (folder / "metrics.json").is_file()
+
+
+def check_no_other_results(out: Path, items: list[BatchItem], settings: dict[str, dict]) -> None:
+    """Refuse, before any work, a batch whose output folders hold results of other settings or other input
+    files: resuming into them would mix two runs, and replacing them would lose results already written."""
+    stale = []
+    for it in items:
+        folder = out / it.name
+        if not (folder / "run.json").is_file():
+            continue
+        prev = _read_state(folder).get("settings")
+        if prev != settings[it.name]:
+            diff = differences(prev, settings[it.name]) if isinstance(prev, dict) else ["no batch.json"]
+            stale.append(f"{it.name}: {brief(diff, 2, '; ')}")
+    if stale:
+        raise DataError(out, f"holds results of other settings or input files for {brief(stale, 3, ', ')}; "
+                             "use a new --out, or delete those sequences' folders to do them again")
 
 
 def _set_threads(n: int) -> None:
@@ -153,6 +170,7 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
                 checkpoint = adapt_batch(live, cfg, out / ADAPT_DIR, progress)
             sections |= {it.name: job_section(cfg, job, it, checkpoint) for it in live}
         settings = {it.name: task_settings(job, sections[it.name], it.path) for it in live}
+        check_no_other_results(out, live, settings)
         todo = []
         for it in live:
             if is_done(out / it.name, settings[it.name]):
