@@ -113,9 +113,11 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     model.sigma_on_detached = True  # the uncertainty head learns from its NLL, which never reaches the depth path
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
+    if resume and not last.is_file():  # refused before anything is written, not started again from scratch
+        raise DataError(last, "nothing to resume from")
     start_adapt_run(out, cfg, seqs, init, resume, settings, rank, world)
     state = None
-    if resume and last.is_file():
+    if resume:
         state = read_resume_state(last, ("model", "optimizer", "epoch", "best_val_mae_m", "since_best", "minutes"))
     torch.manual_seed(cfg.seed)
     lead = rank == 0

@@ -226,3 +226,23 @@ def test_simulate_replaces_an_earlier_rendering_and_convert_refuses_to_mix(tmp_p
         write_native(open_sequence(src), tmp_path / "s")
     write_native(open_sequence(src), tmp_path / "s", overwrite=True)
     assert len(open_sequence(tmp_path / "s")) == 1 and len(list((tmp_path / "s" / "images").iterdir())) == 1
+
+
+def test_a_fresh_run_replaces_an_earlier_run_of_its_command_and_refuses_another_commands(tmp_path):
+    """Run again without --resume into the same folder: nothing of the earlier run stays (a frame it had and this
+    one has not); a folder holding another command's run is refused before any work."""
+    from leovr.config import CompleteConfig, RefineConfig
+    from leovr.pipeline.completion import run_completion
+    from leovr.pipeline.refine import run_refine
+
+    seq = open_sequence(write_kitti_raw(tmp_path / "raw", frames=4))
+    out = tmp_path / "out"
+    run_completion(seq, CompleteConfig(method="nearest", input="vlp16", end=3), out, progress=False)
+    assert len(list((out / "depth").glob("*.png"))) == 3
+    run_completion(seq, CompleteConfig(method="nearest", input="vlp16", end=2), out, progress=False)
+    assert sorted(p.name for p in (out / "depth").glob("*.png")) == ["000000.png", "000001.png"]
+    assert json.loads((out / "metrics.json").read_text())["frames"] == 2
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
+    with pytest.raises(DataError, match="holds a `complete` run; write the `refine` outputs to another folder"):
+        run_refine(seq, RefineConfig(end=2), out, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before

@@ -56,6 +56,11 @@ def _write(path: Path, text: str) -> Path:
     return path
 
 
+def _write_bytes(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
 def _yaml_value(folder: Path, line: str, new: str) -> None:
     y = folder / "sequence.yaml"
     y.write_text(y.read_text().replace(line, new))
@@ -127,6 +132,21 @@ ROWS = [
     ("negative first frame", lambda d, t: [str(d), "--start", "-2"], "complete", "start: Input should be greater"),
     ("adapt on too few frames", lambda d, t: [str(d), "--out", str(t / "a"), "--input", "vlp16"], "adapt",
      "2 frame(s) selected; adaptation holds every 8th frame out for validation and needs at least 5"),
+    ("config that is not UTF-8", lambda d, t: [str(d), "-c", str(_write_bytes(t / "c.yaml", b"# caf\xe9\ncomplete: {}\n"))],
+     "complete", "c.yaml: not UTF-8 text (byte 5"),
+    ("invalid YAML config", lambda d, t: [str(d), "-c", str(_write(t / "c.yaml", "complete: [1, 2\n"))], "complete",
+     "c.yaml: invalid YAML at line 2"),
+    ("outputs inside the input sequence", lambda d, t: (_native(d, t, lambda f: None),
+                                                         [str(t / "native"), "--out", str(t / "native" / "run")])[1],
+     "refine", "native/run: lies inside the input sequence"),
+    ("simulate over a recorded sequence", lambda d, t: (_native(d, t, lambda f: None),
+                                                        ["--out", str(t / "native"), "--frames", "2"])[1],
+     "simulate", "native: holds a recorded sequence, not an earlier rendering"),
+    ("adapt --resume with nothing to resume", lambda d, t: [str(d), "--out", str(t / "a"), "--resume"], "adapt",
+     "checkpoint_last.pt: nothing to resume from"),
+    ("batch with a misspelt option", lambda d, t: [str(_write(t / "m.yaml", f"- {{path: {d}, ned: 2}}\n")),
+                                                   "--out", str(t / "b"), "--job", "complete"], "batch",
+     "nothing run: 2011_01_01_drive_0001_sync: "),
     ("corrupt metrics.json to viz", lambda d, t: ((t / "run").mkdir(), (t / "run" / "metrics.json").write_text("{oops"),
                                                   (t / "run" / "poses_kitti.txt").write_text(" ".join(["0"] * 12) + "\n"),
                                                   [str(t / "run"), "--out", str(t / "r.rrd")])[3], "viz", "metrics.json: not readable JSON"),

@@ -19,7 +19,7 @@ import pytest
 from leovr.config import LeovrConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.data.io import read_depth_png
-from leovr.errors import DataError
+from leovr.errors import ConfigError, DataError
 from leovr.pipeline.batch import run_batch
 from leovr.pipeline.batch_manifest import read_batch
 from leovr.pipeline.refine import run_refine
@@ -141,11 +141,11 @@ def test_manifests_yaml_csv_and_bad_entries(tmp_path, drives):
     with pytest.raises(DataError, match="no sequence found"):
         (tmp_path / "empty").mkdir()
         read_batch(tmp_path / "empty")
-    # an unknown per-sequence option fails that sequence alone, before any work
+    # a bad per-sequence option (a value out of range, a typo) refuses the batch before any work, naming each
     y.write_text(f"- path: {drives / 'drive1'}\n  window: 1\n- path: {drives / 'drive2'}\n  colour: red\n")
-    rows = run_batch(read_batch(y), LeovrConfig(), tmp_path / "out", progress=False)
-    assert [r["status"] for r in rows] == ["failed", "failed"]
-    assert "window" in rows[0]["error"] and "unknown option(s) colour" in rows[1]["error"]
+    with pytest.raises(ConfigError, match=r"nothing run: drive1: .*window.*; drive2: .*unknown option\(s\) colour"):
+        run_batch(read_batch(y), LeovrConfig(), tmp_path / "out", progress=False)
+    assert not (tmp_path / "out" / "drive1").exists()
 
 
 def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):

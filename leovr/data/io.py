@@ -93,6 +93,25 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
             os.unlink(tmp)
 
 
+def read_yaml(path: Path) -> object:
+    """A YAML file's contents; an unreadable file, text that is not UTF-8 or invalid YAML is one clear error
+    naming the file (and the line)."""
+    import yaml
+
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise DataError(path, f"cannot read: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise DataError(path, f"not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r})") from exc
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise DataError(path, f"invalid YAML{where}: {problem}") from exc
+
+
 def check_output_dir(out: Path) -> Path:
     """Create the output folder `out` if needed and prove it writable, before any work starts: an
     output path that is a file or a read-only folder fails now, not after hours of computing."""

@@ -18,6 +18,7 @@ from leovr.data.io import (
     read_image,
     read_point_file,
     read_timestamp_file,
+    read_yaml,
     require_file,
     require_finite_rows,
     require_intrinsics,
@@ -98,10 +99,7 @@ class NativeSequence(FileSequence):
     def __init__(self, path: str | Path) -> None:
         self.path = path = Path(path)
         meta_file = require_file(path / "sequence.yaml", "sequence description")
-        try:
-            meta = yaml.safe_load(meta_file.read_text())
-        except yaml.YAMLError as exc:
-            raise DataError(meta_file, f"invalid YAML: {exc}") from exc
+        meta = read_yaml(meta_file)
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise DataError(meta_file, f"not a {FORMAT} description (missing 'format: {FORMAT}')")
         version = _number(meta, "version", VERSION, int, meta_file)

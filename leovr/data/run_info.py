@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 from functools import lru_cache
 from pathlib import Path
 
@@ -140,12 +141,48 @@ def write_inputs(out: Path, identity: dict) -> None:
 def start_run(out: Path, command: str, identity: dict, resume: bool, **extra) -> None:
     """Before any work: check the folder can be written, refuse a resume into a folder another run
     wrote (or an older leovr wrote in millimetres), then record this run in `out/run.json`."""
+    check_apart(out, [Path(s["path"]) for s in identity.get("sequences") or []])
     check_output_dir(out)
     if resume:
         check_resumable(out)
         check_identity(out, identity)
+    else:
+        clear_previous_run(out, command)
     write_run_info(out, command, identity=identity, **extra)
     write_inputs(out, identity)
+
+
+# what a run writes at the top of its folder (besides folders named depth*): a fresh run into the folder
+# removes them first, so that nothing of the earlier run (a frame it had and this one has not) stays
+RUN_OUTPUTS = ("run.json", "inputs.json", "metrics.json", "timing.json", "progress.json", "poses_*.txt", "landmarks*.npy")
+
+
+def clear_previous_run(out: Path, command: str) -> None:
+    """Before a fresh (not resumed) run: refuse a folder holding another command's run, and remove the outputs
+    of an earlier run of the same command (its depth maps, poses and metrics; other files stay)."""
+    out = Path(out)
+    record = read_json_object(out / RUN_FILE) if (out / RUN_FILE).is_file() else None
+    if record is None:
+        return
+    other = record.get("command")
+    if other is not None and other != command:
+        raise DataError(out, f"holds a `{other}` run; write the `{command}` outputs to another folder")
+    for pattern in RUN_OUTPUTS:
+        for p in out.glob(pattern):
+            p.unlink()
+    for p in out.glob("depth*"):
+        if p.is_dir():
+            shutil.rmtree(p)
+
+
+def check_apart(out: Path, inputs: list[Path]) -> None:
+    """Refuse an output folder that is an input recording or lies inside one: the outputs would become part of
+    the recording (a native folder's `depth/` read as its ground truth, its poses overwritten)."""
+    where = Path(out).resolve()
+    for seq in inputs:
+        root = Path(seq).resolve()
+        if root.is_dir() and (where == root or root in where.parents):
+            raise DataError(out, f"lies inside the input sequence {seq}: write the outputs to a folder outside it")
 
 
 def check_resumable(out: Path) -> None:

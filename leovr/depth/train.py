@@ -114,7 +114,8 @@ def read_resume_state(path: Path, keys: tuple[str, ...]) -> dict:
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # torch raises many types for corrupt files
-        raise DataError(path, f"unreadable checkpoint (truncated, or not written by leovr): {exc}") from exc
+        raise DataError(path, f"unreadable checkpoint (truncated, or not written by leovr): "
+                              f"{(str(exc).strip().splitlines() or [type(exc).__name__])[0]}") from exc
     missing = [k for k in keys if not isinstance(state, dict) or k not in state]
     if missing:
         raise DataError(path, f"not a leovr resume checkpoint (no {', '.join(missing)})")

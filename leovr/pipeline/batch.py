@@ -155,12 +155,15 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
     job = "complete" if bcfg.job == "complete" else "refine"
     rows: dict[str, dict] = {}
     sections: dict[str, dict] = {}
-    for it in items:  # bad per-sequence options fail that sequence only
+    bad = []
+    for it in items:  # a bad option (a typo, a value out of range) refuses the batch before any work
         try:
             sections[it.name] = job_section(cfg, job, it)
         except LeovrError as exc:
-            rows[it.name] = {"name": it.name, "path": str(it.path), "status": "failed", "error": str(exc)}
-    live = [it for it in items if it.name not in rows]
+            bad.append(f"{it.name}: {exc}")
+    if bad:
+        raise ConfigError(f"bad per-sequence option(s), nothing run: {brief(bad, 3, '; ')}")
+    live = list(items)
     started = finished = False
     try:
         if bcfg.job == "adapt+refine" and live:

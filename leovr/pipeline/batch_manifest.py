@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from leovr.data import detect_reader
+from leovr.data.io import read_yaml
 from leovr.errors import DataError
 
 
@@ -58,10 +59,7 @@ def _entry(raw: Any, base: Path, where: str) -> BatchItem:
 
 
 def _read_yaml(path: Path) -> list[BatchItem]:
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise DataError(path, f"cannot read this manifest: {exc}") from exc
+    doc = read_yaml(path)
     if isinstance(doc, dict):
         doc = doc.get("sequences")
     if not isinstance(doc, list):
@@ -81,7 +79,10 @@ def _read_csv(path: Path) -> list[BatchItem]:
     for n, row in enumerate(rows):
         if None in row:  # csv puts cells beyond the header under None
             raise DataError(path, f"row {n + 2} has {len(row[None])} more cell(s) than the header's columns")
-        parsed = {k: (yaml.safe_load(v) if k not in ("path", "name") and v else v) for k, v in row.items() if k}
+        try:
+            parsed = {k: (yaml.safe_load(v) if k not in ("path", "name") and v else v) for k, v in row.items() if k}
+        except yaml.YAMLError as exc:
+            raise DataError(path, f"row {n + 2}: a cell is not a value ({str(exc).splitlines()[0]})") from exc
         items.append(_entry(parsed, path.parent, f"{path} row {n + 2}"))
     return items
 

@@ -20,6 +20,7 @@ from leovr.config import SimulateConfig
 from leovr.data.io import write_image
 from leovr.data.native import NativeWriter
 from leovr.data.records import Frame
+from leovr.errors import DataError
 from leovr.lidar.projection import project_points
 from leovr.sim.render import LIGHTS, build_scene, render_camera, scan_lidar
 from leovr.sim.sensors import LIDARS, T_VEHICLE_CAM, CameraModel
@@ -78,8 +79,21 @@ def preview_image(frame: Frame) -> np.ndarray:
     return np.vstack([frame.image if frame.image.ndim == 3 else np.dstack([frame.image] * 3), depth_rgb, overlay])
 
 
+def check_replaceable(out: Path) -> None:
+    """A folder holding a sequence is rendered over only when that sequence is an earlier rendering: a
+    recording (or a conversion of one) is never replaced."""
+    from leovr.data.io import read_yaml
+
+    meta_file = out / "sequence.yaml"
+    if meta_file.is_file():
+        meta = read_yaml(meta_file)
+        if not isinstance(meta, dict) or "simulation" not in meta:
+            raise DataError(out, "holds a recorded sequence, not an earlier rendering; render into another folder")
+
+
 def simulate(cfg: SimulateConfig, out: Path, preview: bool = False, progress: bool = True) -> dict:
     """Render `cfg.frames` frames into `out` (native format); returns timing figures."""
+    check_replaceable(Path(out))
     world = build_world(cfg.scenario, cfg.seed, cfg.speed_kmh / 3.6)
     cam = CameraModel(cfg.width, cfg.height, cfg.focal, cfg.focal)
     cam_dirs = cam.ray_directions()
