@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from leovr.data.records import Frame
-from leovr.geometry import interpolate_poses, invert_T
+from leovr.geometry import interpolate_poses, invert_T, move_along
 
 
 def deskew(
@@ -31,12 +31,10 @@ def deskew(
         raise ValueError("sweep_s must be positive")
     t_ref = sweep_s if t_ref is None else t_ref
     T_rel = invert_T(T_w_start) @ T_w_end  # end pose in the start frame
-    T_s = interpolate_poses(np.eye(4), T_rel, np.asarray(times, np.float64) / sweep_s)  # N x 4 x 4
     T_ref_inv = invert_T(interpolate_poses(np.eye(4), T_rel, np.array(t_ref / sweep_s)))
-    M = T_ref_inv[None] @ T_s
-    xyz = np.einsum("nij,nj->ni", M[:, :3, :3], points[:, :3]) + M[:, :3, 3]
+    xyz = move_along(T_rel, np.asarray(times, np.float64) / sweep_s, points[:, :3])
     out = np.array(points, copy=True)
-    out[:, :3] = xyz
+    out[:, :3] = xyz @ T_ref_inv[:3, :3].T + T_ref_inv[:3, 3]
     return out
 
 
@@ -49,7 +47,6 @@ def deskew_frame(f: Frame, motion_cam: np.ndarray | None, frame_dt: float) -> Fr
         return f
     T_cl = f.T_cam_lidar
     motion_lidar = invert_T(T_cl) @ motion_cam @ T_cl  # per frame interval, LiDAR frame
-    M = interpolate_poses(np.eye(4), motion_lidar, np.asarray(f.point_times, np.float64) / frame_dt)
     out = np.array(f.points, copy=True)
-    out[:, :3] = np.einsum("nij,nj->ni", M[:, :3, :3], f.points[:, :3]) + M[:, :3, 3]
+    out[:, :3] = move_along(motion_lidar, np.asarray(f.point_times, np.float64) / frame_dt, f.points[:, :3])
     return replace(f, points=out)
