@@ -20,22 +20,46 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 app.add_typer(bench_app, name="bench")
 
 
+@app.callback()
+def bag_topics(
+    camera_topic: Optional[str] = typer.Option(None, help="ROS bags: the camera's image topic (default: the only one)."),
+    camera_info_topic: Optional[str] = typer.Option(None, help="ROS bags: the camera's CameraInfo topic."),
+    lidar_topic: Optional[str] = typer.Option(None, help="ROS bags: the PointCloud2 topic (default: the only one)."),
+    pose_topic: Optional[str] = typer.Option(None, help="ROS bags: ground-truth poses (Odometry or PoseStamped)."),
+    extrinsic: Optional[Path] = typer.Option(None, help="ROS bags without /tf_static: T_cam_lidar, 12 or 16 numbers."),
+    drop_unpaired: bool = typer.Option(False, help="ROS bags: leave out images without a scan within half a period."),
+) -> None:
+    """Options before the command apply to every ROS bag it reads: `leovr --lidar-topic /points refine BAG ...`."""
+    from leovr.data import rosbag
+
+    rosbag.CHOICE = rosbag.TopicChoice(camera_topic, camera_info_topic, lidar_topic, pose_topic, extrinsic, drop_unpaired)
+
+
 @app.command()
 def info(
-    path: Path = typer.Argument(..., help="Sequence folder."),
-    reader: Optional[str] = typer.Option(None, help="Force a reader: native, kitti_raw, kitti_odometry, tum_rgbd."),
+    path: Path = typer.Argument(..., help="Sequence folder or ROS bag."),
+    reader: Optional[str] = typer.Option(None, help="Force a reader: native, kitti_raw, kitti_odometry, tum_rgbd, rosbag."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+    frames: bool = typer.Option(False, "--frames", help="Also read every frame and report frames per second."),
 ) -> None:
-    """Summarise a sequence: reader, frames, resolution, points per scan, poses / depth present."""
+    """Summarise a sequence: reader, frames, resolution, points per scan, poses / depth present; for a ROS
+    bag its topics and what each is used for."""
     from leovr.data import open_sequence
+    from leovr.data.summary import sequence_summary
 
-    summary = open_sequence(path, reader).info().as_dict()
+    summary = sequence_summary(open_sequence(path, reader), read_frames=frames)
     if as_json:
         typer.echo(json.dumps(summary, indent=2))
         return
+    topics = summary.pop("topics", None)
     width = max(len(k) for k in summary)
     for k, v in summary.items():
         typer.echo(f"{k:<{width}}  {v}")
+    if topics:
+        w = [max(len(str(r[c])) for r in topics) for c in ("topic", "type", "messages")]
+        for r in topics:
+            typer.echo(f"  {r['topic']:<{w[0]}}  {r['type']:<{w[1]}}  {r['messages']:>{w[2]}} msgs  "
+                       f"{r['rate_hz']:6.2f} Hz  {r['used_as']}")
 
 
 @app.command()
@@ -68,15 +92,21 @@ def complete(
 
 @app.command()
 def convert(
-    seq: Path = typer.Argument(..., help="Sequence folder in any supported layout."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder in the native format."),
+    seq: Path = typer.Argument(..., help="Sequence folder or ROS bag in any supported layout."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder in the native format, or a ROS bag: "
+                                                      "NAME.mcap or NAME.db3 (ROS 2), NAME.bag (ROS 1)."),
     overwrite: bool = typer.Option(False, help="Replace a sequence (finished or interrupted) already in --out."),
 ) -> None:
-    """Copy a sequence into leovr's native format (docs/formats.md)."""
+    """Copy a sequence into leovr's native format (docs/formats.md), or write it as a ROS bag."""
     from leovr.data import open_sequence, write_native
     from leovr.data.io import check_output_dir
+    from leovr.data.rosbag_writer import bag_format, write_bag
 
     source = open_sequence(seq)
+    if bag_format(out) is not None:
+        check_output_dir(out.parent)
+        typer.echo(f"wrote {write_bag(source, out)}")
+        return
     typer.echo(f"wrote {write_native(source, check_output_dir(out), overwrite=overwrite)}")
 
 

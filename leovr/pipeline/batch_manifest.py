@@ -32,15 +32,17 @@ class BatchItem:
 
 
 def discover(root: Path) -> list[Path]:
-    """Every folder at or below `root` whose layout is a sequence's (not looking inside a sequence)."""
+    """Every folder at or below `root` whose layout is a sequence's (not looking inside a sequence), and every
+    ROS 1 bag file."""
     found = []
-    for here, dirs, _ in os.walk(root):
+    for here, dirs, files in os.walk(root):
         p = Path(here)
         if detect_reader(p, search=False) is not None:
             found.append(p)
             dirs.clear()
         else:
             dirs.sort()
+            found += [p / f for f in sorted(files) if f.endswith(".bag")]
     return found
 
 
@@ -109,7 +111,7 @@ def read_batch(source: Path) -> list[BatchItem]:
         raise DataError(source, "the manifest lists no sequence")
     seen: dict[str, int] = {}
     for it in items:
-        base = it.name or it.path.name or "sequence"
+        base = it.name or (it.path.stem if it.path.is_file() else it.path.name) or "sequence"
         n = seen.get(base, 0)
         seen[base] = n + 1
         it.name = base if n == 0 else f"{base}_{n + 1}"

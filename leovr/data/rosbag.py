@@ -1,0 +1,397 @@
+"""ROS bags as sequences: ROS 2 bags (MCAP or SQLite 3 storage) and ROS 1 `.bag` files, read with the
+pure-Python `rosbags` library (no ROS installation).
+
+Opening a bag reads its messages' stamps once (not their data: memory stays flat in the bag's length);
+a frame's image and scan are read from the bag when the pipeline asks for the frame. The topics:
+
+- one camera (`sensor_msgs/Image`: rgb8, bgr8, rgba8, bgra8, mono8, mono16; or `CompressedImage`: jpeg,
+  png) with its `CameraInfo` (plumb_bob / rational_polynomial distortion undistorted once, into a
+  pinhole camera of the same size);
+- one point cloud (`sensor_msgs/PointCloud2`: x, y, z; intensity and a per-point time optional);
+- the camera-LiDAR extrinsic, chained through `/tf_static` (or given as a file);
+- optional ground-truth poses (`nav_msgs/Odometry` or `geometry_msgs/PoseStamped`), interpolated at the
+  images' stamps and moved to the camera through `/tf_static` when their body frame is another.
+
+Each is picked automatically when the bag holds one candidate; `TopicChoice` (the CLI's `--camera-topic`,
+`--lidar-topic`, ...) names it otherwise. Each image is paired with the scan nearest in time (header
+stamps) within half a scan period; an image without one becomes a frame with an empty scan, or is left
+out (`drop_unpaired`).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from leovr.data import ros_messages as rm
+from leovr.data.records import Frame
+from leovr.data.sequence import Sequence
+from leovr.errors import DataError, brief
+from leovr.geometry import poses_at
+
+ROS2_SUFFIXES = (".mcap", ".db3")
+MAX_POSE_GAP_S = 0.5  # images farther than this outside the poses' time span: the poses are not used
+
+
+@dataclass
+class TopicChoice:
+    """Which topics of a bag to read (None: the only candidate), an extrinsic file for bags without
+    `/tf_static`, and whether images without a scan are left out."""
+
+    camera: str | None = None
+    camera_info: str | None = None
+    lidar: str | None = None
+    poses: str | None = None
+    extrinsic: Path | None = None
+    drop_unpaired: bool = False
+
+
+CHOICE = TopicChoice()  # what the command line chose (`leovr --camera-topic ...`); readers take it by default
+
+
+def is_rosbag(path: Path) -> bool:
+    """A ROS 1 bag file, a ROS 2 bag folder (metadata.yaml), or a storage file inside one."""
+    path = Path(path)
+    if path.is_file():
+        return path.suffix == ".bag" or (path.suffix in ROS2_SUFFIXES and (path.parent / "metadata.yaml").is_file())
+    return (path / "metadata.yaml").is_file()
+
+
+def _bag_root(path: Path) -> Path:
+    return path.parent if path.is_file() and path.suffix in ROS2_SUFFIXES else path
+
+
+@dataclass
+class _Topic:
+    name: str
+    msgtype: str
+    count: int
+    connections: list[Any] = field(default_factory=list)
+
+
+@dataclass
+class _Index:
+    """What one pass over the bag's stamps found."""
+
+    images: list[tuple[int, int]] = field(default_factory=list)  # (log time, header stamp), ns
+    clouds: list[tuple[int, int]] = field(default_factory=list)
+    poses: list[tuple[int, np.ndarray, str]] = field(default_factory=list)  # (stamp ns, T_world_body, body frame)
+    info: Any = None
+    tree: rm.FrameTree = field(default_factory=rm.FrameTree)
+    camera_frame: str = ""
+    lidar_frame: str = ""
+    pose_frame: str = ""
+    damaged: str = ""  # why the pass stopped early, when it did
+
+
+class RosbagSequence(Sequence):
+    """A ROS 1 or ROS 2 bag read as a sequence of camera + LiDAR frames (module docstring)."""
+
+    name = "rosbag"
+
+    def __init__(self, path: str | Path, choice: TopicChoice | None = None) -> None:
+        self.path = Path(path)
+        self.choice = choice or CHOICE
+        self._lock = threading.Lock()
+        self._reader: Any = None
+        self._pid = -1
+        reader = self._open()
+        self.topics = self._topics(reader)
+        self.camera = self._pick(rm.IMAGE_TYPES, self.choice.camera, "camera", "--camera-topic")
+        self.lidar = self._pick((rm.CLOUD_TYPE,), self.choice.lidar, "point cloud", "--lidar-topic", required=False)
+        self.info_topic = self._pick_info()
+        self.pose_topic = self._pick((*rm.POSE_TYPES,), self.choice.poses, "pose", "--pose-topic", required=False,
+                                     ambiguous_ok=True)
+        idx = self._index(reader)
+        self._setup_camera(idx)
+        self._pair(idx)
+        self.T_cam_lidar = self._extrinsic(idx) if self.lidar is not None else np.eye(4)
+        self._poses = self._camera_poses(idx)
+        self.has_lidar = self.lidar is not None
+        self.has_poses = self._poses is not None
+        diffs = np.diff(self._times)
+        self.rate_hz = float(1.0 / np.median(diffs)) if len(diffs) and np.median(diffs) > 0 else 10.0
+        if idx.damaged:
+            warnings.warn(f"{self.path}: {idx.damaged}; the {len(self)} frames before it are read", stacklevel=2)
+
+    # -- opening and topics -------------------------------------------------------------------------------
+
+    def _open(self) -> Any:
+        """The bag's reader, opened once per process (a forked worker opens its own)."""
+        if self._reader is not None and self._pid == os.getpid():
+            return self._reader
+        from rosbags.highlevel import AnyReader
+
+        try:
+            reader = AnyReader([_bag_root(self.path)])
+            reader.open()
+        except Exception as exc:  # rosbags raises its own errors, and others on damaged files
+            raise DataError(self.path, f"cannot open this bag: {exc}{_repair_hint(self.path)}") from exc
+        self._reader, self._pid = reader, os.getpid()
+        return reader
+
+    def _topics(self, reader: Any) -> dict[str, _Topic]:
+        topics: dict[str, _Topic] = {}
+        for c in reader.connections:
+            t = topics.setdefault(c.topic, _Topic(c.topic, c.msgtype, 0))
+            t.count += int(c.msgcount)
+            t.connections.append(c)
+        return topics
+
+    def _pick(self, types: tuple[str, ...], named: str | None, what: str, option: str, required: bool = True,
+              ambiguous_ok: bool = False) -> str | None:
+        """The topic of one of `types`: the one named, else the only candidate."""
+        found = sorted(t.name for t in self.topics.values() if t.msgtype in types and t.count > 0)
+        if named is not None:
+            if named not in self.topics:
+                raise DataError(self.path, f"no topic {named} (topics of a {what}: {brief(found, 8) or 'none'})")
+            if self.topics[named].msgtype not in types:
+                raise DataError(self.path, f"topic {named} is a {self.topics[named].msgtype}, not a {what} "
+                                           f"({' or '.join(types)})")
+            return named
+        if len(found) == 1:
+            return found[0]
+        if not found:
+            if required:
+                raise DataError(self.path, f"no {what} topic ({' or '.join(types)}) in this bag")
+            return None
+        if ambiguous_ok:
+            warnings.warn(f"{self.path}: {len(found)} {what} topics ({', '.join(found)}); none used, name one "
+                          f"with {option}", stacklevel=3)
+            return None
+        raise DataError(self.path, f"{len(found)} {what} topics ({', '.join(found)}): choose one with {option}")
+
+    def _pick_info(self) -> str | None:
+        """The camera's CameraInfo: the one named, the only one, or the one beside the image topic."""
+        infos = sorted(t.name for t in self.topics.values() if t.msgtype == rm.INFO_TYPE and t.count > 0)
+        if self.choice.camera_info is not None or len(infos) <= 1:
+            return self._pick((rm.INFO_TYPE,), self.choice.camera_info, "camera info", "--camera-info-topic",
+                              required=False)
+        ns = self.camera.rsplit("/", 1)[0]
+        beside = [t for t in infos if t.rsplit("/", 1)[0] == ns]
+        if len(beside) == 1:
+            return beside[0]
+        raise DataError(self.path, f"{len(infos)} camera info topics ({', '.join(infos)}): choose one with "
+                                   "--camera-info-topic")
+
+    # -- the index pass -------------------------------------------------------------------------------------
+
+    def _index(self, reader: Any) -> _Index:
+        """One pass over the bag's messages of the chosen topics: stamps, calibration, static transforms."""
+        idx = _Index()
+        wanted = {self.camera, self.lidar, self.info_topic, self.pose_topic, "/tf_static", "tf_static"} - {None}
+        conns = [c for t in wanted if t in self.topics for c in self.topics[t].connections]
+        n = 0
+        try:
+            for conn, log_ns, raw in reader.messages(connections=conns):
+                n += 1
+                topic = conn.topic
+                if topic == self.info_topic and idx.info is not None:
+                    continue
+                msg = reader.deserialize(raw, conn.msgtype)
+                if topic == self.camera:
+                    idx.images.append((log_ns, rm.stamp_ns(msg)))
+                    idx.camera_frame = idx.camera_frame or str(msg.header.frame_id)
+                elif topic == self.lidar:
+                    idx.clouds.append((log_ns, rm.stamp_ns(msg)))
+                    idx.lidar_frame = idx.lidar_frame or str(msg.header.frame_id)
+                elif topic == self.info_topic:
+                    idx.info = msg
+                elif topic == self.pose_topic:
+                    T, body = rm.pose_matrix(msg, conn.msgtype)
+                    idx.poses.append((rm.stamp_ns(msg), T, body))
+                    idx.pose_frame = idx.pose_frame or str(msg.header.frame_id)
+                elif conn.msgtype == rm.TF_TYPE:
+                    idx.tree.add(msg)
+        except Exception as exc:  # a truncated or damaged bag: what came before it stays usable
+            idx.damaged = f"unreadable after message {n} ({type(exc).__name__}: {exc})"
+        if not idx.images:
+            raise DataError(self.path, f"no image could be read from {self.camera}"
+                                       + (f": {idx.damaged}" if idx.damaged else ""))
+        return idx
+
+    def _setup_camera(self, idx: _Index) -> None:
+        """Intrinsics from the CameraInfo, with the undistortion maps when the lens distorts."""
+        if idx.info is None:
+            raise DataError(self.path, f"no camera info for {self.camera} (sensor_msgs/CameraInfo): the camera "
+                                       "matrix is needed")
+        try:
+            K, D, model, (h, w) = rm.camera_intrinsics(idx.info)
+        except rm.MessageError as exc:
+            raise DataError(self.path, f"{self.info_topic}: {exc}") from exc
+        self._maps = None
+        self._mono_shift: int | None = None
+        if len(D) and np.any(D != 0):
+            if model in ("plumb_bob", "rational_polynomial"):
+                Knew = cv2.getOptimalNewCameraMatrix(K, D, (w, h), 0.0)[0]
+                self._maps = cv2.initUndistortRectifyMap(K, D, None, Knew, (w, h), cv2.CV_32FC1)
+            elif model in ("equidistant", "fisheye"):
+                Knew = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D[:4], (w, h), np.eye(3))
+                self._maps = cv2.fisheye.initUndistortRectifyMap(K, D[:4], np.eye(3), Knew, (w, h), cv2.CV_32FC1)
+            else:
+                raise DataError(self.path, f"{self.info_topic}: distortion model {model!r} is not read "
+                                           "(plumb_bob, rational_polynomial, equidistant)")
+            K = Knew
+        self.K = np.asarray(K, np.float64)
+
+    def _pair(self, idx: _Index) -> None:
+        """Each image with the scan nearest in time, within half the scan period."""
+        order = sorted(range(len(idx.images)), key=lambda k: idx.images[k][1])
+        images = [idx.images[k] for k in order]
+        img_ns = np.array([s for _, s in images], np.int64)
+        scan = np.full(len(images), -1, np.int64)
+        self._clouds = sorted(idx.clouds, key=lambda c: c[1])
+        if self.lidar is not None and self._clouds:
+            cl_ns = np.array([s for _, s in self._clouds], np.int64)
+            period = float(np.median(np.diff(cl_ns))) if len(cl_ns) > 1 else 1e8
+            j = np.clip(np.searchsorted(cl_ns, img_ns), 1, max(len(cl_ns) - 1, 1))
+            lo = np.clip(j - 1, 0, len(cl_ns) - 1)
+            hi = np.clip(j, 0, len(cl_ns) - 1)
+            best = np.where(np.abs(cl_ns[lo] - img_ns) <= np.abs(cl_ns[hi] - img_ns), lo, hi)
+            scan = np.where(np.abs(cl_ns[best] - img_ns) <= period / 2, best, -1)
+        keep = scan >= 0 if (self.choice.drop_unpaired and self.lidar is not None) else np.ones(len(images), bool)
+        if not keep.any():
+            raise DataError(self.path, f"no image of {self.camera} has a scan of {self.lidar} within half a scan period")
+        self._images = [images[k] for k in np.nonzero(keep)[0]]
+        self._scan = scan[keep]
+        self._stamps_ns = img_ns[keep]
+        self._times = (self._stamps_ns - self._stamps_ns[0]) * 1e-9
+        self.t0_ns = int(self._stamps_ns[0])
+        self.unpaired = int((self._scan < 0).sum()) if self.lidar is not None else 0
+
+    def _extrinsic(self, idx: _Index) -> np.ndarray:
+        """T_cam_lidar: from the extrinsic file when given, else chained through /tf_static."""
+        if self.choice.extrinsic is not None:
+            return read_extrinsic(Path(self.choice.extrinsic))
+        T = idx.tree.between(idx.camera_frame, idx.lidar_frame)
+        if T is None:
+            frames = brief(idx.tree.frames, 8) or "no /tf_static"
+            raise DataError(self.path, f"no transform from the LiDAR's frame {idx.lidar_frame!r} to the camera's "
+                                       f"{idx.camera_frame!r} ({frames}); give one with --extrinsic FILE "
+                                       "(T_cam_lidar, 12 or 16 numbers)")
+        return T
+
+    def _camera_poses(self, idx: _Index) -> np.ndarray | None:
+        """The camera's pose at each image's stamp (F x 4 x 4), None without usable poses."""
+        if not idx.poses:
+            return None
+        idx.poses.sort(key=lambda p: p[0])
+        t = np.array([p[0] for p in idx.poses], np.int64)
+        T_world_body = np.stack([p[1] for p in idx.poses])
+        body = idx.poses[0][2]
+        T_body_cam = idx.tree.between(body, idx.camera_frame) if body else None
+        if T_body_cam is None:
+            if body and body.lstrip("/") != idx.camera_frame.lstrip("/"):
+                warnings.warn(f"{self.path}: no transform from the poses' frame {body!r} to the camera's "
+                              f"{idx.camera_frame!r}; the poses are taken as the camera's", stacklevel=3)
+            T_body_cam = np.eye(4)
+        gap = max(float(t[0] - self._stamps_ns[0]), float(self._stamps_ns[-1] - t[-1])) * 1e-9
+        if gap > MAX_POSE_GAP_S:
+            warnings.warn(f"{self.path}: the poses of {self.pose_topic} end {gap:.2f} s before the images do; "
+                          "not used", stacklevel=3)
+            return None
+        at = (self._stamps_ns - t[0]) * 1e-9
+        return poses_at((t - t[0]) * 1e-9, T_world_body, at) @ T_body_cam
+
+    # -- frames ---------------------------------------------------------------------------------------------
+
+    def _num_frames(self) -> int:
+        return len(self._images)
+
+    def timestamps(self) -> np.ndarray:
+        return self._times.copy()
+
+    def pose(self, i: int) -> np.ndarray | None:
+        return None if self._poses is None else self._poses[i]
+
+    def _message(self, topic: str, log_ns: int, stamp_ns: int) -> tuple[Any, str]:
+        """The message of `topic` logged at `log_ns` with header stamp `stamp_ns`."""
+        with self._lock:
+            reader = self._open()
+            conns = self.topics[topic].connections
+            for conn, _, raw in reader.messages(connections=conns, start=log_ns, stop=log_ns + 1):
+                msg = reader.deserialize(raw, conn.msgtype)
+                if rm.stamp_ns(msg) == stamp_ns:
+                    return msg, conn.msgtype
+        raise DataError(self.path, f"{topic}: the message stamped {stamp_ns * 1e-9:.6f} s cannot be read again")
+
+    def _load(self, i: int) -> Frame:
+        msg, msgtype = self._message(self.camera, *self._images[i])
+        try:
+            image = rm.decode_image(msg, msgtype)
+        except rm.MessageError as exc:
+            raise DataError(self.path, f"{self.camera} image {i}: {exc}") from exc
+        if image.dtype == np.uint16:
+            if self._mono_shift is None:  # fixed by the first frame read, for the whole sequence
+                self._mono_shift = rm.mono16_shift(image)
+            image = rm.to_uint8(image, self._mono_shift)
+        if self._maps is not None:
+            image = cv2.remap(image, *self._maps, cv2.INTER_LINEAR)
+        points = times = None
+        if self.lidar is not None:
+            k = int(self._scan[i])
+            if k < 0:
+                points = np.zeros((0, 4), np.float32)
+            else:
+                cloud, _ = self._message(self.lidar, *self._clouds[k])
+                try:
+                    points, times = rm.decode_cloud(cloud, int(self._stamps_ns[i]))
+                except rm.MessageError as exc:
+                    raise DataError(self.path, f"{self.lidar} scan of frame {i}: {exc}") from exc
+        return Frame(index=i, timestamp=float(self._times[i]), image=image, K=self.K, T_cam_lidar=self.T_cam_lidar,
+                     points=points, point_times=times, T_world_cam=None if self._poses is None else self._poses[i])
+
+    # -- what `leovr info` prints ---------------------------------------------------------------------------
+
+    def topic_table(self) -> list[dict]:
+        """Every topic: type, messages, rate (Hz, from the log times) and what leovr uses it for."""
+        use = {self.camera: "camera", self.info_topic: "camera info", self.lidar: "LiDAR", self.pose_topic: "poses"}
+        if self.lidar is not None and self.choice.extrinsic is None:
+            use |= {t: "extrinsic" for t in ("/tf_static", "tf_static")}
+        span = max((self._reader.end_time - self._reader.start_time) * 1e-9, 1e-9)
+        return [{"topic": t.name, "type": t.msgtype, "messages": t.count,
+                 "rate_hz": round((t.count - 1) / span, 2) if t.count > 1 else 0.0, "used_as": use.get(t.name, "")}
+                for t in sorted(self.topics.values(), key=lambda t: t.name)]
+
+    def pairing(self) -> dict:
+        return {"images": len(self), "paired_with_a_scan": len(self) - self.unpaired, "unpaired": self.unpaired}
+
+
+def _repair_hint(path: Path) -> str:
+    """How to repair a bag that cut off (a recorder killed mid-write leaves no index): the tool of its format."""
+    root = _bag_root(Path(path))
+    if root.suffix == ".bag":
+        return " (a ROS 1 bag cut off before its index: `rosbag reindex` repairs it)"
+    storage = {p.suffix for p in root.iterdir()} if root.is_dir() else set()
+    if ".mcap" in storage:
+        return " (an MCAP file cut off before its summary: `mcap recover` repairs it)"
+    if ".db3" in storage:
+        return " (a damaged SQLite file: `sqlite3 FILE .recover` salvages its rows)"
+    return ""
+
+
+def read_extrinsic(path: Path) -> np.ndarray:
+    """T_cam_lidar from a text file of 12 (3 x 4) or 16 (4 x 4) numbers."""
+    try:
+        vals = np.array(path.read_text().replace(",", " ").split(), np.float64)
+    except OSError as exc:
+        raise DataError(path, f"cannot read the extrinsic: {exc.strerror or exc}") from exc
+    except ValueError:
+        raise DataError(path, "an extrinsic file holds 12 or 16 numbers (T_cam_lidar)") from None
+    if len(vals) not in (12, 16) or not np.isfinite(vals).all():
+        raise DataError(path, f"an extrinsic file holds 12 or 16 finite numbers (T_cam_lidar), not {len(vals)}")
+    T = np.eye(4)
+    T[:3] = vals[:12].reshape(3, 4)
+    if len(vals) == 16 and not np.allclose(vals[12:], [0, 0, 0, 1]):
+        raise DataError(path, "the last row of a 4 x 4 extrinsic must be 0 0 0 1")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+        raise DataError(path, "the extrinsic's rotation block is not a rotation")
+    return T
