@@ -201,7 +201,8 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
                                val_every=val_every if end > val_every // 2 else 0)
             from selfsup.adapt import adapt
 
-            record = adapt([seq], acfg, work / f"{inp}_{protocol}_adapt", resume=True, progress=progress)
+            folder = work / f"{inp}_{protocol}_adapt"
+            record = adapt([seq], acfg, folder, resume=(folder / "checkpoint_last.pt").is_file(), progress=progress)
             minutes[f"{protocol}_{inp}"] = record["minutes"]
             blends[f"{protocol}_{inp}"] = {"blend": record.get("blend", 1.0),
                                            "val_mae_m_by_blend": record.get("val_mae_m_by_blend")}
