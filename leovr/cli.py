@@ -163,11 +163,46 @@ def refine(
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also write a Rerun recording of the run (.rrd)."),
     loop_closure: Optional[bool] = typer.Option(None, "--loop-closure/--no-loop-closure", help="Close loops afterwards."),
     causal: Optional[bool] = typer.Option(None, "--causal/--no-causal", help="Live use: each frame's outputs from it and earlier frames only."),
+    fuse_map: bool = typer.Option(False, "--map", help="Then fuse the run into a 3D map in OUT/map (as `leovr map`)."),
 ) -> None:
     """Generator depth refined with poses and landmarks in the sliding-window factor graph."""
-    cfg = override(load_config(config).refine, checkpoint=None if checkpoint is None else str(checkpoint),
+    loaded = load_config(config)
+    cfg = override(loaded.refine, checkpoint=None if checkpoint is None else str(checkpoint),
                    window=window, input=input, start=start, end=end, loop={"enabled": loop_closure}, causal=causal)
+    if fuse_map:
+        from leovr.data.io import check_output_dir
+
+        check_output_dir(out / "map")
     _run_refine(data, out, cfg, resume, rerun)
+    if fuse_map:
+        _echo_map(_fuse(out, out / "map", loaded.map))
+
+
+def _fuse(run: Path, out: Path, cfg) -> dict:
+    from leovr.pipeline.tsdf_map import map_run
+
+    return map_run(run, out, cfg)
+
+
+def _echo_map(r: dict) -> None:
+    typer.echo(f"map: {r['frames']} frames, {r['triangles']} triangles, {r['seconds_per_frame'] * 1000:.0f} ms a frame, "
+               f"peak memory {r['peak_memory_mb']:.0f} MB -> {Path(r['out'])}/map.ply, map_points.ply")
+
+
+@app.command("map")
+def map_command(
+    run: Path = typer.Argument(..., help="A finished `leovr refine` output folder."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder: map.ply (mesh), map_points.ply, map.json."),
+    voxel: Optional[float] = typer.Option(None, help="Voxel edge in metres (default 0.1)."),
+    max_depth: Optional[float] = typer.Option(None, "--max-depth", help="Leave out depth beyond this (m, default 40)."),
+    sigma_max: Optional[float] = typer.Option(None, "--sigma-max", help="Leave out pixels whose predicted uncertainty exceeds this fraction of their depth."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Fuse a refine run's depth, images and poses into a TSDF map: a coloured mesh and point cloud."""
+    from leovr.data.io import check_output_dir
+
+    cfg = override(load_config(config).map, voxel_m=voxel, max_depth_m=max_depth, sigma_max=sigma_max)
+    _echo_map(_fuse(run, check_output_dir(out), cfg))
 
 
 @app.command()

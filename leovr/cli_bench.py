@@ -117,6 +117,22 @@ def bench_real(
     _print_bench("real", doc, out)
 
 
+@bench_app.command("map")
+def bench_map(
+    out: Path = OutOpt,
+    quick: bool = typer.Option(False, help="The first frames of each clip only."),
+    clips: Optional[str] = typer.Option(None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."),
+    config: Optional[Path] = ConfigOpt,
+) -> None:
+    """Maps of each real drive from the refined depth, the nearest fill and the accumulated cheap returns, scored
+    on the held-out returns (accuracy, completeness)."""
+    from leovr.bench.map import run_map_bench
+
+    cfg = override(load_config(config).bench_map, clips=[c.strip() for c in clips.split(",")] if clips else None)
+    doc = run_map_bench(out, cfg, quick=quick)
+    _print_bench("map", doc, out)
+
+
 @bench_app.command("selfsup")
 def bench_selfsup(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),

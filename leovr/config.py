@@ -273,6 +273,30 @@ class BenchRealConfig(_Model):
     seed: int = Field(0, ge=0)  # seeds the simulated inputs and adaptation
 
 
+class MapConfig(_Model):
+    """`leovr map`: a refine run's depth, images and poses fused into a TSDF map (mesh and points)."""
+
+    voxel_m: float = Field(0.1, gt=0.0)  # voxel edge (m)
+    max_depth_m: float = Field(40.0, gt=0.0)  # pixels deeper than this are left out
+    # pixels whose predicted uncertainty (sigma/ of the run) exceeds this fraction of their depth are left out;
+    # None keeps them all: on both real drives and both inputs every threshold from 0.05 to 0.5 made the map
+    # less complete and no more accurate (`leovr bench map`, docs/benchmarks.md)
+    sigma_max: float | None = Field(None, gt=0.0)
+    trunc_voxels: float = Field(4.0, gt=0.0)  # the signed distance is truncated at this many voxels
+    min_weight: float = Field(1.0, ge=0.0)  # voxels observed fewer times than this are not part of the surface
+
+
+class BenchMapConfig(_Model):
+    """`leovr bench map`: maps of each real drive from the refined depth, the nearest fill of the same cheap
+    input and the cheap returns accumulated, scored on the held-out returns."""
+
+    clips: list[str] | None = None  # KITTI raw drives; None = every one under ../shared/data (development data)
+    inputs: list[str] = ["vlp16", "mid40"]  # cheap inputs simulated from the drives' scans
+    map: MapConfig = MapConfig()  # the fusion's settings (its sigma_max is the refined map's headline)
+    sigma_max_sweep: list[float] = [0.05, 0.1, 0.2, 0.3, 0.5]  # the refined map also fused at these (and with none)
+    quick_frames: int = Field(8, ge=3)  # --quick: the first frames of each clip
+
+
 class BenchSelfSupConfig(_Model):
     """`leovr bench selfsup`: cold-start self-supervised training against untrained and supervised
     models on the same frames and schedule, plus a cold start on the shared KITTI raw clip."""
@@ -336,6 +360,8 @@ class LeovrConfig(_Model):
     selfsup: SelfSupConfig = SelfSupConfig()
     adapt: AdaptConfig = AdaptConfig()
     bench_real: BenchRealConfig = BenchRealConfig()
+    map: MapConfig = MapConfig()
+    bench_map: BenchMapConfig = BenchMapConfig()
     bench_selfsup: BenchSelfSupConfig = BenchSelfSupConfig()
     batch: BatchConfig = BatchConfig()
     bench_batch: BenchBatchConfig = BenchBatchConfig()

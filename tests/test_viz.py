@@ -8,10 +8,11 @@ import pyarrow.compute as pc
 import pytest
 import rerun as rr
 
-from leovr.config import RefineConfig, SimulateConfig
+from leovr.config import MapConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.errors import DataError
 from leovr.pipeline.refine import run_refine
+from leovr.pipeline.tsdf_map import map_run
 from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording
 
@@ -35,11 +36,14 @@ def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
     run_refine(open_sequence(tmp_path / "seq"), RefineConfig(input="full"), tmp_path / "run", progress=False)
     loop = {"frame": 3, "candidate": 0, "accepted": True}  # an accepted loop is drawn as an edge
     (tmp_path / "run" / "loops.json").write_text(json.dumps({"loops": [loop, {**loop, "frame": 2, "accepted": False}]}))
+    map_run(tmp_path / "run", tmp_path / "run" / "map", MapConfig(), progress=False)  # the map goes in once
     summary = write_recording(tmp_path / "run", tmp_path / "r.rrd")
     assert summary["trajectories"] == ["ground_truth", "kiss_icp", "leovr"]
     columns: dict = {}
     entities, frames = _read(tmp_path / "r.rrd", columns)
     assert "frame" not in columns["/world/camera/image"]  # the pinhole is static, logged once
+    assert "frame" not in columns["/world/map"] and any("Mesh3D" in c for c in columns["/world/map"])
+    assert any("EncodedImage" in c for c in columns["/world/camera/image/rgb"])  # JPEG, not raw pixels
     assert any("DepthImage" in c for c in columns["/world/camera/image/error"])  # metres, not RGB
     for e in ("/world/trajectory/ground_truth", "/world/trajectory/leovr", "/world/trajectory/kiss_icp", "/world/landmarks",
               "/world/camera", "/world/camera/image", "/world/camera/image/rgb", "/world/camera/image/depth_generator",

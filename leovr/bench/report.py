@@ -21,6 +21,7 @@ BENCHES: dict[str, str] = {
     "batch": "Wall time of `leovr batch` with 1 and 2 workers on the same rendered sequences.",
     "selfsup": "Cold-start self-supervised training against a supervised reference, with movers, and on KITTI raw.",
     "simulate": "Rendering speed of the simulator (camera, depth and LiDAR) per LiDAR model.",
+    "map": "3D maps of each real drive fused from refined depth, the nearest fill and the accumulated cheap returns.",
 }
 
 GLOSSARY = [
@@ -361,9 +362,35 @@ def render_simulate(doc: dict) -> tuple[list[str], list[str]]:
     return data, table(["LiDAR", "frames", "frames/s", "render s/frame", "s/frame with writing"], rows)
 
 
+def render_map(doc: dict) -> tuple[list[str], list[str]]:
+    """Accuracy and completeness of each map per clip and input, the uncertainty sweep, cost."""
+    res = doc.get("results") or {}
+    dev = {True: "development data", False: "not development data"}
+    data = [f"`{k}`: {r.get('frames', '-')} frames, held-out returns placed with the {r.get('poses', '-')} poses, "
+            f"{dev.get(r.get('development'), '-')}" for k, r in res.items()]
+    data += [f"accuracy: mean distance of the held-out returns to the map where within {doc.get('cover_m', '-')} m; "
+             f"completeness: share within {doc.get('near_m', '-')} m"]
+    rows = []
+    for k, r in res.items():
+        m, s = r.get("maps") or {}, (doc.get("summary") or {}).get(k) or {}
+        rows.append([k] + [f"{num(get(m, name, 'accuracy_m'))} / {num(get(m, name, 'completeness'))}"
+                           for name in ("refined", "nearest", "accumulated")]
+                    + [num(s.get("accuracy_vs_nearest"), 2, "x"), num(s.get("completeness_vs_accumulated"), 2, "x"),
+                       num(r.get("seconds_per_frame")), num(r.get("peak_memory_mb"), 0)])
+    body = table(["clip, input", "refined acc. m / compl.", "nearest", "accumulated", "nearest acc. ÷ refined",
+                  "refined compl. ÷ accumulated", "fusion s/frame", "peak MB"], rows)
+    sweep = sorted({n for r in res.values() for n in (r.get("maps") or {}) if n.startswith("refined_sigma_")})
+    if sweep:
+        body += ["", "The refined map at each uncertainty threshold (`--sigma-max`; accuracy m / completeness):", ""]
+        body += table(["clip, input"] + [n.removeprefix("refined_sigma_") for n in sweep],
+                      [[k] + [f"{num(get(r, 'maps', n, 'accuracy_m'))} / {num(get(r, 'maps', n, 'completeness'))}"
+                              for n in sweep] for k, r in res.items()])
+    return data, body
+
+
 RENDERERS = {"baseline": render_baseline, "depth": render_depth, "refine": render_refine, "real": render_real,
              "loop": render_loop, "speed": render_speed, "batch": render_batch, "selfsup": render_selfsup,
-             "simulate": render_simulate}
+             "simulate": render_simulate, "map": render_map}
 
 
 def section(name: str, doc: dict) -> str:

@@ -76,12 +76,15 @@ def _set_threads(n: int) -> None:
 
 
 def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, threads: int = 1,
-                 settings: dict | None = None) -> dict:
+                 settings: dict | None = None, topics: Any = None) -> dict:
     """One sequence, in a Ray worker (or in-process): run the job into `out`, resuming what is there.
-    `settings`: its `task_settings` when the caller has them. Returns the state record; data and config
-    errors are recorded as a failure, not raised."""
-    from leovr.data import open_sequence
+    `settings`: its `task_settings` when the caller has them; `topics`: the ROS bag topics the command line
+    named (a worker process does not share the driver's). Returns the state record; data and config errors
+    are recorded as a failure, not raised."""
+    from leovr.data import open_sequence, rosbag
 
+    if topics is not None:
+        rosbag.CHOICE = topics
     _set_threads(threads)
     settings = settings if settings is not None else task_settings(job, section, item.path)
     if is_done(out, settings):
@@ -209,6 +212,8 @@ def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], setti
     """One Ray task per sequence of `todo`, at most `workers` in flight; the summary after each one."""
     import ray
 
+    from leovr.data import rosbag
+
     task = ray.remote(run_sequence).options(num_cpus=bcfg.cpus_per_task, max_retries=bcfg.max_retries,
                                             retry_exceptions=False)
     limit = bcfg.workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // bcfg.cpus_per_task)
@@ -219,7 +224,8 @@ def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], setti
     while todo or inflight:
         while todo and len(inflight) < limit:
             it = todo.pop(0)
-            inflight[task.remote(it, job, sections[it.name], out / it.name, bcfg.cpus_per_task, settings[it.name])] = it
+            inflight[task.remote(it, job, sections[it.name], out / it.name, bcfg.cpus_per_task, settings[it.name],
+                                 rosbag.CHOICE)] = it
         ready, _ = ray.wait(list(inflight), num_returns=1)
         it = inflight.pop(ready[0])
         try:

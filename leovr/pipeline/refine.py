@@ -3,7 +3,8 @@ frame by frame as a live system would see them; refined depth, poses, metrics an
 
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 256, the KITTI
 depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
-`depth_ipbasic/` (IP-Basic on the same input), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP alone on the same input, with
+`depth_ipbasic/` (IP-Basic on the same input), `sigma/` (the generator's predicted uncertainty of the refined depth,
+one standard deviation, uint16 metres x 256), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP alone on the same input, with
 ground-truth poses or `--compare`; `poses_kiss_icp_no_deskew_kitti.txt` beside it when the scans carry point times), `poses_mono_vo_kitti.txt` (`--compare`), `metrics.json` (when the sequence has ground
 truth depth or LiDAR to hold out, and poses; with a cone LiDAR also `nearest_accumulated` / `ipbasic_accumulated`,
 the fills of the same frames' returns placed with KISS-ICP's poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
@@ -106,7 +107,8 @@ class RefineRun:
         self.textbook = MonoVO(first.K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
         gcfg = cfg if has_lidar else camera_only_graph_config(cfg)
         self.graph = WindowGraph(gcfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar)
-        self.pending: dict[int, tuple[np.ndarray, float]] = {}  # generator depth, and the road's scale for it (camera only)
+        # generator depth, its log uncertainty, and the road's scale for it (camera only)
+        self.pending: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
         self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
         self.empty: list[int] = []  # frames whose LiDAR input has no return inside the image
         self.scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
@@ -166,7 +168,7 @@ class RefineRun:
         self.history.add(i, p.sample.kept_points)
         if n + 1 < len(self.indices):
             self.submit_next(ahead, n, i, fi)
-        self.pending[i] = p.depth, self.front.depth_scale
+        self.pending[i] = p.depth, p.log_sigma, self.front.depth_scale
         t_base, c_base = time.perf_counter(), time.process_time()  # scoring and baselines: not a frame's time
         self.score_and_baselines(i, p.sample)
         t2b, c2b = time.perf_counter(), time.process_time()
@@ -252,7 +254,7 @@ class RefineRun:
         the pose saved; a finished frame of a resumed run only has its replayed pose kept."""
         leaving = {r.index: r.T_world_cam for r in results}  # at the end the whole window leaves at once
         for r in results:
-            gen_depth, scale = self.pending.pop(r.index)
+            gen_depth, log_sigma, scale = self.pending.pop(r.index)
             if r.index in self.done:
                 self.replayed[r.index] = r.T_world_cam
                 continue
@@ -264,6 +266,9 @@ class RefineRun:
                 self.scored[r.index].add("refined", refined)
             write_depth_png(self.out / "depth_generator" / png_name(self.names, r.index), gen_depth)
             write_depth_png(self.out / "depth" / png_name(self.names, r.index), refined)
+            # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
+            sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
+            write_depth_png(self.out / "sigma" / png_name(self.names, r.index), sigma)
             self.state.poses[r.index] = r.T_world_cam.ravel().tolist()
             self.state.save(self.state_path)
 
@@ -310,10 +315,10 @@ class RefineRun:
         landmarks, seen_by = self.graph.all_landmarks()
         whole_recording_passes(seq, cfg, self.out, indices, state, landmarks, seen_by)
         state.save(self.state_path)
-        atomic_write(self.out / "landmarks.npy", lambda tmp: np.save(open(tmp, "wb"), landmarks))
-        atomic_write(self.out / "landmarks_frame.npy", lambda tmp: np.save(open(tmp, "wb"), seen_by))
+        atomic_write(self.out / "landmarks.npy", lambda tmp: np.save(tmp, landmarks))
+        atomic_write(self.out / "landmarks_frame.npy", lambda tmp: np.save(tmp, seen_by))
         lidar_backed = self.graph.lidar_backed()
-        atomic_write(self.out / "landmarks_lidar.npy", lambda tmp: np.save(open(tmp, "wb"), lidar_backed))
+        atomic_write(self.out / "landmarks_lidar.npy", lambda tmp: np.save(tmp, lidar_backed))
         baselines, icp = self.pose_baselines(bool(several))
         if several and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
             accumulated_fills(seq, indices, self.ccfg, icp, self.scored, several, cfg.accumulation.frames,

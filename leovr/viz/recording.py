@@ -22,6 +22,7 @@ from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.data.io import read_depth_png, read_json_object
 from leovr.data.kitti_common import read_kitti_poses
+from leovr.data.run_folder import is_finished_run, read_run
 from leovr.data.run_info import run_depth_scale, run_frame_png
 from leovr.errors import DataError, brief
 from leovr.geometry import back_project, invert_T, transform_points
@@ -32,7 +33,14 @@ COLOURS = {"ground_truth": (40, 200, 80), "leovr": (255, 140, 0), "kiss_icp": (6
 LANDMARK_COLOUR = (0, 150, 170)  # dark cyan: visible on the dark and the light theme
 DEPTH_RANGE_M = (0.0, 80.0)  # colour scale of every depth layer
 ERROR_RANGE_M = (0.0, 5.0)
-CLOUD_MAX_M, CLOUD_STEP = 80.0, 4  # the 3D depth cloud: refined depth up to 80 m, every 4th pixel each way
+CLOUD_MAX_M, CLOUD_STEP = 80.0, 8  # the 3D depth cloud: refined depth up to 80 m, every 8th pixel each way
+# what keeps a recording light (a real KITTI frame: 5.7 -> 0.9 MB): images as JPEG, depth layers at half the
+# image's resolution in float16 (a viewer's panel is smaller than the image; hovering still reads metres), every
+# 8th LiDAR return, and the map once, with at most MAP_TRIANGLES triangles
+JPEG_QUALITY = 85
+DEPTH_STEP = 2
+LIDAR_STEP = 8
+MAP_TRIANGLES = 400_000
 HIDDEN_IN_3D = ("world/camera/image/depth_refined", "world/camera/image/depth_generator",
                 "world/camera/image/depth_ground_truth", "world/camera/image/error")
 
@@ -86,13 +94,15 @@ def _error_image(pred: np.ndarray, gt: np.ndarray) -> "rr.DepthImage":
     err = np.where(valid, np.maximum(np.abs(pred - gt), 1e-3), 0.0).astype(np.float32)
     if valid.mean() < 0.2:
         err = cv2.dilate(err, np.ones((3, 3), np.uint8))
-    return rr.DepthImage(err, meter=1.0, colormap="viridis", depth_range=ERROR_RANGE_M)  # 0 m is purple, not black
+    h, w = (err.shape[0] // DEPTH_STEP) * DEPTH_STEP, (err.shape[1] // DEPTH_STEP) * DEPTH_STEP
+    err = err[:h, :w].reshape(h // DEPTH_STEP, DEPTH_STEP, w // DEPTH_STEP, DEPTH_STEP).max(axis=(1, 3))  # sparse errors stay
+    return rr.DepthImage(err.astype(np.float16), meter=1.0, colormap="viridis", depth_range=ERROR_RANGE_M)  # 0 m: purple
 
 
 def _depth_image(d: np.ndarray) -> "rr.DepthImage":
-    """Float metres (no 16-bit cap; hovering shows metres), 0 = unknown."""
-    return rr.DepthImage(np.nan_to_num(d, nan=0.0).astype(np.float32), meter=1.0, colormap="turbo",
-                         depth_range=DEPTH_RANGE_M)
+    """Metres at half resolution (float16: no 16-bit cap, hovering shows metres), 0 = unknown."""
+    return rr.DepthImage(np.nan_to_num(d[::DEPTH_STEP, ::DEPTH_STEP], nan=0.0).astype(np.float16), meter=1.0,
+                         colormap="turbo", depth_range=DEPTH_RANGE_M)
 
 
 def _depth_cloud(d: np.ndarray, K: np.ndarray, T: np.ndarray) -> "rr.Points3D":
@@ -102,30 +112,17 @@ def _depth_cloud(d: np.ndarray, K: np.ndarray, T: np.ndarray) -> "rr.Points3D":
     keep = (z > 0) & (z <= CLOUD_MAX_M)
     uv = np.stack([u[keep], v[keep]], 1).astype(float)
     pts = transform_points(T, back_project(uv, z[keep].astype(float), K))
-    return rr.Points3D(pts, colors=_range_colours(z[keep], CLOUD_MAX_M), radii=0.03)
+    return rr.Points3D(pts.astype(np.float32), colors=_range_colours(z[keep], CLOUD_MAX_M), radii=0.03)
 
 
 def write_recording(target: str | Path, out: str | Path, max_frames: int | None = None) -> dict:
     """`target` is a refine run folder (with metrics.json) or a sequence folder. Returns a summary."""
     target, out = Path(target), Path(out)
-    run = target if (target / "metrics.json").is_file() and (target / "poses_kitti.txt").is_file() else None
-    if run is None and (target / "run.json").is_file():
-        missing = [n for n in ("metrics.json", "poses_kitti.txt") if not (target / n).is_file()]
-        raise DataError(target, f"this run did not finish (no {' or '.join(missing)} yet): resume it with its command "
-                                "and --resume, then record it")
-    if run is not None:
-        seq = open_sequence(_run_sequence(run))
-        poses = read_kitti_poses(run / "poses_kitti.txt")
-        progress = read_json_object(run / "progress.json") if (run / "progress.json").is_file() else {}
-        indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
-        if len(poses) < len(indices):
-            raise DataError(run / "poses_kitti.txt", f"{len(poses)} poses for the run's {len(indices)} frames "
-                                                     "(progress.json): the run's files disagree")
-        if indices and max(indices) >= len(seq):
-            raise DataError(run, f"the run has frames up to {max(indices)} but its sequence {seq.path} has "
-                                 f"{len(seq)} frames: not the recording the run was made from")
+    if is_finished_run(target) or (target / "run.json").is_file():
+        r = read_run(target)
+        run, seq, poses, indices = r.path, r.seq, r.poses, r.indices
     else:
-        seq, poses = open_sequence(target), None
+        run, seq, poses = None, open_sequence(target), None
         indices = list(range(len(seq)))
     if max_frames is not None:
         indices = indices[:max_frames]
@@ -139,18 +136,6 @@ def write_recording(target: str | Path, out: str | Path, max_frames: int | None 
     finally:
         tmp.unlink(missing_ok=True)  # a failed recording leaves nothing behind
     return {"frames": len(indices), "trajectories": sorted(strips), "path": str(out)}
-
-
-def _run_sequence(run: Path) -> Path:
-    """The sequence a run was made from. Runs written before leovr recorded absolute paths hold the
-    path as typed; it is then looked up from the current folder and from each folder above the run."""
-    p = Path(_json_field(run / "metrics.json", "sequence"))
-    if p.is_absolute() or p.exists():
-        return p
-    for base in run.resolve().parents:
-        if (base / p).exists():
-            return base / p
-    return p  # open_sequence names it as missing
 
 
 def _array(path: Path) -> np.ndarray:
@@ -198,6 +183,8 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
     if run is not None and (run / "landmarks.npy").is_file():
         rec.log("world/landmarks", rr.Points3D(_array(run / "landmarks.npy"), colors=[LANDMARK_COLOUR], radii=0.06),
                 static=True)
+    if run is not None and (run / "map" / "map.ply").is_file():
+        rec.log("world/map", _map_mesh(run / "map" / "map.ply"), static=True)
     first = seq[indices[0]]
     rec.log("world/camera/image", rr.Pinhole(image_from_camera=first.K, resolution=[first.width, first.height],
                                              camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=2.0), static=True)
@@ -221,10 +208,11 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
             T0_inv = None
         T = poses[n] if poses is not None else (gt[n] if T0_inv is not None else np.eye(4))
         rec.log("world/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
-        rec.log("world/camera/image/rgb", rr.Image(f.image))
+        rec.log("world/camera/image/rgb", rr.Image(f.image).compress(jpeg_quality=JPEG_QUALITY))
         if f.points is not None and len(f.points):
-            cam = transform_points(f.T_cam_lidar, f.points[:, :3])
-            rec.log("world/lidar", rr.Points3D(transform_points(T, cam), colors=_range_colours(np.linalg.norm(f.points[:, :3], axis=1)), radii=0.04))
+            pts = f.points[::LIDAR_STEP, :3]
+            rec.log("world/lidar", rr.Points3D(transform_points(T, transform_points(f.T_cam_lidar, pts)).astype(np.float32),
+                                               colors=_range_colours(np.linalg.norm(pts, axis=1)), radii=0.04))
         ref = f.depth if f.depth is not None else (held_out(f) if held_out is not None else None)
         for kind, folder in folders.items():
             png = run_frame_png(run, folder, i) if run is not None else None
@@ -247,6 +235,20 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
     for name, xyz in strips.items():
         rec.log(f"world/trajectory/{name}", rr.LineStrips3D([xyz], colors=[COLOURS[name]], radii=0.08), static=True)
     return strips
+
+
+def _map_mesh(path: Path) -> "rr.Mesh3D":
+    """The run's map (`leovr map` / `refine --map`), decimated to at most MAP_TRIANGLES triangles."""
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    if not len(mesh.triangles):
+        raise DataError(path, "unreadable or empty mesh")
+    if len(mesh.triangles) > MAP_TRIANGLES:
+        mesh = mesh.simplify_quadric_decimation(MAP_TRIANGLES)
+    colours = (np.asarray(mesh.vertex_colors) * 255).astype(np.uint8) if mesh.has_vertex_colors() else None
+    return rr.Mesh3D(vertex_positions=np.asarray(mesh.vertices, np.float32),
+                     triangle_indices=np.asarray(mesh.triangles, np.uint32), vertex_colors=colours)
 
 
 def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, float]]:

@@ -1,0 +1,131 @@
+"""`leovr map`: a run's refined depth, colour images and poses fused into one 3D map of the drive.
+
+Each frame's depth is integrated into a truncated signed distance volume: Open3D's voxel-block grid (a hash
+map of 8^3-voxel blocks, allocated only near observed surfaces, so memory grows with the area driven, not
+with the frame count). Pixels beyond `max_depth_m`, and pixels whose predicted uncertainty (the generator's
+sigma over the depth, `sigma/`) is above `sigma_max`, are left out. The zero level set is written as a
+coloured triangle mesh (`map.ply`) and its vertices as a coloured point cloud (`map_points.ply`).
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from leovr.config import MapConfig
+from leovr.data.io import atomic_write, read_depth_png, write_text
+from leovr.data.run_folder import RunFolder, read_run
+from leovr.errors import DataError
+
+SIGMA_SCALE = 256.0  # sigma/ PNGs: uint16 = metres x 256, as the depth maps
+
+
+class TsdfMap:
+    """A growing voxel-block TSDF volume: `add` frames, then `mesh`."""
+
+    def __init__(self, settings: MapConfig) -> None:
+        import open3d as o3d
+        import open3d.core as o3c
+
+        self.s = settings
+        self._o3d, self._o3c = o3d, o3c
+        self.grid = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+            attr_channels=((1), (1), (3)), voxel_size=settings.voxel_m, block_resolution=8, block_count=20000,
+            device=o3c.Device("CPU:0"))
+        self.frames = 0
+
+    def add(self, image: np.ndarray, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> None:
+        """Integrate one frame: RGB (or gray) uint8 image, depth in metres (0 = none), camera pose."""
+        o3d, o3c = self._o3d, self._o3c
+        self.frames += 1
+        if not (depth > 0).any():  # nothing of this frame within reach (or certain enough)
+            return
+        rgb = np.dstack([image] * 3) if image.ndim == 2 else image
+        colour = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(rgb, np.float32) / 255.0))
+        d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, np.float32)))
+        intr = o3c.Tensor(np.asarray(K, np.float64))
+        extr = o3c.Tensor(np.linalg.inv(np.asarray(T_world_cam, np.float64)))
+        kw = {"depth_scale": 1.0, "depth_max": self.s.max_depth_m, "trunc_voxel_multiplier": self.s.trunc_voxels}
+        try:
+            blocks = self.grid.compute_unique_block_coordinates(d, intr, extr, **kw)
+        except RuntimeError as exc:  # Open3D samples the depth map sparsely: a few valid pixels may touch no block
+            if "No block is touched" in str(exc):
+                return
+            raise
+        self.grid.integrate(blocks, d, colour, intr, extr, **kw)
+
+    def mesh(self):
+        """The surface as a legacy Open3D TriangleMesh with vertex colours (empty when nothing was fused)."""
+        if not self.blocks:
+            return self._o3d.geometry.TriangleMesh()
+        return self.grid.extract_triangle_mesh(weight_threshold=self.s.min_weight).to_legacy()
+
+    @property
+    def blocks(self) -> int:
+        return int(self.grid.hashmap().size())
+
+
+def map_depth(depth: np.ndarray, sigma: np.ndarray | None, settings: MapConfig) -> np.ndarray:
+    """The depth the map takes from a frame: 0 beyond the farthest depth and where sigma / depth is above
+    `sigma_max` (sigma in metres, as written by `leovr refine`)."""
+    keep = (depth > 0) & (depth <= settings.max_depth_m)
+    if sigma is not None and settings.sigma_max is not None:
+        keep &= sigma <= settings.sigma_max * depth
+    return np.where(keep, depth, 0.0).astype(np.float32)
+
+
+def fuse_run(run: RunFolder, settings: MapConfig, source: str = "depth", progress: bool = True) -> TsdfMap:
+    """The run's depth maps (folder `source`) fused with its images and poses; the uncertainty filter applies
+    where the run wrote `sigma/`."""
+    vol = TsdfMap(settings)
+    with_sigma = settings.sigma_max is not None and (run.path / "sigma").is_dir()
+    for n, i in enumerate(tqdm(run.indices, desc="map", unit="frame", disable=not progress)):
+        frame = run.seq[i]
+        depth = read_depth_png(run.png(source, n), shape=frame.shape)
+        sigma = read_depth_png(run.png("sigma", n), SIGMA_SCALE, shape=frame.shape) if with_sigma else None
+        vol.add(frame.image, map_depth(depth, sigma, settings), frame.K, run.poses[n])
+    return vol
+
+
+def write_map(vol: TsdfMap, out: Path) -> dict:
+    """map.ply (coloured mesh) and map_points.ply (its vertices) in `out`, each written atomically."""
+    import open3d as o3d
+
+    mesh = vol.mesh()
+    if not len(mesh.triangles):
+        raise DataError(out, "the map is empty: no depth within reach was fused (check --max-depth and --sigma-max)")
+    cloud = o3d.geometry.PointCloud(mesh.vertices)
+    cloud.colors = mesh.vertex_colors
+    atomic_write(out / "map.ply", lambda tmp: _check(o3d.io.write_triangle_mesh(str(tmp), mesh), out / "map.ply"))
+    atomic_write(out / "map_points.ply", lambda tmp: _check(o3d.io.write_point_cloud(str(tmp), cloud), out / "map_points.ply"))
+    return {"vertices": len(mesh.vertices), "triangles": len(mesh.triangles)}
+
+
+def _check(ok: bool, path: Path) -> None:
+    if not ok:
+        raise DataError(path, "could not be written")
+
+
+def peak_memory_mb() -> float:
+    """This process's peak resident memory so far (MB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def map_run(run_dir: Path, out: Path, settings: MapConfig, progress: bool = True) -> dict:
+    """`leovr map`: fuse a finished refine run into `out` (map.ply, map_points.ply, map.json); returns map.json."""
+    run = read_run(Path(run_dir))
+    t0 = time.perf_counter()
+    vol = fuse_run(run, settings, progress=progress)
+    fused_s = time.perf_counter() - t0
+    summary = {"run": str(Path(run_dir).resolve()), "out": str(Path(out).resolve()), "frames": vol.frames, "settings": settings.model_dump(),
+               "uncertainty_filter": settings.sigma_max is not None and (run.path / "sigma").is_dir(),
+               **write_map(vol, Path(out)), "blocks": vol.blocks,
+               "seconds_per_frame": round(fused_s / max(vol.frames, 1), 4), "peak_memory_mb": round(peak_memory_mb(), 1)}
+    write_text(Path(out) / "map.json", json.dumps(summary, indent=1) + "\n")
+    return summary
