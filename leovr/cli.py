@@ -146,7 +146,7 @@ def demo(
     cfg = override(load_config(config).demo, frames=frames, data=None if data is None else str(data))
     run_demo(out, cfg)
     typer.echo((out / "report.md").read_text())
-    typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, mae_by_distance.png, trajectory.png, demo.rrd, refine/")
+    typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, mae_by_distance.png, trajectory.png, map.png, demo.rrd, refine/ (map in refine/map/)")
 
 
 @app.command()

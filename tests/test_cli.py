@@ -238,8 +238,10 @@ def test_demo_on_generated_default(tmp_path):
     assert m["depth"]["refined"]["n"] > 150_000  # dense ground truth: most of 3 x 448 x 256 pixels
     # city loop: loop closure on; the rendered scans carry point times, so KISS-ICP runs with and without its deskew
     assert set(m["trajectory"]) == {"leovr", "leovr_no_loop", "kiss_icp", "kiss_icp_no_deskew"}
-    for f in ("sequence/preview.png", "mae_by_distance.png", "trajectory.png", "demo.rrd", "report.md"):
+    for f in ("sequence/preview.png", "mae_by_distance.png", "trajectory.png", "map.png", "refine/map/map.ply",
+              "demo.rrd", "report.md"):
         assert (tmp_path / f).is_file(), f
+    assert m["map"]["frames"] == 3 and m["map"]["triangles"] > 1000 and "`refine/map/map.ply`" in (tmp_path / "report.md").read_text()
 
 
 def test_complete_with_generator_checkpoint_and_missing_checkpoint(kitti_raw_tiny, tmp_path):

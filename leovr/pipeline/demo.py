@@ -1,7 +1,8 @@
 """`leovr demo`: the README's main job. By default it renders a short Mid-40 sequence of the procedural
 city (the embedded default), refines it with the shipped generator and the sliding-window graph, and
-writes `metrics.json`, `report.md`, two plots (MAE per distance bin for the raw input, IP-Basic, the
-generator and the refined depth; a top view of the trajectories) and `demo.rrd` (Rerun). With `data`
+writes `metrics.json`, `report.md`, three plots (MAE per distance bin for the raw input, IP-Basic, the
+generator and the refined depth; a top view of the trajectories; a top view of the 3D map fused from the refined
+depth, `refine/map/`) and `demo.rrd` (Rerun, with the map). With `data`
 it runs on a recorded sequence instead (a cheap input simulated from its scan, scored on held-out points).
 """
 
@@ -12,13 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.config import DemoConfig, LoopConfig, RefineConfig, SimulateConfig
+from leovr.config import DemoConfig, LoopConfig, MapConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.data.io import atomic_write, write_text
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.geometry import invert_T
 from leovr.pipeline.refine import completion_config, frame_sample, run_refine
+from leovr.pipeline.tsdf_map import map_run
 from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording
 
@@ -103,6 +105,7 @@ def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
     indices = list(range(rcfg.end))
     if seq.has_lidar:
         m["depth"] = {"raw": raw_input_metrics(seq, rcfg, indices), **m["depth"]}
+    m["map"] = map_run(out / "refine", out / "refine" / "map", MapConfig(), progress=progress)
     write_text(out / "metrics.json", json.dumps(m, indent=2) + "\n")
     if m["depth"]:
         plot_bins(m["depth"], out / "mae_by_distance.png")
@@ -113,9 +116,32 @@ def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
     if (out / "refine" / "poses_kiss_icp_kitti.txt").is_file():
         tracks["kiss_icp"] = read_kitti_poses(out / "refine" / "poses_kiss_icp_kitti.txt")[:, :3, 3]
     plot_trajectories(tracks, out / "trajectory.png")
+    plot_map(out / "refine" / "map" / "map_points.ply", out / "map.png")
     write_recording(out / "refine", out / "demo.rrd")
     write_text(out / "report.md", report(m, source, inp))
     return m
+
+
+def plot_map(points_ply: Path, path: Path) -> None:
+    """A top view of the map's coloured points (x right, z forward), the nearest point over each spot on top."""
+    import matplotlib
+    import open3d as o3d
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cloud = o3d.io.read_point_cloud(str(points_ply))
+    xyz, rgb = np.asarray(cloud.points), np.asarray(cloud.colors)
+    order = np.argsort(-xyz[:, 1])  # y points down: the highest points are drawn last, on top
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.scatter(xyz[order, 0], xyz[order, 2], c=rgb[order], s=0.5, marker=".", linewidths=0)
+    ax.set_xlabel("x (m, right)")
+    ax.set_ylabel("z (m, forward)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title("3D map (TSDF mesh vertices), top view")
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110))
+    plt.close(fig)
 
 
 def report(m: dict, source: str, inp: str) -> str:
@@ -160,8 +186,12 @@ def report(m: dict, source: str, inp: str) -> str:
            if "wall_ms" in t.get("stats", {}) else "") + "; "
         f"initial poses: {t['initial_pose_sources']}.",
         "",
+        f"Map: {m['map']['frames']} frames fused into {m['map']['triangles']} triangles "
+        f"({m['map']['seconds_per_frame'] * 1000:.0f} ms a frame): `refine/map/map.ply`, top view in `map.png`.",
+        "",
         "Files: `refine/depth/` (refined, uint16 metres x 256), `refine/depth_generator/`, `refine/poses_kitti.txt`, "
-        "`refine/poses_tum.txt`, `mae_by_distance.png`, `trajectory.png`, `demo.rrd` (open with `rerun demo.rrd`).",
+        "`refine/poses_tum.txt`, `refine/map/`, `mae_by_distance.png`, `trajectory.png`, `map.png`, `demo.rrd` "
+        "(open with `rerun demo.rrd`).",
         "",
     ]
     return "\n".join(lines)
