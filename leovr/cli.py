@@ -359,6 +359,7 @@ def batch(
     job: Optional[str] = typer.Option(None, "--job", help="refine (default) | complete | adapt+refine"),
     address: Optional[str] = typer.Option(None, "--address", help="Ray cluster to join (auto | HOST:PORT); default: a local instance."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Sequences in flight (default: CPUs / cpus_per_task)."),
+    fuse_map: Optional[bool] = typer.Option(None, "--map/--no-map", help="Refine jobs: also fuse each run into <name>/map."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Many sequences, one Ray task each: outputs as `leovr refine` writes them, a summary, and a re-run
@@ -367,7 +368,7 @@ def batch(
     from leovr.pipeline.batch_manifest import read_batch
 
     cfg = load_config(config)
-    cfg.batch = override(cfg.batch, job=job, address=address, workers=workers)
+    cfg.batch = override(cfg.batch, job=job, address=address, workers=workers, map=fuse_map)
     rows = run_batch(read_batch(source), cfg, out)
     counts = {s: sum(r["status"] == s for r in rows) for s in ("done", "skipped", "failed")}
     typer.echo(", ".join(f"{n} {s}" for s, n in counts.items()) + f" -> {out / 'summary.md'}")

@@ -282,6 +282,9 @@ class MapConfig(_Model):
     # None keeps them all: on both real drives and both inputs every threshold from 0.05 to 0.5 made the map
     # less complete and no more accurate (`leovr bench map`, docs/benchmarks.md)
     sigma_max: float | None = Field(None, gt=0.0)
+    # pixels whose 3 x 3 neighbourhood spans more than a factor 1 + edge_jump in depth (a depth edge) are left out;
+    # None keeps them. Chosen with `leovr bench map` on both real drives and both inputs (docs/benchmarks.md)
+    edge_jump: float | None = Field(0.05, gt=0.0)
     trunc_voxels: float = Field(4.0, gt=0.0)  # the signed distance is truncated at this many voxels
     min_weight: float = Field(1.0, ge=0.0)  # voxels observed fewer times than this are not part of the surface
 
@@ -333,6 +336,7 @@ class BatchConfig(_Model):
     max_retries: int = Field(3, ge=0)  # a task whose worker dies is re-run (resuming) up to this often
     adapt_processes: int | None = Field(None, ge=1)  # adapt+refine: data-parallel processes of cpus_per_task CPUs (None = one per node, all its CPUs)
     dashboard: bool = False  # start Ray's dashboard with a local instance (needs `pip install "ray[default]"`)
+    map: bool = False  # refine jobs: also fuse each sequence's run into OUT/NAME/map (`leovr map`, the `map` section)
 
 
 class BenchBatchConfig(_Model):

@@ -210,3 +210,18 @@ def test_a_rerun_with_other_settings_is_refused_before_any_work(drives, tmp_path
         with pytest.raises(DataError, match=r"results of other settings or input files for drive0: config.end \(folder: 3, now: 2\)"):
             run_batch(read_batch(y), cfg, out, progress=False)
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
+
+
+def test_a_refine_task_fuses_its_map_when_asked(drives, tmp_path):
+    """`batch.map`: each refined sequence also gets its map (OUT/NAME/map), and the map's settings are part of
+    what a re-run compares."""
+    from leovr.config import MapConfig
+    from leovr.pipeline.batch import job_section, run_sequence, task_settings
+    from leovr.pipeline.batch_manifest import BatchItem
+
+    item = BatchItem("drive0", drives / "drive0")
+    section = job_section(LeovrConfig.model_validate({"refine": {"end": 4}}), "refine", item)
+    state = run_sequence(item, "refine", section, tmp_path / "drive0", map_section=MapConfig().model_dump())
+    assert state["status"] == "done", state
+    assert json.loads((tmp_path / "drive0" / "map" / "map.json").read_text())["frames"] == 4
+    assert task_settings("refine", section, item.path, MapConfig().model_dump()) != task_settings("refine", section, item.path)

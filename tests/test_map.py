@@ -65,12 +65,17 @@ def test_a_refined_run_maps_the_rendered_drive_better_than_the_nearest_fill(tmp_
     assert refined["accuracy_m"] < 0.8 * near["accuracy_m"] and refined["completeness"] > 1.3 * near["completeness"], (refined, near)
 
 
-def test_the_map_keeps_depth_in_reach_and_certain_enough():
+def test_the_map_keeps_depth_in_reach_certain_enough_and_off_depth_edges():
     depth = np.array([[5.0, 50.0, 10.0, 0.0]], np.float32)
     sigma = np.array([[0.5, 1.0, 5.0, 0.0]], np.float32)
-    cfg = MapConfig(max_depth_m=40.0, sigma_max=0.3)
+    cfg = MapConfig(max_depth_m=40.0, sigma_max=0.3, edge_jump=None)
     assert map_depth(depth, sigma, cfg).tolist() == [[5.0, 0.0, 0.0, 0.0]]  # too far; 5 m of 10 m is too uncertain
     assert map_depth(depth, sigma, cfg.model_copy(update={"sigma_max": None})).tolist() == [[5.0, 0.0, 10.0, 0.0]]
+    wall = np.full((4, 6), 10.0, np.float32)  # a car 10 m away in front of a wall at 20 m: the edge's columns go
+    wall[:, 3:] = 20.0
+    assert (map_depth(wall, None, MapConfig(edge_jump=0.05)) > 0).tolist() == [[True, True, False, False, True, True]] * 4
+    ramp = np.tile(10.0 * 1.02 ** np.arange(6, dtype=np.float32), (4, 1))  # a steep smooth surface: 2 % a pixel
+    assert (map_depth(ramp, None, MapConfig(edge_jump=0.05)) > 0).all()
 
 
 def test_map_scores_on_a_known_plane():

@@ -34,11 +34,13 @@ ERROR_FILE = "error.json"  # a data error the adaptation met (written by its pro
 LOCAL_SYSTEM_CONFIG = {"enable_metrics_collection": False}
 
 
-def task_settings(job: str, section: dict[str, Any], path: Path | None = None) -> dict[str, Any]:
-    """What a sequence's result depends on (the job, its settings, the sequence's files): a re-run with
-    other settings or changed data does the work again (and a resume into the old outputs is refused)."""
-    files = folder_fingerprint(path) if path is not None and Path(path).is_dir() else None
-    return json.loads(json.dumps({"job": job, "config": section, "files_sha1": files}, default=str))
+def task_settings(job: str, section: dict[str, Any], path: Path | None = None,
+                  map_section: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What a sequence's result depends on (the job, its settings, the map's when one is fused, the sequence's
+    files): a re-run with other settings or changed data is refused before any work."""
+    files = folder_fingerprint(path) if path is not None and Path(path).exists() else None
+    record = {"job": job, "config": section, "files_sha1": files} | ({"map": map_section} if map_section else {})
+    return json.loads(json.dumps(record, default=str))
 
 
 def _read_state(folder: Path) -> dict:
@@ -76,7 +78,7 @@ def _set_threads(n: int) -> None:
 
 
 def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, threads: int = 1,
-                 settings: dict | None = None, topics: Any = None) -> dict:
+                 settings: dict | None = None, topics: Any = None, map_section: dict[str, Any] | None = None) -> dict:
     """One sequence, in a Ray worker (or in-process): run the job into `out`, resuming what is there.
     `settings`: its `task_settings` when the caller has them; `topics`: the ROS bag topics the command line
     named (a worker process does not share the driver's). Returns the state record; data and config errors
@@ -86,7 +88,7 @@ def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, 
     if topics is not None:
         rosbag.CHOICE = topics
     _set_threads(threads)
-    settings = settings if settings is not None else task_settings(job, section, item.path)
+    settings = settings if settings is not None else task_settings(job, section, item.path, map_section)
     if is_done(out, settings):
         return {**_read_state(out), "status": "skipped"}
     out.mkdir(parents=True, exist_ok=True)
@@ -109,6 +111,11 @@ def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, 
             from leovr.pipeline.refine import run_refine
 
             run_refine(seq, RefineConfig.model_validate(section), out, resume=resume, progress=False)
+            if map_section is not None:
+                from leovr.config import MapConfig
+                from leovr.pipeline.tsdf_map import map_run
+
+                map_run(out, out / "map", MapConfig.model_validate(map_section), progress=False)
         status, error = "done", ""
     except (LeovrError, ValueError) as exc:  # pydantic's ValidationError is a ValueError
         status, error = "failed", str(exc).replace("\n", " ")
@@ -175,7 +182,8 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
                 started = _init_ray(bcfg)
                 checkpoint = adapt_batch(live, cfg, out / ADAPT_DIR, progress)
             sections |= {it.name: job_section(cfg, job, it, checkpoint) for it in live}
-        settings = {it.name: task_settings(job, sections[it.name], it.path) for it in live}
+        map_section = cfg.map.model_dump() if bcfg.map and job == "refine" else None
+        settings = {it.name: task_settings(job, sections[it.name], it.path, map_section) for it in live}
         check_no_other_results(out, live, settings)
         todo = []
         for it in live:
@@ -185,7 +193,7 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
                 todo.append(it)
         if todo:
             started = _init_ray(bcfg) or started
-            _run_tasks(todo, job, sections, settings, bcfg, out, rows, items, progress)
+            _run_tasks(todo, job, sections, settings, bcfg, out, rows, items, progress, map_section)
         finished = True
     finally:  # an interrupted batch keeps the summary written after its last finished sequence
         ordered = [rows[it.name] for it in items] if finished else None
@@ -208,7 +216,8 @@ def _finish(out: Path, rows: list[dict] | None, stop_ray: bool) -> None:
 
 
 def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], settings: dict[str, dict],
-               bcfg: BatchConfig, out: Path, rows: dict[str, dict], items: list[BatchItem], progress: bool) -> None:
+               bcfg: BatchConfig, out: Path, rows: dict[str, dict], items: list[BatchItem], progress: bool,
+               map_section: dict | None = None) -> None:
     """One Ray task per sequence of `todo`, at most `workers` in flight; the summary after each one."""
     import ray
 
@@ -225,7 +234,7 @@ def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], setti
         while todo and len(inflight) < limit:
             it = todo.pop(0)
             inflight[task.remote(it, job, sections[it.name], out / it.name, bcfg.cpus_per_task, settings[it.name],
-                                 rosbag.CHOICE)] = it
+                                 rosbag.CHOICE, map_section)] = it
         ready, _ = ray.wait(list(inflight), num_returns=1)
         it = inflight.pop(ready[0])
         try:

@@ -2,8 +2,8 @@
 
 Each frame's depth is integrated into a truncated signed distance volume: Open3D's voxel-block grid (a hash
 map of 8^3-voxel blocks, allocated only near observed surfaces, so memory grows with the area driven, not
-with the frame count). Pixels beyond `max_depth_m`, and pixels whose predicted uncertainty (the generator's
-sigma over the depth, `sigma/`) is above `sigma_max`, are left out. The zero level set is written as a
+with the frame count). Pixels beyond `max_depth_m`, on depth edges (`edge_jump`), and, when asked, pixels whose
+predicted uncertainty (the generator's sigma over the depth, `sigma/`) is above `sigma_max`, are left out. The zero level set is written as a
 coloured triangle mesh (`map.ply`) and its vertices as a coloured point cloud (`map_points.ply`).
 """
 
@@ -72,11 +72,20 @@ class TsdfMap:
 
 
 def map_depth(depth: np.ndarray, sigma: np.ndarray | None, settings: MapConfig) -> np.ndarray:
-    """The depth the map takes from a frame: 0 beyond the farthest depth and where sigma / depth is above
-    `sigma_max` (sigma in metres, as written by `leovr refine`)."""
+    """The depth the map takes from a frame: 0 beyond the farthest depth, where sigma / depth is above
+    `sigma_max` (sigma in metres, as written by `leovr refine`), and on depth edges: a pixel whose 3 x 3
+    neighbourhood spans more than a factor 1 + `edge_jump` lies between a foreground and a background, where a
+    dense depth map's values are least certain (flying pixels) and a TSDF would draw a false surface."""
+    import cv2
+
     keep = (depth > 0) & (depth <= settings.max_depth_m)
     if sigma is not None and settings.sigma_max is not None:
         keep &= sigma <= settings.sigma_max * depth
+    if settings.edge_jump is not None:
+        box = np.ones((3, 3), np.uint8)
+        lo = cv2.erode(np.where(keep, depth, np.inf).astype(np.float32), box)
+        hi = cv2.dilate(np.where(keep, depth, 0.0).astype(np.float32), box)
+        keep &= hi <= (1.0 + settings.edge_jump) * lo
     return np.where(keep, depth, 0.0).astype(np.float32)
 
 
