@@ -59,7 +59,7 @@ def test_a_refined_run_maps_the_rendered_drive_better_than_the_nearest_fill(tmp_
     for i in range(len(seq)):
         f = seq[i]
         fill = nearest_fill(sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape))
-        nearest.add(f.image, map_depth(fill, None, MapConfig()), f.K, poses[i])
+        nearest.add(f.image, map_depth(fill, None, MapConfig(), f.K[0, 0]), f.K, poses[i])
     near = map_scores(distances_to_mesh(nearest.mesh(), truth))
     assert refined["accuracy_m"] < 0.3 and refined["completeness"] > 0.45, refined
     assert refined["accuracy_m"] < 0.8 * near["accuracy_m"] and refined["completeness"] > 1.3 * near["completeness"], (refined, near)

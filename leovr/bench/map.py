@@ -90,9 +90,10 @@ def clip_map(seq, n: int, inp: str, cfg: BenchMapConfig, work: Path, progress: b
         sigma = read_depth_png(run_frame_png(work, "sigma", i), SIGMA_SCALE, shape=frame.shape)
         t0 = time.perf_counter()
         for t, vol in refined.items():
-            vol.add(frame.image, map_depth(depth, sigma, vol.s), frame.K, poses[i])
+            vol.add(frame.image, map_depth(depth, sigma, vol.s, float(frame.K[0, 0])), frame.K, poses[i])
         t_fuse += (time.perf_counter() - t0) / len(refined)
-        nearest.add(frame.image, map_depth(complete_depth(sample.sparse, "nearest"), None, settings), frame.K, poses[i])
+        nearest.add(frame.image, map_depth(complete_depth(sample.sparse, "nearest"), None, settings, float(frame.K[0, 0])),
+                    frame.K, poses[i])
         v, u = np.nonzero((sample.sparse > 0) & (sample.sparse <= cfg.map.max_depth_m))
         cam = back_project(np.stack([u, v], 1).astype(float), sample.sparse[v, u].astype(float), frame.K)
         accumulated.append(transform_points(poses[i], cam))
