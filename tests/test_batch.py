@@ -219,9 +219,17 @@ def test_a_refine_task_fuses_its_map_when_asked(drives, tmp_path):
     from leovr.pipeline.batch import job_section, run_sequence, task_settings
     from leovr.pipeline.batch_manifest import BatchItem
 
+    import cv2
+    import torch
+
     item = BatchItem("drive0", drives / "drive0")
     section = job_section(LeovrConfig.model_validate({"refine": {"end": 4}}), "refine", item)
-    state = run_sequence(item, "refine", section, tmp_path / "drive0", map_section=MapConfig().model_dump())
+    threads = torch.get_num_threads(), cv2.getNumThreads()
+    try:  # a task sets its process's threads; in this process the later tests need theirs back
+        state = run_sequence(item, "refine", section, tmp_path / "drive0", map_section=MapConfig().model_dump())
+    finally:
+        torch.set_num_threads(threads[0])
+        cv2.setNumThreads(threads[1])
     assert state["status"] == "done", state
     assert json.loads((tmp_path / "drive0" / "map" / "map.json").read_text())["frames"] == 4
     assert task_settings("refine", section, item.path, MapConfig().model_dump()) != task_settings("refine", section, item.path)
