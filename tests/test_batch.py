@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -195,20 +196,34 @@ def test_bench_batch_contract(tmp_path):
         assert _rows(tmp_path / "batch_work" / w).keys() == {"drive0", "drive1"}
 
 
+@contextmanager
+def process_threads():
+    """A batch task run in this process sets its torch and OpenCV threads; the later tests need theirs back."""
+    import cv2
+    import torch
+
+    threads = torch.get_num_threads(), cv2.getNumThreads()
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads[0])
+        cv2.setNumThreads(threads[1])
+
+
 def test_a_rerun_with_other_settings_is_refused_before_any_work(drives, tmp_path):
     """A batch whose output folder holds a sequence's results from other settings is refused in one line
     naming the sequence and the difference, before any work and without touching those results."""
-    y = tmp_path / "m.yaml"
-    out = tmp_path / "out"
-    for end in (3, 2):
-        y.write_text(f"- {{path: {drives / 'drive0'}, end: {end}}}\n- {drives / 'drive1'}\n")
-        cfg = LeovrConfig.model_validate({"batch": {"job": "complete", "workers": 1}})
-        if end == 3:
-            assert [r["status"] for r in run_batch(read_batch(y), cfg, out, progress=False)] == ["done", "done"]
-            stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
-            continue
-        with pytest.raises(DataError, match=r"results of other settings or input files for drive0: config.end \(folder: 3, now: 2\)"):
-            run_batch(read_batch(y), cfg, out, progress=False)
+    from leovr.pipeline.batch import check_no_other_results, job_section, run_sequence, task_settings
+    from leovr.pipeline.batch_manifest import BatchItem
+
+    item = BatchItem("drive0", drives / "drive0")
+    section = {end: job_section(LeovrConfig.model_validate({"complete": {"end": end}}), "complete", item) for end in (3, 2)}
+    with process_threads():
+        assert run_sequence(item, "complete", section[3], tmp_path / "drive0")["status"] == "done"
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if p.is_file()}
+    check_no_other_results(tmp_path, [item], {"drive0": task_settings("complete", section[3], item.path)})  # same: passes
+    with pytest.raises(DataError, match=r"results of other settings or input files for drive0: config.end \(folder: 3, now: 2\)"):
+        check_no_other_results(tmp_path, [item], {"drive0": task_settings("complete", section[2], item.path)})
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
 
 
@@ -219,17 +234,10 @@ def test_a_refine_task_fuses_its_map_when_asked(drives, tmp_path):
     from leovr.pipeline.batch import job_section, run_sequence, task_settings
     from leovr.pipeline.batch_manifest import BatchItem
 
-    import cv2
-    import torch
-
     item = BatchItem("drive0", drives / "drive0")
     section = job_section(LeovrConfig.model_validate({"refine": {"end": 4}}), "refine", item)
-    threads = torch.get_num_threads(), cv2.getNumThreads()
-    try:  # a task sets its process's threads; in this process the later tests need theirs back
+    with process_threads():
         state = run_sequence(item, "refine", section, tmp_path / "drive0", map_section=MapConfig().model_dump())
-    finally:
-        torch.set_num_threads(threads[0])
-        cv2.setNumThreads(threads[1])
     assert state["status"] == "done", state
     assert json.loads((tmp_path / "drive0" / "map" / "map.json").read_text())["frames"] == 4
     assert task_settings("refine", section, item.path, MapConfig().model_dump()) != task_settings("refine", section, item.path)
