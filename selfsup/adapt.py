@@ -113,12 +113,10 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
     model.sigma_on_detached = True  # the uncertainty head learns from its NLL, which never reaches the depth path
     last = out / "checkpoint_last.pt"
     settings = cfg.model_dump(exclude={"epochs", "patience", "max_minutes"})  # may change on resume
-    if resume and not last.is_file():  # refused before anything is written, not started again from scratch
-        raise DataError(last, "nothing to resume from")
+    # read before anything is written: a missing or truncated checkpoint is refused, never started again from scratch
+    keys = ("model", "optimizer", "epoch", "best_val_mae_m", "since_best", "minutes")
+    state = read_resume_state(last, keys) if resume else None
     start_adapt_run(out, cfg, seqs, init, resume, settings, rank, world)
-    state = None
-    if resume:
-        state = read_resume_state(last, ("model", "optimizer", "epoch", "best_val_mae_m", "since_best", "minutes"))
     torch.manual_seed(cfg.seed)
     lead = rank == 0
     frames = input_frames(seqs, cfg, progress and lead)

@@ -227,6 +227,16 @@ def clean_points(pts: np.ndarray, source: str | Path) -> np.ndarray:
     return pts
 
 
+def associate(a: np.ndarray, b: np.ndarray, max_dt: float) -> np.ndarray:
+    """Index into sorted `b` of the nearest timestamp for each entry of `a`, -1 when farther than max_dt."""
+    if len(b) == 0:
+        return np.full(len(a), -1)
+    j = np.searchsorted(b, a)
+    lo, hi = np.clip(j - 1, 0, len(b) - 1), np.clip(j, 0, len(b) - 1)
+    best = np.where(np.abs(b[lo] - a) <= np.abs(b[hi] - a), lo, hi)
+    return np.where(np.abs(b[best] - a) <= max_dt, best, -1)
+
+
 def check_timestamps(t: np.ndarray, source: Path) -> np.ndarray:
     """Timestamps must be finite and strictly increasing."""
     t = np.asarray(t, np.float64)

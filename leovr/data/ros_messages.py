@@ -31,20 +31,8 @@ class MessageError(ValueError):
     """A message leovr cannot use; the text says why."""
 
 
-def stamp_s(msg: Any) -> float:
-    """A message's header stamp in seconds."""
-    return _time_s(msg.header.stamp)
-
-
-def _time_s(t: Any) -> float:
-    sec = getattr(t, "sec", None)
-    nsec = getattr(t, "nanosec", None)
-    if sec is None:  # ROS 1 genpy spelling
-        sec, nsec = t.secs, t.nsecs
-    return float(sec) + 1e-9 * float(nsec)
-
-
 def stamp_ns(msg: Any) -> int:
+    """A message's header stamp in integer nanoseconds (ROS 2 `sec`/`nanosec`, ROS 1 `secs`/`nsecs`)."""
     t = msg.header.stamp
     sec = getattr(t, "sec", None)
     if sec is None:

@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from leovr.data import ros_messages as rm
+from leovr.data.io import associate
 from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
 from leovr.errors import DataError, brief
@@ -87,7 +88,6 @@ class _Index:
     tree: rm.FrameTree = field(default_factory=rm.FrameTree)
     camera_frame: str = ""
     lidar_frame: str = ""
-    pose_frame: str = ""
     damaged: str = ""  # why the pass stopped early, when it did
 
 
@@ -207,7 +207,6 @@ class RosbagSequence(Sequence):
                 elif topic == self.pose_topic:
                     T, body = rm.pose_matrix(msg, conn.msgtype)
                     idx.poses.append((rm.stamp_ns(msg), T, body))
-                    idx.pose_frame = idx.pose_frame or str(msg.header.frame_id)
                 elif conn.msgtype == rm.TF_TYPE:
                     idx.tree.add(msg)
         except Exception as exc:  # a truncated or damaged bag: what came before it stays usable
@@ -251,11 +250,7 @@ class RosbagSequence(Sequence):
         if self.lidar is not None and self._clouds:
             cl_ns = np.array([s for _, s in self._clouds], np.int64)
             period = float(np.median(np.diff(cl_ns))) if len(cl_ns) > 1 else 1e8
-            j = np.clip(np.searchsorted(cl_ns, img_ns), 1, max(len(cl_ns) - 1, 1))
-            lo = np.clip(j - 1, 0, len(cl_ns) - 1)
-            hi = np.clip(j, 0, len(cl_ns) - 1)
-            best = np.where(np.abs(cl_ns[lo] - img_ns) <= np.abs(cl_ns[hi] - img_ns), lo, hi)
-            scan = np.where(np.abs(cl_ns[best] - img_ns) <= period / 2, best, -1)
+            scan = associate(img_ns, cl_ns, period / 2)
         keep = scan >= 0 if (self.choice.drop_unpaired and self.lidar is not None) else np.ones(len(images), bool)
         if not keep.any():
             raise DataError(self.path, f"no image of {self.camera} has a scan of {self.lidar} within half a scan period")
@@ -263,7 +258,6 @@ class RosbagSequence(Sequence):
         self._scan = scan[keep]
         self._stamps_ns = img_ns[keep]
         self._times = (self._stamps_ns - self._stamps_ns[0]) * 1e-9
-        self.t0_ns = int(self._stamps_ns[0])
         self.unpaired = int((self._scan < 0).sum()) if self.lidar is not None else 0
 
     def _extrinsic(self, idx: _Index) -> np.ndarray:

@@ -139,7 +139,10 @@ def write_bag(seq: Sequence, out: str | Path, fmt: str | None = None, progress: 
         with writer:
             _write_frames(writer, m, seq, ns, progress)
     except BaseException:
-        shutil.rmtree(out, ignore_errors=True) if out.is_dir() else out.unlink(missing_ok=True)
+        if out.is_dir():
+            shutil.rmtree(out, ignore_errors=True)
+        else:
+            out.unlink(missing_ok=True)
         raise
     return out
 

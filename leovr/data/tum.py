@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.data.io import check_timestamps, read_depth_png, read_image, require_file
+from leovr.data.io import associate, check_timestamps, read_depth_png, read_image, require_file
 from leovr.data.records import Frame
 from leovr.data.sequence import FileSequence
 from leovr.errors import DataError
@@ -49,16 +49,6 @@ def read_tum_list(path: Path, min_cols: int = 2) -> tuple[np.ndarray, list[list[
             raise DataError(path, f"line {n}: '{parts[0]}' is not a timestamp") from None
         rows.append(parts[1:])
     return np.array(stamps), rows
-
-
-def associate(a: np.ndarray, b: np.ndarray, max_dt: float) -> np.ndarray:
-    """Index into sorted `b` of the nearest timestamp for each entry of `a`, -1 when farther than max_dt."""
-    if len(b) == 0:
-        return np.full(len(a), -1)
-    j = np.searchsorted(b, a)
-    lo, hi = np.clip(j - 1, 0, len(b) - 1), np.clip(j, 0, len(b) - 1)
-    best = np.where(np.abs(b[lo] - a) <= np.abs(b[hi] - a), lo, hi)
-    return np.where(np.abs(b[best] - a) <= max_dt, best, -1)
 
 
 def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:

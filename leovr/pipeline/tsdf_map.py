@@ -14,6 +14,7 @@ import resource
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -84,8 +85,6 @@ def map_depth(depth: np.ndarray, sigma: np.ndarray | None, settings: MapConfig, 
     pixel spans a wider angle, over which a steep surface changes more: the jump scales with it) lies between a
     foreground and a background, where a dense depth map's values are least certain (flying pixels) and a TSDF
     would draw a false surface."""
-    import cv2
-
     keep = (depth > 0) & (depth <= settings.max_depth_m)
     if sigma is not None and settings.sigma_max is not None:
         keep &= sigma <= settings.sigma_max * depth
