@@ -26,8 +26,14 @@ from leovr.errors import DataError
 SIGMA_SCALE = 256.0  # sigma/ PNGs: uint16 = metres x 256, as the depth maps
 
 
+# Open3D 0.20 crashes (SIGSEGV) extracting the surface of a voxel-block grid of about 285k blocks (a 200-frame
+# rendered drive at 5 cm): a volume that grows past this many blocks has its surface taken out and starts afresh
+MAX_BLOCKS = 150_000
+
+
 class TsdfMap:
-    """A growing voxel-block TSDF volume: `add` frames, then `mesh`."""
+    """A growing voxel-block TSDF volume: `add` frames, then `mesh`. Past MAX_BLOCKS the surface so far is kept as a
+    mesh and a new volume takes the frames that follow (where the two meet, each holds its side of the surface)."""
 
     def __init__(self, settings: MapConfig) -> None:
         import open3d as o3d
@@ -35,13 +41,19 @@ class TsdfMap:
 
         self.s = settings
         self._o3d, self._o3c = o3d, o3c
+        self.parts: list = []  # the surfaces of the volumes that grew past MAX_BLOCKS
+        self.grid = self._new_grid()
+        self.frames = 0
+        self.blocks_done = 0
+
+    def _new_grid(self):
+        o3d, o3c = self._o3d, self._o3c
         # weight and colour as uint16: the same surface (812k vertices of a rendered drive's first 40 frames, mean
         # position within 0.5 mm, colour within 0.3 %) in 12 bytes a voxel instead of 20
-        self.grid = o3d.t.geometry.VoxelBlockGrid(
+        return o3d.t.geometry.VoxelBlockGrid(
             attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.uint16, o3c.uint16),
-            attr_channels=((1), (1), (3)), voxel_size=settings.voxel_m, block_resolution=8, block_count=20000,
+            attr_channels=((1), (1), (3)), voxel_size=self.s.voxel_m, block_resolution=8, block_count=20000,
             device=o3c.Device("CPU:0"))
-        self.frames = 0
 
     def add(self, image: np.ndarray, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> None:
         """Integrate one frame: RGB (or gray) uint8 image, depth in metres (0 = none), camera pose."""
@@ -62,16 +74,30 @@ class TsdfMap:
                 return
             raise
         self.grid.integrate(blocks, d, colour, intr, extr, **kw)
+        if self._grid_blocks() > MAX_BLOCKS:
+            self.blocks_done += self._grid_blocks()
+            self.parts.append(self._surface())
+            self.grid = self._new_grid()
 
-    def mesh(self):
-        """The surface as a legacy Open3D TriangleMesh with vertex colours (empty when nothing was fused)."""
-        if not self.blocks:
+    def _grid_blocks(self) -> int:
+        return int(self.grid.hashmap().size())
+
+    def _surface(self):
+        if not self._grid_blocks():
             return self._o3d.geometry.TriangleMesh()
         return self.grid.extract_triangle_mesh(weight_threshold=self.s.min_weight).to_legacy()
 
+    def mesh(self):
+        """The surface as a legacy Open3D TriangleMesh with vertex colours (empty when nothing was fused)."""
+        out = self._surface()
+        for part in self.parts:
+            out += part
+        return out
+
     @property
     def blocks(self) -> int:
-        return int(self.grid.hashmap().size())
+        """Voxel blocks allocated over the whole drive."""
+        return self.blocks_done + self._grid_blocks()
 
 
 EDGE_FOCAL_PX = 720.0  # `edge_jump` is the jump between neighbouring pixels of a camera of this focal length
