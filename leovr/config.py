@@ -277,7 +277,7 @@ class MapConfig(_Model):
     """`leovr map`: a refine run's depth, images and poses fused into a TSDF map (mesh and points)."""
 
     # voxel edge (m). 0.05 against 0.1: every real map of `leovr bench map` more accurate (by 17-37 %) and more complete;
-    # a 200-frame rendered drive then takes 44 s and 3.8 GiB at most (0.1: 24 s, 2.7 GiB)
+    # `leovr map` of a 200-frame rendered drive then takes 48 s and 2.9 GB at most
     voxel_m: float = Field(0.05, gt=0.0)
     max_depth_m: float = Field(40.0, gt=0.0)  # pixels deeper than this are left out
     # pixels whose predicted uncertainty (sigma/ of the run) exceeds this fraction of their depth are left out;
