@@ -203,13 +203,35 @@ def test_mono16_and_a_distorted_lens(tmp_path):
 
 
 @pytest.mark.parametrize("fmt,tool", [("ros1", "rosbag reindex"), ("mcap", "mcap recover"), ("sqlite3", ".recover")])
-def test_a_bag_cut_off_is_named_with_the_tool_that_repairs_it(tmp_path, fmt, tool):
+def test_a_bag_cut_off_gives_its_frames_before_the_damage_and_says_where_it_stopped(tmp_path, fmt, tool):
     bag = _bag(tmp_path / ("t.bag" if fmt == "ros1" else "t"), fmt=fmt, frames=6)
     f = bag if bag.is_file() else next(p for p in bag.iterdir() if p.suffix in (".mcap", ".db3"))
     data = f.read_bytes()
-    f.write_bytes(data[: len(data) * 2 // 3])
-    with pytest.raises(DataError, match=f"cannot open this bag: .*{tool}"):
+    f.write_bytes(data[: len(data) * 2 // 3])  # a recorder killed mid-write: no index, summary or last pages
+    with pytest.warns(UserWarning, match=rf"damaged, .* stops 0\.[23]0 s into the recording .*{tool}.*; the [34] frames"):
+        seq = RosbagSequence(bag, TopicChoice())
+    assert len(seq) in (3, 4) and "stops" in seq.pairing()["damaged"]
+    for i in range(len(seq)):
+        frame = seq[i]
+        assert np.array_equal(frame.image, _image(i))
+        assert len(frame.points) in (0, len(_cloud(i)))  # the last image may have lost its scan to the cut
+    assert all(len(seq[i].points) == len(_cloud(i)) for i in range(len(seq) - 1))
+    f.write_bytes(data[:3000])  # nothing but the start: one clear error, naming the damage
+    with pytest.raises(DataError, match=f"(no camera topic|no message can be read).*stops .*{tool}"):
         RosbagSequence(bag, TopicChoice())
+
+
+def test_a_bag_without_metadata_or_closed_by_a_killed_recorder(tmp_path):
+    bag = _bag(tmp_path / "b", frames=3)
+    (bag / "metadata.yaml").unlink()  # a ROS 2 recorder that did not close writes none
+    mcap = next(bag.glob("*.mcap"))
+    for path in (bag, mcap):
+        seq = open_sequence(path)
+        assert len(seq) == 3 and np.array_equal(seq[2].image, _image(2)) and len(seq[2].points) == len(_cloud(2))
+    ros1 = _bag(tmp_path / "r.bag", fmt="ros1", frames=3)
+    active = ros1.rename(tmp_path / "r.bag.active")  # what `rosbag record` leaves until it closes
+    seq = open_sequence(active)
+    assert len(seq) == 3 and np.array_equal(seq[1].image, _image(1))
 
 
 def test_info_lists_the_topics_and_what_each_is_for(tmp_path):

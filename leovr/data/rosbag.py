@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from leovr.data import ros_messages as rm
+from leovr.data.bag_salvage import SalvagedBag, storage_files
 from leovr.data.io import associate
 from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
@@ -58,15 +59,19 @@ CHOICE = TopicChoice()  # what the command line chose (`leovr --camera-topic ...
 
 
 def is_rosbag(path: Path) -> bool:
-    """A ROS 1 bag file, a ROS 2 bag folder (metadata.yaml), or a storage file inside one."""
+    """A ROS 1 bag file, a ROS 2 bag folder (metadata.yaml, or storage files without it: a recorder that
+    did not close), or a storage file (`.mcap`, `.db3`) inside one or alone."""
     path = Path(path)
     if path.is_file():
-        return path.suffix == ".bag" or (path.suffix in ROS2_SUFFIXES and (path.parent / "metadata.yaml").is_file())
-    return (path / "metadata.yaml").is_file()
+        return bool(storage_files(path))
+    return path.is_dir() and ((path / "metadata.yaml").is_file() or bool(storage_files(path)))
 
 
 def _bag_root(path: Path) -> Path:
-    return path.parent if path.is_file() and path.suffix in ROS2_SUFFIXES else path
+    """The ROS 2 bag folder of a storage file inside one; else the path itself."""
+    if path.is_file() and path.suffix in ROS2_SUFFIXES and (path.parent / "metadata.yaml").is_file():
+        return path.parent
+    return path
 
 
 @dataclass
@@ -102,6 +107,7 @@ class RosbagSequence(Sequence):
         self._lock = threading.Lock()
         self._reader: Any = None
         self._pid = -1
+        self.salvaged = ""  # where a damaged bag stops, when it does
         reader = self._open()
         self.topics = self._topics(reader)
         self.camera = self._pick(rm.IMAGE_TYPES, self.choice.camera, "camera", "--camera-topic")
@@ -118,8 +124,9 @@ class RosbagSequence(Sequence):
         self.has_poses = self._poses is not None
         diffs = np.diff(self._times)
         self.rate_hz = float(1.0 / np.median(diffs)) if len(diffs) and np.median(diffs) > 0 else 10.0
-        if idx.damaged:
-            warnings.warn(f"{self.path}: {idx.damaged}; the {len(self)} frames before it are read", stacklevel=2)
+        self.damaged = self.salvaged or idx.damaged
+        if self.damaged:
+            warnings.warn(f"{self.path}: {self.damaged}; the {len(self)} frames before it are read", stacklevel=2)
 
     # -- opening and topics -------------------------------------------------------------------------------
 
@@ -133,9 +140,24 @@ class RosbagSequence(Sequence):
             reader = AnyReader([_bag_root(self.path)])
             reader.open()
         except Exception as exc:  # rosbags raises its own errors, and others on damaged files
-            raise DataError(self.path, f"cannot open this bag: {exc}{_repair_hint(self.path)}") from exc
+            reader = self._salvage(exc)
         self._reader, self._pid = reader, os.getpid()
         return reader
+
+    def _salvage(self, error: Exception) -> SalvagedBag:
+        """A bag rosbags cannot open (cut off, no index or summary, no metadata.yaml): its storage files
+        scanned up to the damage (`bag_salvage`)."""
+        try:
+            bag = SalvagedBag(_bag_root(self.path))
+        except Exception as exc:  # nothing readable at all
+            raise DataError(self.path, f"cannot open this bag: {error}{_repair_hint(self.path)}") from exc
+        if not bag.end_time:
+            why = f": {bag.damaged}" if bag.damaged else ""
+            raise DataError(self.path, f"cannot open this bag ({error}) and no message can be read from it"
+                                       f"{why}{_repair_hint(self.path)}")
+        if bag.damaged and self._reader is None:  # said once, not again in each worker that reopens it
+            self.salvaged = f"damaged, {bag.damaged}{_repair_hint(self.path)}"
+        return bag
 
     def _topics(self, reader: Any) -> dict[str, _Topic]:
         topics: dict[str, _Topic] = {}
@@ -160,7 +182,8 @@ class RosbagSequence(Sequence):
             return found[0]
         if not found:
             if required:
-                raise DataError(self.path, f"no {what} topic ({' or '.join(types)}) in this bag")
+                damaged = f"; {self.salvaged}" if self.salvaged else ""
+                raise DataError(self.path, f"no {what} topic ({' or '.join(types)}) in this bag{damaged}")
             return None
         if ambiguous_ok:
             warnings.warn(f"{self.path}: {len(found)} {what} topics ({', '.join(found)}); none used, name one "
@@ -355,19 +378,19 @@ class RosbagSequence(Sequence):
                 for t in sorted(self.topics.values(), key=lambda t: t.name)]
 
     def pairing(self) -> dict:
-        return {"images": len(self), "paired_with_a_scan": len(self) - self.unpaired, "unpaired": self.unpaired}
+        out = {"images": len(self), "paired_with_a_scan": len(self) - self.unpaired, "unpaired": self.unpaired}
+        return out | ({"damaged": self.damaged} if self.damaged else {})
 
 
 def _repair_hint(path: Path) -> str:
-    """How to repair a bag that cut off (a recorder killed mid-write leaves no index): the tool of its format."""
-    root = _bag_root(Path(path))
-    if root.suffix == ".bag":
-        return " (a ROS 1 bag cut off before its index: `rosbag reindex` repairs it)"
-    storage = {p.suffix for p in root.iterdir()} if root.is_dir() else set()
+    """The tool that repairs a bag of this format (a recorder killed mid-write leaves no index)."""
+    storage = {p.suffix for p in storage_files(_bag_root(Path(path)))}
+    if ".bag" in storage:
+        return " (`rosbag reindex` repairs a ROS 1 bag)"
     if ".mcap" in storage:
-        return " (an MCAP file cut off before its summary: `mcap recover` repairs it)"
+        return " (`mcap recover` repairs an MCAP file)"
     if ".db3" in storage:
-        return " (a damaged SQLite file: `sqlite3 FILE .recover` salvages its rows)"
+        return " (`sqlite3 FILE .recover` salvages a SQLite file's rows)"
     return ""
 
 
