@@ -39,7 +39,7 @@ def _cloud(k: int, n: int = 500) -> np.ndarray:
 
 def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...] = ("/cam0/image_raw",),
          compressed: bool = False, tf: bool = True, missing_clouds: tuple[int, ...] = (), offset_ns: bool = False,
-         distortion: np.ndarray | None = None, mono16: bool = False) -> Path:
+         distortion: np.ndarray | None = None, mono16: bool = False, encoding: str = "") -> Path:
     """A small bag: camera(s) with their CameraInfo, a cloud (the LiDAR frame is the camera's turned 90
     degrees about y), optionally /tf_static, at 10 Hz."""
     m = RosMessages(fmt == "ros1")
@@ -78,6 +78,7 @@ def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...
                         msg.encoding, msg.step = "mono16", 2 * W
                         msg.data = gray.astype("<u2").view(np.uint8).ravel()
                     msg.header.frame_id = "cam0"
+                    msg.encoding = encoding or msg.encoding
                     put(cam, "sensor_msgs/msg/Image", t, msg)
                 info = m.camera_info(t, K, H, W, k)
                 info.header.frame_id = "cam0"
@@ -219,6 +220,15 @@ def test_a_bag_cut_off_gives_its_frames_before_the_damage_and_says_where_it_stop
     f.write_bytes(data[:3000])  # nothing but the start: one clear error, naming the damage
     with pytest.raises(DataError, match=f"(no camera topic|no message can be read).*stops .*{tool}"):
         RosbagSequence(bag, TopicChoice())
+
+
+def test_an_unknown_encoding_is_named_and_an_empty_cloud_is_a_frame_without_returns(tmp_path, monkeypatch):
+    seq = RosbagSequence(_bag(tmp_path / "y", frames=2, encoding="yuv422"), TopicChoice())
+    with pytest.raises(DataError, match=r"/cam0/image_raw image 0: image encoding 'yuv422' is not read"):
+        seq[0]
+    monkeypatch.setattr(sys.modules[__name__], "_cloud", lambda k, n=0: np.zeros((0, 4), np.float32))
+    seq = RosbagSequence(_bag(tmp_path / "e", frames=2), TopicChoice())
+    assert seq[1].points.shape == (0, 4) and np.array_equal(seq[1].image, _image(1))
 
 
 def test_a_bag_without_metadata_or_closed_by_a_killed_recorder(tmp_path):
