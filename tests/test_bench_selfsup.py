@@ -14,7 +14,8 @@ from leovr.config import BenchSelfSupConfig, SelfSupConfig
 def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
     monkeypatch.setenv("LEOVR_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "selfsup.json"
-    run_selfsup_bench(out, BenchSelfSupConfig(parts=["synthetic", "traffic"]), quick=True, progress=False)
+    run_selfsup_bench(out, BenchSelfSupConfig(parts=["synthetic", "traffic"], quick_frames=6, quick_epochs=1), quick=True,
+                      progress=False)
     doc = json.loads(out.read_text())
     r = doc["results"]
     assert doc["quick"] and doc["parts"] == ["synthetic", "traffic"] and "kitti_raw" not in r
