@@ -86,21 +86,23 @@ def straight_mid40_drive(tmp_path_factory):
 
 @contextmanager
 def killed_after_saves(n: int) -> Iterator[None]:
-    """A refine run inside the block is killed (KeyboardInterrupt) right after its n-th progress save, as a
-    user's Ctrl-C or a lost machine would leave it; the block expects that interrupt."""
+    """A refine run inside the block is killed (KeyboardInterrupt) right after its n-th progress save (a frame's
+    files, then the progress record naming it), as a user's Ctrl-C or a lost machine would leave it; the block
+    expects that interrupt. The run writes in its own thread here, so the interrupt comes at that moment."""
     from leovr.pipeline import refine
 
-    save, calls = refine.Progress.save, []
+    write, writer, calls = refine.write_frame_files, refine.FrameWriter, []
 
-    def killed(self, path):
-        save(self, path)
-        calls.append(path)
+    def killed(*args):
+        write(*args)
+        calls.append(args)
         if len(calls) == n:
             raise KeyboardInterrupt
 
-    refine.Progress.save = killed
+    refine.write_frame_files = killed
+    refine.FrameWriter = lambda threaded: writer(False)
     try:
         with pytest.raises(KeyboardInterrupt):
             yield
     finally:
-        refine.Progress.save = save
+        refine.write_frame_files, refine.FrameWriter = write, writer

@@ -40,13 +40,14 @@ from leovr.lidar.accumulate import ScanHistory
 from leovr.pipeline.accumulated_baseline import accumulated_fills
 from leovr.pipeline.completion import (EvalSample, frame_indices, generator_checkpoint, generator_method, warn_empty_input,
                                        with_truth)
+from leovr.pipeline.frame_writer import FrameWriter
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectories
 from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_input import (camera_only_graph_config, classical_source, completion_config, frame_sample,
                                          road_height, stereo_image)
 from leovr.pipeline.refine_outputs import (CPU, PNG_FOLDER, SCORED, TIMED, WALL, FrameScore, Progress, check_replay,
                                            frame_score, input_label, single_frame_generator, timing_record,
-                                           write_outputs)
+                                           write_frame_files, write_outputs)
 from leovr.pipeline.refine_passes import whole_recording_passes
 from leovr.pipeline.refine_prepare import ConeSteps, PreparedFrame, PrepareStage
 from leovr.threads import single_threaded_blas
@@ -140,15 +141,17 @@ class RefineRun:
         # end has processed frame k (the deskew motion), so the results are those of a sequential run
         # (one core's worth of threads, as in a batch task with one CPU: sequential, in this thread);
         # and its files are read (image decoding leaves the interpreter lock) while this frame's front end runs
-        with Lookahead(self.seq.__getitem__, threaded=torch_threads() > 1) as ahead:
-            self.stage = PrepareStage(self.seq, self.cfg, self.ccfg, self.indices, self.has_lidar, self.frame_dt,
-                                      self.generator, self.history, self.cone, ahead)
-            self.t_end, self.c_end = time.perf_counter(), time.process_time()
-            for n, i in enumerate(tqdm(self.indices, desc=desc, unit="frame", disable=not self.progress)):
-                self.step(ahead, n, i)
-        left = self.graph.flush()
-        if not self.cfg.causal:
-            self.finish(left)
+        # and each frame's files are compressed and written in a third thread while the next frame runs
+        with FrameWriter(threaded=torch_threads() > 1) as self.writer:
+            with Lookahead(self.seq.__getitem__, threaded=torch_threads() > 1) as ahead:
+                self.stage = PrepareStage(self.seq, self.cfg, self.ccfg, self.indices, self.has_lidar, self.frame_dt,
+                                          self.generator, self.history, self.cone, ahead)
+                self.t_end, self.c_end = time.perf_counter(), time.process_time()
+                for n, i in enumerate(tqdm(self.indices, desc=desc, unit="frame", disable=not self.progress)):
+                    self.step(ahead, n, i)
+            left = self.graph.flush()
+            if not self.cfg.causal:
+                self.finish(left)
         return self.conclude(pool, collect)
 
     def step(self, ahead: Lookahead[PreparedFrame, Frame], n: int, i: int) -> None:
@@ -244,7 +247,7 @@ class RefineRun:
             fs.own_input = (*np.nonzero(sample.sparse), sample.sparse[sample.sparse > 0])
         if self.has_lidar and i not in self.done:
             ipb = complete_depth(sample.sparse, "ipbasic")
-            write_depth_png(self.out / "depth_ipbasic" / png_name(self.names, i), ipb)
+            self.writer.submit(write_depth_png, self.out / "depth_ipbasic" / png_name(self.names, i), ipb)
             if fs is not None:
                 fs.add("ipbasic", ipb)
                 fs.add("nearest", complete_depth(sample.sparse, "nearest"))
@@ -264,13 +267,13 @@ class RefineRun:
             if r.index in self.scored:
                 self.scored[r.index].add("generator", gen_depth)
                 self.scored[r.index].add("refined", refined)
-            write_depth_png(self.out / "depth_generator" / png_name(self.names, r.index), gen_depth)
-            write_depth_png(self.out / "depth" / png_name(self.names, r.index), refined)
             # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
             sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
-            write_depth_png(self.out / "sigma" / png_name(self.names, r.index), sigma)
             self.state.poses[r.index] = r.T_world_cam.ravel().tolist()
-            self.state.save(self.state_path)
+            maps = {"depth_generator": gen_depth, "depth": refined, "sigma": sigma}
+            # the progress record after the frame's files: a resume never finds the pose without them
+            self.writer.submit(write_frame_files, self.out, png_name(self.names, r.index), maps, self.state_path,
+                               self.state.text())
 
     def latest_poses(self, indices_kept: list[int]) -> dict[int, np.ndarray]:
         """The graph's current pose of each frame still in the window, else the pose it left with."""

@@ -12,7 +12,7 @@ import numpy as np
 from tqdm import tqdm
 
 from leovr.config import CompleteConfig, RefineConfig
-from leovr.data.io import format_max_depth, write_text
+from leovr.data.io import format_max_depth, write_depth_png, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.run_info import read_run_depth
@@ -94,8 +94,11 @@ class Progress:
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
 
+    def text(self) -> str:
+        return json.dumps(self.__dict__) + "\n"
+
     def save(self, path: Path) -> None:
-        write_text(path, json.dumps(self.__dict__) + "\n")
+        write_text(path, self.text())
 
     def stacked(self, name: str, indices: list[int]) -> np.ndarray | None:
         """The poses kept under `name` ("poses", "poses_no_loop") as F x 4 x 4 in the order
@@ -104,6 +107,13 @@ class Progress:
         if not indices or any(i not in kept for i in indices):
             return None
         return np.stack([np.array(kept[i]).reshape(4, 4) for i in indices])
+
+
+def write_frame_files(out: Path, name: str, maps: dict[str, np.ndarray], state_path: Path, state: str) -> None:
+    """A leaving frame's depth maps (folder -> metres) as PNGs, then the run's progress record that names it."""
+    for folder, depth in maps.items():
+        write_depth_png(out / folder / name, depth)
+    write_text(state_path, state)
 
 
 def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], tol_m: float = 0.05) -> None:
