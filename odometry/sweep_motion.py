@@ -11,6 +11,8 @@ matches agree with (epipolar distance under `agree_px`) deskews the sweep."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -19,41 +21,59 @@ from odometry.mono_motion import rotation_parallax, sampson_px
 from odometry.mono_vo import relative_motion
 
 
-class SweepMotion:
-    """`sweep_motion` over a sequence, each image's features detected once (kept for the next call)."""
+@dataclass
+class ImagesMotion:
+    """What two images say of the camera's motion between them: rotation and direction of travel (4 x 4,
+    unit translation; None where the essential matrix failed) and the matches it was read from."""
 
-    def __init__(self, n_features: int = 2000, agree_px: float = 1.0, margin: float = 1.5) -> None:
-        self.n_features, self.agree_px, self.margin = n_features, agree_px, margin
+    motion: np.ndarray | None
+    uv0: np.ndarray
+    uv1: np.ndarray
+
+
+class SweepMotion:
+    """`images_motion` over a sequence, each image's features detected once (kept for the next call)."""
+
+    def __init__(self, n_features: int = 2000) -> None:
+        self.n_features = n_features
         self._feats: dict[int, Features] = {}
 
-    def __call__(self, index: int, image: np.ndarray, next_index: int, next_image: np.ndarray, K: np.ndarray,
-                 velocity: np.ndarray | None) -> np.ndarray | None:
+    def __call__(self, index: int, image: np.ndarray, next_index: int, next_image: np.ndarray,
+                 K: np.ndarray) -> ImagesMotion:
         a = self._feats.pop(index, None) or detect(image, self.n_features)
         b = detect(next_image, self.n_features)
         self._feats = {next_index: b}
-        return sweep_motion(a, b, K, velocity, self.agree_px, self.margin)
+        return images_motion(a, b, K)
 
 
-def sweep_motion(a: Features, b: Features, K: np.ndarray, velocity: np.ndarray | None,
-                 agree_px: float = 1.0, margin: float = 1.0) -> np.ndarray | None:
-    """Pose of the camera at the next image in the camera at this one (4 x 4), to deskew this frame's
-    sweep, from the two images' features `a` and `b`: the images' motion (its length from `velocity`, the
-    last estimated step in the same convention; rotation only when None) or `velocity` itself, whichever
-    `margin` times more ORB matches between the images agree with. Where it keeps the last step it returns the
-    `velocity` object itself: callers tell an overruled step by identity (KISS-ICP's prediction in `leovr refine`)."""
+def images_motion(a: Features, b: Features, K: np.ndarray) -> ImagesMotion:
+    """The motion between the images of features `a` and `b`: ORB matches, essential matrix (USAC_ACCURATE);
+    the part of `sweep_motion` that does not depend on the last step, so it can run ahead of it."""
     ia, ib = match(a, b)
     uv0, uv1 = a.uv[ia].astype(np.float64), b.uv[ib].astype(np.float64)
     motion, inl = relative_motion(uv0, uv1, K, method=cv2.USAC_ACCURATE)
-    if motion is None or inl.sum() < 20:
+    return ImagesMotion(motion if motion is not None and inl.sum() >= 20 else None, uv0, uv1)
+
+
+def sweep_motion(seen: ImagesMotion, K: np.ndarray, velocity: np.ndarray | None,
+                 agree_px: float = 1.0, margin: float = 1.5) -> np.ndarray | None:
+    """Pose of the camera at the next image in the camera at this one (4 x 4), to deskew this frame's
+    sweep: the images' motion `seen` (its length from `velocity`, the last estimated step in the same
+    convention; rotation only when None) or `velocity` itself, whichever `margin` times more ORB matches
+    between the images agree with. Where it keeps the last step it returns the `velocity` object itself:
+    callers tell an overruled step by identity (KISS-ICP's prediction in `leovr refine`)."""
+    if seen.motion is None:
         return velocity
-    seen = np.eye(4)
-    seen[:3, :3] = motion[:3, :3]
+    out = np.eye(4)
+    out[:3, :3] = seen.motion[:3, :3]
     if velocity is None:
-        return seen
+        return out
     step = velocity[:3, 3]
-    direction = motion[:3, 3] if motion[:3, 3] @ step >= 0 else -motion[:3, 3]  # sign: movers can carry its vote
-    seen[:3, 3] = float(np.linalg.norm(step)) * direction
-    return seen if _agree(seen, uv0, uv1, K, agree_px) > margin * _agree(velocity, uv0, uv1, K, agree_px) else velocity
+    t = seen.motion[:3, 3]
+    direction = t if t @ step >= 0 else -t  # sign: movers can carry its vote
+    out[:3, 3] = float(np.linalg.norm(step)) * direction
+    uv0, uv1 = seen.uv0, seen.uv1
+    return out if _agree(out, uv0, uv1, K, agree_px) > margin * _agree(velocity, uv0, uv1, K, agree_px) else velocity
 
 
 def _agree(T: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float) -> int:

@@ -11,7 +11,7 @@ from leovr.geometry import invert_T
 from leovr.sim.simulate import simulate
 from odometry.features import detect
 from odometry.initial_pose import first_step
-from odometry.sweep_motion import SweepMotion, sweep_motion
+from odometry.sweep_motion import SweepMotion, images_motion, sweep_motion
 
 
 def _deg(R: np.ndarray) -> float:
@@ -32,12 +32,13 @@ def test_images_replace_a_last_step_that_missed_the_turn(turning):
     assert _deg(truth[:3, :3]) > 10.0  # the scene turns
     straight = np.eye(4)
     straight[:3, 3] = [0.0, 0.0, np.linalg.norm(truth[:3, 3])]  # the step before a turn: straight on
-    out = sweep_motion(detect(f1.image, 2000), detect(f2.image, 2000), f1.K, straight)
+    seen = images_motion(detect(f1.image, 2000), detect(f2.image, 2000), f1.K)
+    out = sweep_motion(seen, f1.K, straight)
     assert out is not straight
     assert _deg(invert_T(truth)[:3, :3] @ out[:3, :3]) < 1.5
     assert np.linalg.norm(out[:3, 3] - truth[:3, 3]) < 0.15
     # the right step is kept as it is
-    assert sweep_motion(detect(f1.image, 2000), detect(f2.image, 2000), f1.K, truth) is truth
+    assert sweep_motion(seen, f1.K, truth) is truth
 
 
 def test_sweep_motion_reuses_the_next_images_features(turning, monkeypatch):
@@ -47,9 +48,8 @@ def test_sweep_motion_reuses_the_next_images_features(turning, monkeypatch):
     real = sm.detect
     monkeypatch.setattr(sm, "detect", lambda img, n: calls.append(1) or real(img, n))
     motion = SweepMotion()
-    v = invert_T(turning[0].T_world_cam) @ turning[1].T_world_cam
     for k in (1, 2):
-        motion(k, turning[k].image, k + 1, turning[k + 1].image, turning[k].K, v)
+        motion(k, turning[k].image, k + 1, turning[k + 1].image, turning[k].K)
     assert len(calls) == 3  # frames 1, 2 and 3, each once
 
 

@@ -62,12 +62,22 @@ class Lookahead(Generic[R, F]):
         if self.reader is not None and i not in self.reads:
             self.reads[i] = self.reader.submit(self.read, i)
 
-    def peek(self, i: int) -> F:
-        """Frame i, read once (here, unless read ahead already) and kept for `take`."""
+    def future(self, i: int) -> Future:
+        """Frame i's read: started in the reader thread unless it is already (read in line without one)."""
+        if self.reader is None:
+            return self._read_now(i)
+        self.read_ahead(i)
+        return self.reads[i]
+
+    def _read_now(self, i: int) -> Future:
         if i not in self.reads:
             self.reads[i] = Future()
             self.reads[i].set_result(self.read(i))
-        return self.reads[i].result()
+        return self.reads[i]
+
+    def peek(self, i: int) -> F:
+        """Frame i, read once (here, unless read ahead already) and kept for `take`."""
+        return self._read_now(i).result()
 
     def take(self, i: int) -> F:
         """Frame i as read ahead or peeked (forgotten then), else read now."""

@@ -147,8 +147,11 @@ class RefineRun:
                 self.stage = PrepareStage(self.seq, self.cfg, self.ccfg, self.indices, self.has_lidar, self.frame_dt,
                                           self.generator, self.history, self.cone, ahead)
                 self.t_end, self.c_end = time.perf_counter(), time.process_time()
-                for n, i in enumerate(tqdm(self.indices, desc=desc, unit="frame", disable=not self.progress)):
-                    self.step(ahead, n, i)
+                try:
+                    for n, i in enumerate(tqdm(self.indices, desc=desc, unit="frame", disable=not self.progress)):
+                        self.step(ahead, n, i)
+                finally:
+                    self.stage.close()
             left = self.graph.flush()
             if not self.cfg.causal:
                 self.finish(left)
@@ -162,6 +165,7 @@ class RefineRun:
         p = ahead.result()
         if n + 1 < len(self.indices):
             ahead.read_ahead(self.indices[n + 1])
+            self.stage.read_sweep_ahead(self.indices[n + 1])  # beside this frame's front end
         if self.has_lidar and i not in self.done and not (p.sample.sparse > 0).any():
             self.empty.append(i)
         t1 = time.perf_counter()

@@ -7,8 +7,9 @@ motion), so the results are those of a sequential run."""
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -19,6 +20,16 @@ from leovr.lidar.accumulate import ScanHistory, with_history
 from leovr.pipeline.completion import EvalSample
 from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_input import frame_sample, stereo_image
+
+if TYPE_CHECKING:
+    from odometry.sweep_motion import ImagesMotion
+
+
+def _done(value: object) -> Future:
+    """A future that holds `value` already."""
+    fut: Future = Future()
+    fut.set_result(value)
+    return fut
 
 Generator = Callable[[EvalSample], tuple[np.ndarray, np.ndarray]]  # sample -> depth, log sigma
 
@@ -78,6 +89,10 @@ class PrepareStage:
         self.stereo_images = GrayImages(lambda j: stereo_image(seq, j),
                                         keep=2 * max([*self.stereo.offsets, *cfg.graph.pair_offsets]) + 3)
         self.sweep_images = SweepMotion()
+        # a sweep's images' motion (ORB matching, essential matrix) needs only the two images: it runs in its own
+        # thread while the main thread's front end runs and this stage's thread would wait
+        self.sweeper = ThreadPoolExecutor(1, thread_name_prefix="leovr-sweep") if frames.threaded else None
+        self.images_ahead: dict[int, Future] = {}  # frame -> its sweep's images' motion, started ahead
         self.sweep_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
         self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
 
@@ -89,13 +104,42 @@ class PrepareStage:
             return None
         return self.frames.peek(j)
 
+    def read_sweep_ahead(self, i: int) -> None:
+        """Start frame i's sweep's images' motion (images i and i + 1, read ahead) in the sweep thread, when
+        frame i's scan will be deskewed with it. Called by the main thread before frame i is prepared."""
+        cfg = self.cfg
+        if (self.sweeper is None or i in self.images_ahead or not (cfg.deskew and self.has_lidar)
+                or cfg.causal or self.following.get(i) != i + 1):
+            return
+        self.images_ahead[i] = self.sweeper.submit(self._images_motion, i, self.frames.future(i),
+                                                   self.frames.future(i + 1))
+
+    def _images_motion(self, i: int, this: Future, nxt: Future) -> ImagesMotion | None:
+        frame = this.result()
+        if frame.point_times is None:  # no point times: the scan is not deskewed over its sweep
+            return None
+        return self.sweep_images(i, frame.image, i + 1, nxt.result().image, frame.K)
+
     def sweep(self, i: int, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
         """The camera motion over frame i's sweep, to deskew it: the last step (`motion`, None before the
         second frame), or the motion read from this image and the next one (not in a causal run)."""
+        ahead = self.images_ahead.pop(i, None)
         nxt_frame = None if self.cfg.causal else self.next_frame(i, frame)
         if nxt_frame is None:
             return motion
-        return self.sweep_images(i, frame.image, i + 1, nxt_frame.image, frame.K, motion)
+        from odometry.sweep_motion import sweep_motion
+
+        if ahead is None:  # not started ahead (the first frame): read now, in the sweep thread where there is one
+            args = (i, _done(frame), _done(nxt_frame))
+            seen = (self.sweeper.submit(self._images_motion, *args).result() if self.sweeper is not None
+                    else self._images_motion(*args))
+        else:
+            seen = ahead.result()
+        return sweep_motion(seen, frame.K, motion)
+
+    def close(self) -> None:
+        if self.sweeper is not None:
+            self.sweeper.shutdown(wait=True, cancel_futures=True)
 
     def start_motion(self, i: int, frame: Frame) -> np.ndarray | None:
         """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
