@@ -80,8 +80,8 @@ def _ros1_fields(header: bytes) -> dict[str, bytes]:
     fields, at = {}, 0
     while at < len(header):
         n = _u32(header, at)
-        name, _, value = header[at + 4: at + 4 + n].partition(b"=")
-        if at + 4 + n > len(header) or not _:
+        name, eq, value = header[at + 4: at + 4 + n].partition(b"=")
+        if at + 4 + n > len(header) or not eq:
             raise Truncated("a record header is malformed")
         fields[name.decode("latin-1")] = value
         at += 4 + n
