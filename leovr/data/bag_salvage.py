@@ -379,7 +379,8 @@ class SalvagedBag:
             try:
                 file.scan(scan)
             except (Truncated, struct.error, ValueError, OSError, KeyError, IndexError, UnicodeDecodeError) as exc:
-                where = "" if p.suffix == ".db3" else f", in the record from byte {scan.offset:,} of {p.stat().st_size:,}"
+                where = (f", in the record from byte {scan.offset:,} of {p.stat().st_size:,}"
+                         if p.suffix != ".db3" and scan.offset else "")
                 last = max((e.log_ns for e in scan.entries[first:]), default=-1)
                 damage.append((p.name, last, f"{exc}{where}"))
         self.is2 = not any(_kind(p) is _Ros1File for p in files)
