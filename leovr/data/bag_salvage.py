@@ -10,6 +10,7 @@ Message types come from the definitions the bag carries, else from the standard 
 
 from __future__ import annotations
 
+import bisect
 import bz2
 import sqlite3
 import struct
@@ -58,7 +59,8 @@ def _u64(b: bytes, at: int = 0) -> int:
 
 
 def _decompress(data: bytes, compression: str) -> bytes:
-    if compression in ("", "none"):
+    """A ROS 1 chunk's records (its compressions: none, bz2, lz4)."""
+    if compression == "none":
         return data
     if compression == "bz2":
         return bz2.decompress(data)
@@ -66,10 +68,6 @@ def _decompress(data: bytes, compression: str) -> bytes:
         from lz4.frame import decompress
 
         return decompress(data)
-    if compression == "zstd":
-        from rosbags.rosbag2.storage_mcap import zstd
-
-        return zstd.decompress(data)
     raise Truncated(f"unknown chunk compression {compression!r}")
 
 
@@ -105,8 +103,6 @@ def _ros1_records(buf: bytes) -> Iterator[tuple[dict[str, bytes], int, int]]:
 class _Ros1File:
     """A ROS 1 bag scanned record by record: bag header, chunks (connections and messages inside),
     index records skipped."""
-
-    is2 = False
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -187,10 +183,20 @@ def _string(b: bytes, at: int) -> tuple[str, int]:
     return b[at + 4: at + 4 + n].decode(), at + 4 + n
 
 
+def _mcap_records(body: bytes) -> bytes:
+    """A compressed MCAP chunk's records, decompressed and checked (size, CRC) by rosbags' MCAP decompression."""
+    from rosbags.rosbag2.errors import ReaderError
+    from rosbags.rosbag2.storage_mcap import decompress
+
+    comp, at = _string(body, 28)
+    try:
+        return decompress(body[at + 8: at + 8 + _u64(body, at)], comp, _u64(body, 16), _u32(body, 24))
+    except ReaderError as exc:
+        raise Truncated(str(exc)) from exc
+
+
 class _McapFile:
     """An MCAP file scanned record by record: schemas, channels and messages, in chunks or not."""
-
-    is2 = True
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -219,10 +225,7 @@ class _McapFile:
                 elif len(body) < n:
                     raise Truncated("the file ends inside a compressed chunk")
                 else:
-                    raw = _decompress(records, comp)
-                    if len(raw) != _u64(body, 16):
-                        raise Truncated("a chunk's size does not match its header")
-                    self._records(raw, (body_at, n, comp), out)
+                    self._records(_mcap_records(body), (body_at, n), out)
                 if len(body) < n:
                     raise Truncated("the file ends inside a chunk")
             elif op[0] in (0x03, 0x04, 0x05):
@@ -263,12 +266,10 @@ class _McapFile:
         if len(where) == 2:
             self.f.seek(where[0])
             return self.f.read(where[1])
-        body_at, n, comp, start, size = where
+        body_at, n, start, size = where
         if self._chunk is None or self._chunk[0] != body_at:
             self.f.seek(body_at)
-            body = self.f.read(n)
-            _, at = _string(body, 28)
-            self._chunk = (body_at, _decompress(body[at + 8: at + 8 + _u64(body, at)], comp))
+            self._chunk = (body_at, _mcap_records(self.f.read(n)))
         return self._chunk[1][start: start + size]
 
 
@@ -277,8 +278,6 @@ class _McapFile:
 
 class _SqliteFile:
     """A rosbag2 SQLite file read row by row (in the table's order) until SQLite reports damage."""
-
-    is2 = True
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -411,8 +410,6 @@ class SalvagedBag:
     def messages(self, connections: list[Connection] | None = None, start: int | None = None,
                  stop: int | None = None) -> Iterator[tuple[Connection, int, bytes]]:
         """(connection, log time ns, raw bytes) in log-time order, from `start` (ns) to before `stop`."""
-        import bisect
-
         want = None if connections is None else {c.id for c in connections}
         lo = 0 if start is None else bisect.bisect_left(self._times, start)
         hi = len(self._times) if stop is None else bisect.bisect_left(self._times, stop)

@@ -17,6 +17,13 @@ R = TypeVar("R")  # what the preparation of a frame gives
 F = TypeVar("F")  # what reading a frame gives
 
 
+def done_future(value: object) -> Future:
+    """A future that holds `value` already."""
+    fut: Future = Future()
+    fut.set_result(value)
+    return fut
+
+
 class Lookahead(Generic[R, F]):
     """One frame's preparation in flight at a time (`submit`, then `result`), and frames read once each
     (`read_ahead` in the reader thread, `peek` / `take` by the preparation). An exception in the worker is
@@ -71,8 +78,7 @@ class Lookahead(Generic[R, F]):
 
     def _read_now(self, i: int) -> Future:
         if i not in self.reads:
-            self.reads[i] = Future()
-            self.reads[i].set_result(self.read(i))
+            self.reads[i] = done_future(self.read(i))
         return self.reads[i]
 
     def peek(self, i: int) -> F:

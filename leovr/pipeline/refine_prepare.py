@@ -18,18 +18,11 @@ from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
 from leovr.lidar.accumulate import ScanHistory, with_history
 from leovr.pipeline.completion import EvalSample
-from leovr.pipeline.lookahead import Lookahead
+from leovr.pipeline.lookahead import Lookahead, done_future
 from leovr.pipeline.refine_input import frame_sample, stereo_image
 
 if TYPE_CHECKING:
     from odometry.sweep_motion import ImagesMotion
-
-
-def _done(value: object) -> Future:
-    """A future that holds `value` already."""
-    fut: Future = Future()
-    fut.set_result(value)
-    return fut
 
 Generator = Callable[[EvalSample], tuple[np.ndarray, np.ndarray]]  # sample -> depth, log sigma
 
@@ -129,12 +122,9 @@ class PrepareStage:
             return motion
         from odometry.sweep_motion import sweep_motion
 
-        if ahead is None:  # not started ahead (the first frame): read now, in the sweep thread where there is one
-            args = (i, _done(frame), _done(nxt_frame))
-            seen = (self.sweeper.submit(self._images_motion, *args).result() if self.sweeper is not None
-                    else self._images_motion(*args))
-        else:
-            seen = ahead.result()
+        # not started ahead (the first frame, before any sweep thread work; or no sweep thread): read here
+        seen = (ahead.result() if ahead is not None
+                else self._images_motion(i, done_future(frame), done_future(nxt_frame)))
         return sweep_motion(seen, frame.K, motion)
 
     def close(self) -> None:
