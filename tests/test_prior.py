@@ -9,7 +9,8 @@ import torch
 from leovr.depth.classical import nearest_fill
 from leovr.depth.inference import predict, predict_at_focal, rescale_sparse, sampled_prior
 from leovr.depth.network import DepthGenerator, GeneratorConfig
-from leovr.depth.prior import delaunay_triangles, interpolated_fill, triangle_map
+from leovr.depth import prior as prior_module
+from leovr.depth.prior import delaunay_triangles, interpolated_fill, near_depth_edges, triangle_map
 
 
 def ground_plane(h: int = 120, w: int = 200, f: float = 150.0, cam_height: float = 1.6) -> np.ndarray:
@@ -86,6 +87,30 @@ def test_the_image_side_holds_for_inputs_denser_than_the_interpolator_takes():
     err_image = np.abs(interpolated_fill(sparse, image=img) - gt)[gap].mean()
     err_nearest = np.abs(interpolated_fill(sparse) - gt)[gap].mean()
     assert err_image < 0.5 * err_nearest
+
+
+def test_a_dense_input_guides_with_the_returns_near_its_depth_edges(monkeypatch):
+    """Above DENSE_RETURNS the image guide takes the returns near depth edges and a stride of the rest: the
+    pixels at the edge come out as with every return."""
+    h, w, boundary = 256, 448, 131
+    gt = np.where(np.arange(h)[:, None] < boundary, 5.0, 20.0).repeat(w, 1).astype(np.float32)
+    img = np.zeros((h, w, 3), np.uint8)
+    img[:boundary], img[boundary:] = (200, 40, 40), (60, 60, 200)
+    img = np.clip(img.astype(np.int64) + np.random.default_rng(1).integers(-10, 10, img.shape), 0, 255).astype(np.uint8)
+    sparse = np.zeros_like(gt)
+    sparse[::4, ::2] = gt[::4, ::2]  # 14,336 returns
+    sparse[124:140] = 0.0  # a gap around the depth edge, one ring inside it
+    sparse[128, ::2] = gt[128, ::2]
+    assert (sparse > 0).sum() > prior_module.DENSE_RETURNS
+    near = near_depth_edges(sparse)
+    assert near[100:160].all()  # the rings on both sides of the edge and the gap between them
+    assert not near[:80].any() and not near[180:].any()  # far from it
+    selected = interpolated_fill(sparse, image=img)
+    monkeypatch.setattr(prior_module, "DENSE_RETURNS", 10**9)
+    every = interpolated_fill(sparse, image=img)
+    gap = slice(129, 140)
+    np.testing.assert_allclose(selected[gap], every[gap], rtol=1e-3)
+    assert np.abs(selected - gt)[gap].mean() < 0.5 * np.abs(interpolated_fill(sparse) - gt)[gap].mean()
 
 
 def test_a_steep_surface_between_far_rings_takes_the_image_guided_fit_not_a_corner(monkeypatch):

@@ -45,6 +45,15 @@ EDGE_AWARE_SIGMA = 0.05
 EDGE_GUIDE_MAX_RATIO = 3.0
 MIN_EDGE_AWARE_RETURNS = 16  # fewer returns than this: the nearest return (the fit needs neighbours)
 MAX_EDGE_AWARE_RETURNS = 32000  # OpenCV's interpolator takes fewer than 32767 matches: denser inputs are strided
+# The guide's time grows with its returns (a KITTI HDL-64 frame, 17.6k returns: 240-310 ms). Above
+# DENSE_RETURNS it takes the returns within EDGE_NEIGHBOURHOOD_PX of a depth edge (a return with one EDGE_RATIO
+# nearer or farther inside that window: where the guide is read, with the neighbours its local fits use) and
+# every DENSE_REST_STRIDE-th other return. Measured on every second frame of both KITTI raw clips (each scan,
+# a tenth of its returns held out): the prior's MAE 0.4585 -> 0.4534 m and 0.9083 -> 0.9090 m, its time
+# 275 -> 193 ms; a plain stride to 10000 returns cost as much time and raised the MAE by up to 1.3 %.
+DENSE_RETURNS = 8000
+EDGE_NEIGHBOURHOOD_PX = 41
+DENSE_REST_STRIDE = 4
 
 
 def _uint8_image(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -56,6 +65,20 @@ def _uint8_image(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+def near_depth_edges(sparse: np.ndarray, window: int = EDGE_NEIGHBOURHOOD_PX, ratio: float = EDGE_RATIO) -> np.ndarray:
+    """H x W bool: pixels within a `window` x `window` box of a return that has, in such a box around it, a
+    return `ratio` times nearer or farther (a depth edge)."""
+    import cv2
+
+    sparse = np.asarray(sparse, np.float32)
+    box = np.ones((window, window), np.uint8)
+    valid = sparse > 0
+    hi = cv2.dilate(sparse, box)
+    lo = cv2.erode(np.where(valid, sparse, np.float32(1e9)), box)
+    edge = valid & (hi >= ratio * lo)
+    return cv2.dilate(edge.astype(np.uint8), box) > 0
+
+
 def edge_aware_log_depth(sparse: np.ndarray, image: np.ndarray) -> np.ndarray:
     """Log depth interpolated from the returns of `sparse` along geodesic paths over the image's edges
     (H x W float32). It picks the side at depth edges; as depth it is used only inside moderate edges and
@@ -63,6 +86,10 @@ def edge_aware_log_depth(sparse: np.ndarray, image: np.ndarray) -> np.ndarray:
     import cv2
 
     v, u = np.nonzero(sparse > 0)
+    if len(u) > DENSE_RETURNS:
+        keep = near_depth_edges(sparse)[v, u]
+        keep[::DENSE_REST_STRIDE] = True
+        v, u = v[keep], u[keep]
     if len(u) > MAX_EDGE_AWARE_RETURNS:  # an evenly strided subset guides the side choice just as well
         keep = np.linspace(0, len(u) - 1, MAX_EDGE_AWARE_RETURNS).astype(np.int64)
         v, u = v[keep], u[keep]
