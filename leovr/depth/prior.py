@@ -45,13 +45,13 @@ EDGE_AWARE_SIGMA = 0.05
 EDGE_GUIDE_MAX_RATIO = 3.0
 MIN_EDGE_AWARE_RETURNS = 16  # fewer returns than this: the nearest return (the fit needs neighbours)
 MAX_EDGE_AWARE_RETURNS = 32000  # OpenCV's interpolator takes fewer than 32767 matches: denser inputs are strided
-# The guide's time grows with its returns (a KITTI HDL-64 frame, 17.6k returns: 240-310 ms). Above
+# The guide's time grows with its returns (a KITTI HDL-64 scan puts about 15-18k in view). Above
 # DENSE_RETURNS it takes the returns within EDGE_NEIGHBOURHOOD_PX of a depth edge (a return with one EDGE_RATIO
 # nearer or farther inside that window: where the guide is read, with the neighbours its local fits use) and
 # every DENSE_REST_STRIDE-th other return. `tools/eval_dense_prior.py` (every second frame of both KITTI raw
 # clips, a tenth of each scan's returns held out), against the guide given every return: the prior's MAE
 # 0.4585 -> 0.4534 m (kitti_raw) and 0.9083 -> 0.9090 m (kitti_raw_0013), its time 227 -> 187 and 243 -> 210 ms
-# a frame; a plain stride to 10000 returns took as long and raised the MAE by up to 1.3 %.
+# a frame.
 DENSE_RETURNS = 8000
 EDGE_NEIGHBOURHOOD_PX = 41
 DENSE_REST_STRIDE = 4
