@@ -147,7 +147,7 @@ class FrontEnd:
             icp_pose = (T_icp, self.icp.covariance)
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
                           trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
-                          step.road_normal if step is not None else None, matches_prev=matches_prev)
+                          matches_prev=matches_prev)
 
     def _lidar_pose(self, T_prev: np.ndarray, T_icp: np.ndarray | None, obj: np.ndarray, img: np.ndarray
                     ) -> tuple[np.ndarray, str]:

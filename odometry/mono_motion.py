@@ -40,7 +40,6 @@ class MonoStep:
     inliers: int
     parallax_px: float
     scale_source: str  # "ground", "depth" (each "+tracks" when tracks gave the change), "standing" or "constant_speed"
-    road_normal: np.ndarray | None = None  # the road's normal in the previous frame's camera, where the road was read
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -161,18 +160,17 @@ class MonoMotion:
         return (flipped, support[1]) if support[1].sum() >= max(8, support[0].sum()) else (motion, inl)
 
     def _road_reading(self, p0: np.ndarray, p1: np.ndarray,
-                      motion: np.ndarray) -> tuple[tuple[float, float] | None, np.ndarray | None]:
-        """From the road plane of the tracked road corners: the log step length and its sigma, and the
-        road's normal where the plane is well fitted (20 corners or more); None for what it cannot give."""
+                      motion: np.ndarray) -> tuple[float, float] | None:
+        """From the road plane of the tracked road corners: the log step length and its sigma; None where
+        there is no road reading."""
         if self.camera_height is None or len(p0) < 8:
-            return None, None
+            return None
         X = triangulate(motion, p0, p1, self.K)
         par = rotation_parallax(p0, p1, motion[:3, :3].T, self.K)
         fit = fit_ground(X[par > self.min_parallax_px])
         if fit is None:
-            return None, None
-        reading = float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
-        return reading, (fit.normal if fit.fitted and fit.inliers >= 20 else None)
+            return None
+        return float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
 
     def step(self, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
         """The motion from the previous frame to this one; None for the first frame."""
@@ -261,7 +259,7 @@ class MonoMotion:
         if old.sum() >= 20 and self.log_len is not None:
             log_ratio = float(np.log(weighted_median(self.carried_z[good[old]] / z[old], 1.0 / tri_var[old])))
             log_ratio -= float(self.log_len)
-        ground, road_normal = self._road_reading(p0[road_idx], p1[road_idx], motion)
+        ground = self._road_reading(p0[road_idx], p1[road_idx], motion)
         ground = self._checked_ground(ground)
         bias = self.depth_log_bias or 0.0
         depth = None if log_meas is None else (log_meas - bias, self.depth_sigma_log)
@@ -284,4 +282,4 @@ class MonoMotion:
         T = motion.copy()
         T[:3, 3] *= length
         self._carry(T, X * length, front, p1[good])
-        return MonoStep(T, len(good), parallax, source, road_normal if ground is not None else None)
+        return MonoStep(T, len(good), parallax, source)

@@ -69,7 +69,6 @@ class FrameInput:
     icp_pose: tuple[np.ndarray, np.ndarray] | None = None  # KISS-ICP's pose (camera to world) and its 6 x 6 covariance
     # landmark id -> its prior's sigma per metre of depth where it differs from `landmark_prior_rel`
     landmark_prior_rel: dict[int, float] = field(default_factory=dict)
-    road_normal_prev: np.ndarray | None = None  # camera only: the road's normal in the previous frame's camera
     # earlier frame j -> T_j_i (4 x 4): this frame's motion to j read from the images (essential matrix, LiDAR
     # length; odometry.motion_stereo.pair_motions), a between factor where j is still in the window
     pair_motions: dict[int, np.ndarray] = field(default_factory=dict)
@@ -129,7 +128,6 @@ class WindowGraph:
         self.pairs: list[_Pair] = []
         self.icp_poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.last: int | None = None
-        self.road_up: list[np.ndarray] = []  # camera only: the road's normal in the world, the first ones seen
         # the correction field's depth factors; `auto` is on until the caller knows the sensor (refine: a
         # spinning LiDAR turns them off)
         self.depth_factors: bool = self.cfg.graph.depth_factors is not False
@@ -150,8 +148,6 @@ class WindowGraph:
         if f.icp_pose is not None:
             self._icp_factors(f.index, *f.icp_pose, graph)
         self._pair_factors(f, graph)
-        if f.road_normal_prev is not None and self.last is not None and self.cfg.camera_only.road_attitude_sigma_rad > 0:
-            self._road_attitude(self.last, f.road_normal_prev, graph)
         fd = FrameDepth(f.log_depth, self.grid)
         self.depths[f.index] = fd
         values.insert(C(f.index), np.zeros(self.grid.size))
@@ -181,16 +177,6 @@ class WindowGraph:
             self._resample(pair)
             self.pairs.append(pair)
             graph.add(consistency_factor(dc, [X(f.index), X(self.last), C(f.index), C(self.last)]))
-
-    def _road_attitude(self, i: int, normal_cam: np.ndarray, graph: gtsam.NonlinearFactorGraph, n_ref: int = 10) -> None:
-        """Camera only: the road's normal seen from frame i fixes that frame's pitch and roll against the road
-        (a flat road: the world normal is the mean of the first `n_ref` seen, each through its frame's pose
-        estimate then). It holds back the pitch drift that the landmarks' depth priors bring into the window."""
-        if len(self.road_up) < n_ref:
-            self.road_up.append(self.poses[i][:3, :3] @ normal_cam)
-        up = np.mean(self.road_up, axis=0)
-        noise = gtsam.noiseModel.Isotropic.Sigma(2, self.cfg.camera_only.road_attitude_sigma_rad)
-        graph.add(gtsam.AttitudeFactorPose3(X(i), gtsam.Unit3(up / np.linalg.norm(up)), noise, gtsam.Unit3(normal_cam)))
 
     def _pair_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph) -> None:
         """The images' motions from this frame to earlier frames of the window: rotation to
