@@ -33,7 +33,7 @@ class GraphConfig(_Model):
     # LM retries a step that raises the error at 10x damping only below this cap; 1e-10: no retry, the update ends
     # (docs/decisions/0002-no-lm-retries.md)
     lm_lambda_upper_bound: float = Field(1e-10, gt=0)
-    pixel_sigma: float = 1.0  # reprojection factor (eq. 8) sigma (px), Huber
+    pixel_sigma: float = 1.0  # reprojection factor (eq. 8) sigma (px), Huber; x 1.2^n for a keypoint of ORB pyramid level n
     bearing_sigma_rad: float = 0.003  # LiDAR point factor (eq. 10): bearing sigma (rad)
     range_sigma_m: float = 0.1  # LiDAR point factor: range sigma (m)
     landmark_prior_rel: float = 0.3  # landmark prior from the depth it was initialised with, sigma / depth

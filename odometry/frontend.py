@@ -172,6 +172,7 @@ class FrontEnd:
         from both frames; `road_placed`: placed by the road's metric motion, not the generator's depth, so given
         its own depth prior."""
         p = self.prev
+        scale_prev, scale_cur = p.feats.pixel_scale(ia), feats.pixel_scale(ib)
         for m in range(len(ia)):
             a, b = ia[m], ib[m]
             k = int(p.landmark[a])
@@ -181,9 +182,10 @@ class FrontEnd:
                 new_landmarks[k] = obj[m]
                 if road_placed[m]:
                     prior_rel[k] = self.cfg.camera_only.triangulated_prior_rel
-                observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a]))
+                observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a],
+                                                float(scale_prev[m])))
             landmark[b] = k
-            observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b]))
+            observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b], float(scale_cur[m])))
 
     def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
                           uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:

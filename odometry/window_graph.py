@@ -44,12 +44,14 @@ def L(k: int) -> int:
 
 @dataclass
 class Observation:
-    """A landmark seen in a frame: pixel, and the associated LiDAR point in the camera frame if any."""
+    """A landmark seen in a frame: pixel, the associated LiDAR point in the camera frame if any, and how
+    coarsely the pixel is known (its reprojection sigma over `graph.pixel_sigma`)."""
 
     landmark: int
     frame: int
     uv: np.ndarray
     lidar_cam: np.ndarray | None = None
+    pixel_scale: float = 1.0
 
 
 @dataclass
@@ -167,7 +169,7 @@ class WindowGraph:
             rel = f.landmark_prior_rel.get(k, g.landmark_prior_rel)
             graph.add(gtsam.PriorFactorPoint3(L(k), np.asarray(P, float), gtsam.noiseModel.Isotropic.Sigma(3, rel * depth)))
         for o in f.observations:
-            graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, g.pixel_sigma))
+            graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, g.pixel_sigma * o.pixel_scale))
             if o.lidar_cam is not None:
                 graph.add(lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), g.bearing_sigma_rad, g.range_sigma_m))
         if self.depth_factors and f.trusted is not None and self.last is not None and f.trusted.any():

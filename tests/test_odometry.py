@@ -3,6 +3,7 @@ depth-consistency residual with its analytic Jacobians."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -421,3 +422,44 @@ def test_a_step_that_raises_the_error_ends_the_update_without_retries():
     assert solves == 1 and x == 0.0
     solves_old, x_old = _failed_step_solves(1e-2)
     assert solves_old == 4 and x_old == x
+
+
+def _scaled_pixel_run(weighted: bool) -> float:
+    """A camera moving 0.5 m per frame past 80 landmarks; half are seen with pixels 4 px off at random (keypoints
+    of a coarse pyramid level, `pixel_scale` 4), half with 0.2 px. Returns the mean position error of the poses."""
+    from leovr.config import RefineConfig
+    from odometry.window_graph import FrameInput, Observation, WindowGraph
+
+    rng = np.random.default_rng(5)
+    pts = np.c_[rng.uniform(-6, 6, 80), rng.uniform(-3, 3, 80), rng.uniform(10, 30, 80)]
+    coarse = np.arange(80) % 2 == 0
+    g = WindowGraph(RefineConfig(window=3, graph={"depth_factors": False}), K, SHAPE, rng=np.random.default_rng(0))
+    truth, done = [], []
+    for i in range(6):
+        T = make_T(t=[0.0, 0.0, 0.5 * i])
+        truth.append(T)
+        cam = (pts - T[:3, 3]) @ T[:3, :3]
+        uv = (cam @ K.T)[:, :2] / cam[:, 2:] + rng.normal(0, 1, (80, 2)) * np.where(coarse, 4.0, 0.2)[:, None]
+        scale = np.where(coarse, 4.0, 1.0) if weighted else np.ones(80)
+        obs = [Observation(k, i, uv[k], None, float(scale[k])) for k in range(len(pts))]
+        fi = FrameInput(i, T, np.full(SHAPE, np.log(20.0)), np.full(SHAPE, 0.2), obs,
+                        {k: pts[k] + rng.normal(0, 0.2, 3) for k in range(len(pts))} if i == 0 else {}, None, None,
+                        None if i == 0 else make_T(t=[0.0, 0.0, 0.5]))
+        done += g.add_frame(fi)
+    done += g.flush()
+    est = [r.T_world_cam for r in sorted(done, key=lambda r: r.index)]
+    return float(np.mean([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, truth)]))
+
+
+def test_reprojection_factors_weigh_each_pixel_by_its_pyramid_level():
+    """ORB finds a keypoint on a pyramid level 1.2x coarser per level; its pixel is known that much less well,
+    and the graph's reprojection factors weigh it so (ORB-SLAM's rule)."""
+    from odometry.features import SCALE_FACTOR, detect
+
+    rng = np.random.default_rng(1)
+    image = cv2.GaussianBlur((rng.random((240, 320)) * 255).astype(np.uint8), (0, 0), 1.5)
+    feats = detect(np.dstack([image] * 3), 500)
+    assert feats.octave is not None and feats.octave.max() >= 2
+    idx = np.arange(len(feats))
+    assert np.allclose(feats.pixel_scale(idx), SCALE_FACTOR ** feats.octave)
+    assert _scaled_pixel_run(weighted=True) < 0.7 * _scaled_pixel_run(weighted=False)
