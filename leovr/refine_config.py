@@ -40,7 +40,7 @@ class GraphConfig(_Model):
     odometry_sigma_rad: float = 0.05  # front-end motion between consecutive frames (weak): rotation sigma (rad)
     odometry_sigma_m: float = 0.3  # ... translation sigma (m)
     # KISS-ICP's point-to-point registration covariance x this (docs/decisions/0001-icp-covariance-inflation.md)
-    icp_cov_inflation: float = Field(6.0, gt=0)
+    icp_cov_inflation: float = Field(2.0, gt=0)
     consistency_samples: int = Field(300, ge=10)  # pixels per depth-consistency factor, resampled each update
     consistency_sigma_log: float = 0.05  # depth-consistency sigma (log depth)
     lidar_depth_samples: int = Field(400, ge=0)  # own LiDAR returns on the correction field (0 = off)

@@ -274,7 +274,7 @@ def test_a_cone_lidars_refined_depth_beats_the_generator_and_the_accumulated_fil
 def test_visual_lidar_poses_beat_kiss_icp_on_the_real_drive_with_poses(tmp_path):
     """The real drive with GPS/IMU poses, VLP-16-like input: the graph's trajectory (KISS-ICP's motion as its
     pose prior, images and returns added) is at least as good as KISS-ICP alone on the same input, deskewed
-    by KISS-ICP or not; with the simulator's ICP weighting (inflation 60) it was 1.35x."""
+    by KISS-ICP or not; with KISS-ICP's covariance inflated 60x it was 1.35x."""
     seq = open_sequence(KITTI_RAW_POSES)
     m = run_refine(seq, RefineConfig(input="vlp16"), tmp_path / "out", progress=False)
     t = m["trajectory"]
