@@ -91,3 +91,28 @@ def test_map_scores_on_a_known_plane():
     assert distances_to_points(np.zeros((1, 3)), np.array([[0, 3.0, 4.0]])).tolist() == [5.0]
     empty = map_scores(distances_to_mesh(o3d.geometry.TriangleMesh(), pts))
     assert empty["accuracy_m"] is None and empty["completeness"] == 0.0
+
+
+def test_held_out_returns_are_placed_with_the_ground_truth_moved_onto_the_runs_trajectory():
+    """On a clip with poses the held-out returns are placed with the ground-truth poses, then moved rigidly onto the
+    run's trajectory: a run whose poses are the truth turned and shifted as a whole gets the same truth points,
+    turned and shifted alike (the maps are scored on their shape, not on the frame the run's first pose set), also
+    when the drive is straight (its centres alone leave the roll about it open)."""
+    from types import SimpleNamespace
+
+    from leovr.bench.map import heldout_world_points
+    from leovr.geometry import make_T, transform_points
+    from scipy.spatial.transform import Rotation
+
+    K = np.array([[500.0, 0, 160], [0, 500, 120], [0, 0, 1]])
+    truth = np.stack([make_T(Rotation.from_euler("y", 2 * i, degrees=True).as_matrix(), [0.3 * i, 0, 1.1 * i])
+                      for i in range(6)])
+    seq = type("Seq", (), {"has_poses": True, "pose": staticmethod(lambda i: truth[i]),
+                           "__getitem__": lambda self, i: SimpleNamespace(K=K)})()
+    frames = {i: SimpleNamespace(gt=np.array([5.0, 12.0, 30.0]), pick=(np.array([10, 100, 200]), np.array([20, 160, 300])))
+              for i in range(6)}
+    moved = make_T(Rotation.from_euler("xyz", [3, -20, 5], degrees=True).as_matrix(), [4.0, -1.0, 2.5])
+    placed_on_truth = heldout_world_points(seq, frames, truth, 25.0)
+    placed_on_moved = heldout_world_points(seq, frames, np.einsum("ij,fjk->fik", moved, truth), 25.0)
+    assert len(placed_on_truth) == 12  # the 30 m return is out of reach
+    assert np.allclose(placed_on_moved, transform_points(moved, placed_on_truth), atol=1e-6)

@@ -5,7 +5,8 @@ Per clip and cheap input (simulated from the drive's HDL-64 scan): `leovr refine
 refined depth and uncertainty, and the nearest fill of the very same cheap input, are each fused into a TSDF
 map with the run's poses (`leovr.pipeline.tsdf_map`); the cheap returns themselves, placed with the same poses,
 are the third map. The held-out returns of every frame (the pixels `refine` scores), placed in the world with
-the ground-truth poses where the drive has them (else the run's), within the maps' reach are the truth: accuracy is their mean
+the ground-truth poses where the drive has them (rigidly aligned to the run's trajectory, as for the ATE; else the
+run's poses), within the maps' reach are the truth: accuracy is their mean
 distance to a map where it covers them (within 1 m), completeness the share within 0.2 m. The refined map is
 also fused at several uncertainty thresholds, which chose the default (`map.sigma_max`).
 """
@@ -30,6 +31,7 @@ from leovr.eval.map_metrics import COVER_M, NEAR_M, distances_to_mesh, distances
 from leovr.geometry import back_project, transform_points
 from leovr.pipeline.refine import FrameScore, completion_config, frame_sample, run_refine
 from leovr.pipeline.tsdf_map import SIGMA_SCALE, TsdfMap, map_depth, peak_memory_mb
+from odometry.loop.validate import umeyama
 
 
 def run_map_bench(out: Path, cfg: BenchMapConfig, quick: bool = False, progress: bool = True) -> dict:
@@ -103,17 +105,30 @@ def clip_map(seq, n: int, inp: str, cfg: BenchMapConfig, work: Path, progress: b
     maps["refined"] = maps[f"refined_sigma_{'all' if default is None else default}"]
     maps["nearest"] = map_scores(distances_to_mesh(nearest.mesh(), truth))
     maps["accumulated"] = map_scores(distances_to_points(np.concatenate(accumulated), truth))
-    return {"frames": n, "input": inp, "truth_points": len(truth), "poses": "ground truth" if seq.has_poses else "run",
+    return {"frames": n, "input": inp, "truth_points": len(truth), "poses": "ground truth (rigidly aligned to the run's)" if seq.has_poses else "run",
             "maps": maps, "seconds_per_frame": round(t_fuse / n, 4), "peak_memory_mb": round(peak_memory_mb(), 1),
             "blocks": refined[default].blocks}
 
 
+def camera_marks(poses: np.ndarray, reach_m: float = 10.0) -> np.ndarray:
+    """Each camera's centre and the points `reach_m` along its three axes (F x 4 x 4 -> 4F x 3): a rigid fit to them
+    aligns the cameras' orientation too, which the centres of a nearly straight drive leave open (the roll about it)."""
+    centres = poses[:, :3, 3]
+    return np.concatenate([centres] + [centres + reach_m * poses[:, :3, k] for k in range(3)])
+
+
 def heldout_world_points(seq, frames: dict[int, FrameScore], run_poses: np.ndarray, max_depth_m: float) -> np.ndarray:
-    """Every scored held-out return within the maps' reach (`max_depth_m` from its camera) in the world: ground-truth
-    poses where the clip has them, else the run's."""
+    """Every scored held-out return within the maps' reach (`max_depth_m` from its camera) in the run's world: placed
+    with the ground-truth poses where the clip has them, moved onto the run's trajectory by the rigid fit of the
+    ground-truth cameras to the run's (as the ATE aligns: the maps are scored on their shape, not on the frame the
+    run's first pose set); else with the run's poses."""
     out, K = [], seq[0].K
+    align = np.eye(4)
+    if seq.has_poses and frames:
+        idx = sorted(frames)
+        align = umeyama(camera_marks(np.stack([seq.pose(i) for i in idx])), camera_marks(run_poses[idx]))
     for i, fs in sorted(frames.items()):
-        T = seq.pose(i) if seq.has_poses else run_poses[i]
+        T = align @ seq.pose(i) if seq.has_poses else run_poses[i]
         near = fs.gt <= max_depth_m
         rows, cols = fs.pick[0][near], fs.pick[1][near]
         cam = back_project(np.stack([cols, rows], 1).astype(float), fs.gt[near].astype(float), K)
