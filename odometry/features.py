@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+SCALE_FACTOR = 1.2  # ORB's pyramid: each level 1.2x coarser (OpenCV's default)
+
 
 @dataclass
 class Features:
@@ -26,9 +28,6 @@ class Features:
 
     def __len__(self) -> int:
         return len(self.uv)
-
-
-SCALE_FACTOR = 1.2  # ORB's pyramid: each level 1.2x coarser (OpenCV's default)
 
 
 def detect(image: np.ndarray, n_features: int = 1000) -> Features:
