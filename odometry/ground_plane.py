@@ -24,7 +24,6 @@ class GroundFit:
     height: float  # distance from the camera centre to the road plane (unit-step scale)
     normal: np.ndarray  # unit normal pointing from the camera down to the road
     inliers: int  # corners on the plane
-    fitted: bool = True  # False: the points near the mode were no plane, `normal` is the prior
 
 
 def road_corners(image: np.ndarray, K: np.ndarray, camera_height: float, max_corners: int = 600,
@@ -91,8 +90,7 @@ def fit_ground(X: np.ndarray, rel_band: float = 0.05, near_share: float = 0.6, m
     c = P.mean(0)
     normal = np.linalg.svd(P - c)[2][-1]
     normal = normal if normal @ n0 > 0 else -normal
-    fitted = bool(normal @ n0 >= np.cos(np.radians(max_tilt_deg)))
-    if not fitted:  # the points near the mode are not a plane: keep the prior
+    if normal @ n0 < np.cos(np.radians(max_tilt_deg)):  # the points near the mode are not a plane: keep the prior
         normal = n0
     height = float(normal @ c)
-    return GroundFit(height, normal, int(on.sum()), fitted) if height > 0 else None
+    return GroundFit(height, normal, int(on.sum())) if height > 0 else None

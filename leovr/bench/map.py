@@ -105,7 +105,8 @@ def clip_map(seq, n: int, inp: str, cfg: BenchMapConfig, work: Path, progress: b
     maps["refined"] = maps[f"refined_sigma_{'all' if default is None else default}"]
     maps["nearest"] = map_scores(distances_to_mesh(nearest.mesh(), truth))
     maps["accumulated"] = map_scores(distances_to_points(np.concatenate(accumulated), truth))
-    return {"frames": n, "input": inp, "truth_points": len(truth), "poses": "ground truth (rigidly aligned to the run's)" if seq.has_poses else "run",
+    truth_poses = "ground truth (rigidly aligned to the run's)" if seq.has_poses else "run"
+    return {"frames": n, "input": inp, "truth_points": len(truth), "poses": truth_poses,
             "maps": maps, "seconds_per_frame": round(t_fuse / n, 4), "peak_memory_mb": round(peak_memory_mb(), 1),
             "blocks": refined[default].blocks}
 
@@ -122,13 +123,14 @@ def heldout_world_points(seq, frames: dict[int, FrameScore], run_poses: np.ndarr
     with the ground-truth poses where the clip has them, moved onto the run's trajectory by the rigid fit of the
     ground-truth cameras to the run's (as the ATE aligns: the maps are scored on their shape, not on the frame the
     run's first pose set); else with the run's poses."""
-    out, K = [], seq[0].K
-    align = np.eye(4)
-    if seq.has_poses and frames:
-        idx = sorted(frames)
-        align = umeyama(camera_marks(np.stack([seq.pose(i) for i in idx])), camera_marks(run_poses[idx]))
-    for i, fs in sorted(frames.items()):
-        T = align @ seq.pose(i) if seq.has_poses else run_poses[i]
+    out, K, idx = [], seq[0].K, sorted(frames)
+    if seq.has_poses and idx:
+        truth = np.stack([seq.pose(i) for i in idx])
+        placed = np.einsum("ij,fjk->fik", umeyama(camera_marks(truth), camera_marks(run_poses[idx])), truth)
+    else:
+        placed = run_poses[idx]
+    for T, i in zip(placed, idx):
+        fs = frames[i]
         near = fs.gt <= max_depth_m
         rows, cols = fs.pick[0][near], fs.pick[1][near]
         cam = back_project(np.stack([cols, rows], 1).astype(float), fs.gt[near].astype(float), K)
