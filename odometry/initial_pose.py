@@ -76,6 +76,15 @@ class LidarOdometry:
         self._fit = (source, local_map, T_l0_l, 3.0 * self.icp.adaptive_threshold.get_threshold())
         return self.T_cl @ T_l0_l @ invert_T(self.T_cl)
 
+    def restart(self, points: np.ndarray) -> np.ndarray | None:
+        """KISS-ICP started again from this scan as the first one (its map and motion cleared): a causal run's
+        first scan, deskewed once the first step is known. The first camera's pose, as `register` gives it."""
+        from kiss_icp.kiss_icp import KissICP
+
+        self.icp = KissICP(self.icp.config)
+        self.frames, self.skipped_last = 0, False
+        return self.register(points)
+
     def _register_predicted(self, xyz: np.ndarray, stamps: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """KISS-ICP's `register_frame` started from the LiDAR motion `delta` instead of its last one. Its
         adaptive threshold is still fed the deviation from its own constant-velocity prediction: the

@@ -207,6 +207,8 @@ class RefineRun:
         # spinning LiDARs only: measured there (a cone's KISS-ICP pose only competes with PnP as the initial pose)
         spinning_now = self.cone.spinning is True
         guess = guess if spinning_now else None
+        if p.first_scan is not None and self.front.icp is not None:
+            self.front.icp.restart(p.first_scan)
         fi = self.front.process(i, sample.frame.image, p.depth, p.log_sigma, sample.sparse if self.has_lidar else None,
                                 sample.kept_points, self.graph, icp_guess=guess)
         fi.pair_motions = p.pairs

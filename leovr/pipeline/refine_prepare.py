@@ -37,6 +37,8 @@ class PreparedFrame:
     generator_ms: float  # the stage's time: the generator, with the sweep's motion when it is read
     pairs: dict[int, np.ndarray]  # the images' motion to the window's earlier frames (pair factors)
     corners: np.ndarray | None  # motion-stereo depth at image corners (0 elsewhere), when it ran
+    # a causal run's second frame: the first frame's scan deskewed with the first step, KISS-ICP's map to restart from
+    first_scan: np.ndarray | None = None
 
 
 @dataclass
@@ -88,6 +90,7 @@ class PrepareStage:
         self.images_ahead: dict[int, Future] = {}  # frame -> its sweep's images' motion, started ahead
         self.sweep_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
         self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
+        self.first: Frame | None = None  # a causal run's first frame, until the second one gives the first step
 
     def next_frame(self, i: int, frame: Frame) -> Frame | None:
         """Frame i + 1 when it is the next selected one and frame i's scan has point times (its sweep ends
@@ -133,24 +136,48 @@ class PrepareStage:
 
     def start_motion(self, i: int, frame: Frame) -> np.ndarray | None:
         """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
-        from odometry.initial_pose import first_step
-
         nxt_frame = self.next_frame(i, frame)
         if nxt_frame is None:
             return None
-        scans = [frame_sample(self.seq, k, self.ccfg, None, self.frame_dt, self.camera_only, truth=False, frame=f).kept_points
-                 for k, f in ((i, frame), (i + 1, nxt_frame))]
-        self.start = first_step(*scans, frame.T_cam_lidar)
+        return self._first_step(frame, nxt_frame)
+
+    def _first_step(self, first: Frame, second: Frame) -> np.ndarray | None:
+        from odometry.initial_pose import first_step
+
+        scans = [frame_sample(self.seq, f.index, self.ccfg, None, self.frame_dt, self.camera_only, truth=False,
+                              frame=f).kept_points for f in (first, second)]
+        self.start = first_step(*scans, first.T_cam_lidar)
         return self.start
 
-    def read_input(self, i: int, motion: np.ndarray | None) -> tuple[Frame, EvalSample, float]:
-        """Frame i as read, its sample (deskewed over the sweep's motion) and the seconds the motion took.
-        `motion`: the last step (deskew on), else None."""
+    def causal_start(self, frame: Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """A causal run's second frame: the first step's motion from the first two scans as they are, and the
+        first scan deskewed with it. The first scan went into KISS-ICP's map as it was (its motion unknown then),
+        and a skewed scan in the map biases every later registration that matches it: the front end restarts
+        KISS-ICP from the deskewed one."""
+        first, self.first = self.first, None
+        motion = self._first_step(first, frame)
+        if motion is None:
+            return None, None
+        scan = frame_sample(self.seq, first.index, self.ccfg, motion, self.frame_dt, self.camera_only, truth=False,
+                            frame=first).kept_points
+        return motion, scan
+
+    def read_input(self, i: int, motion: np.ndarray | None) -> tuple[Frame, EvalSample, float, np.ndarray | None]:
+        """Frame i as read, its sample (deskewed over the sweep's motion), the seconds the motion took, and in
+        a causal run's second frame the first scan deskewed (`causal_start`). `motion`: the last step (deskew
+        on), else None."""
         cfg = self.cfg
         frame = self.frames.take(i)
         t_sweep = time.perf_counter()
-        if cfg.deskew and self.has_lidar and i == self.indices[0] and not cfg.causal:
-            motion = self.start_motion(i, frame)
+        first_scan = None
+        if cfg.deskew and self.has_lidar and i == self.indices[0] and frame.point_times is not None:
+            if cfg.causal:
+                self.first = frame
+            else:
+                motion = self.start_motion(i, frame)
+        elif self.first is not None and i == self.following.get(self.first.index):
+            start, first_scan = self.causal_start(frame)
+            motion = start if start is not None else motion
         given = motion
         motion = self.sweep(i, frame, motion) if cfg.deskew else None
         # KISS-ICP's prediction for the next frame: the images' motion only where it overruled the last step
@@ -159,16 +186,17 @@ class PrepareStage:
         sweep_s = time.perf_counter() - t_sweep  # counted with the generator: the same thread's per-frame work
         # the held-out truth is scoring, not refinement: built in the main thread's scoring step
         sample = frame_sample(self.seq, i, self.ccfg, motion, self.frame_dt, self.camera_only, truth=False, frame=frame)
-        return frame, sample, sweep_s
+        return frame, sample, sweep_s, first_scan
 
     def prepare(self, i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> PreparedFrame:
         """Frame i's input and generator depth; runs beside the graph update of the previous frame.
         `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
         predicted camera (the generator's input only)."""
-        frame, sample, sweep_s = self.read_input(i, motion)
+        frame, sample, sweep_s, first_scan = self.read_input(i, motion)
         t0 = time.perf_counter() - sweep_s
         depth, log_sigma, pairs, corners = self.generate(i, frame, sample, earlier)
-        return PreparedFrame(sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners)
+        return PreparedFrame(sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners,
+                             first_scan)
 
     def generate(self, i: int, frame: Frame, sample: EvalSample, earlier: np.ndarray | None
                  ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray], np.ndarray | None]:
