@@ -151,17 +151,12 @@ class FrontEnd:
 
     def _lidar_pose(self, T_prev: np.ndarray, T_icp: np.ndarray | None, obj: np.ndarray, img: np.ndarray
                     ) -> tuple[np.ndarray, str]:
-        """Initial pose with LiDAR and its source: with a spinning LiDAR KISS-ICP's step; with a cone, KISS-ICP's
-        step or PnP on the previous frame's points, whichever reprojects more matches; the last step again when
-        neither holds (PnP on under 6 inliers, no ICP). A spinning scan's step is the better motion, but PnP,
-        fitted to these very matches, wins a count of them: it then set the deskew motion of the next sweep
-        (this step, a few centimetres off KISS-ICP's, sometimes decimetres) and which matches enter the graph."""
+        """Initial pose with LiDAR and its source: KISS-ICP's step or PnP on the previous frame's points, whichever
+        reprojects more matches; the last step again when neither holds (PnP on under 6 inliers, no ICP)."""
         p, px = self.prev, self.cfg.frontend.pnp_reproj_px
         cands: dict[str, np.ndarray | None] = {}
         if T_icp is not None and p.T_icp is not None:
             cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
-            if self.icp.spinning:
-                return cands["icp"], "icp"
         cands["pnp"] = pnp_pose(obj, img, self.K, px)[0]
         guess = choose_pose(cands, obj, img, self.K, px)
         if guess is None or guess.inliers < 6 and "icp" not in cands:

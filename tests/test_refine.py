@@ -281,9 +281,6 @@ def test_visual_lidar_poses_beat_kiss_icp_on_the_real_drive_with_poses(tmp_path)
     assert {"leovr", "kiss_icp", "kiss_icp_no_deskew"} <= set(t) and t["leovr"]["frames"] == len(seq) == 32
     assert t["leovr"]["ate_m"] < min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"])
     assert t["leovr"]["ate_m"] < 0.08
-    # a spinning scan's step is every frame's initial pose (PnP, fitted to the matches it is counted on, competes
-    # only with a cone's): it sets the next sweep's deskew motion
-    assert set(m["timing"]["initial_pose_sources"]) == {"first", "icp"}, m["timing"]["initial_pose_sources"]
 
 
 @needs_posed_drive
