@@ -300,6 +300,24 @@ def test_a_causal_run_restarts_kiss_icp_from_the_first_scan_deskewed_once_the_fi
 
 
 @needs_posed_drive
+def test_only_a_run_that_deskews_a_scan_reads_the_sweeps_motion_from_the_images(tmp_path, monkeypatch):
+    """The sweep's motion (ORB matching and an essential matrix per frame, the generator stage's largest cost without
+    LiDAR) deskews the LiDAR input: a camera-only run on a recording whose scans carry point times has no input
+    to deskew and reads none; a VLP-16-like run of the same frames reads one per sweep that has a next image."""
+    import leovr.pipeline.refine_prepare as prepare
+
+    calls: list[int] = []
+    read = prepare.PrepareStage._images_motion
+    monkeypatch.setattr(prepare.PrepareStage, "_images_motion",
+                        lambda self, i, this, nxt: calls.append(i) or read(self, i, this, nxt))
+    seq = open_sequence(KITTI_RAW_POSES)
+    run_refine(seq, RefineConfig(input="none", end=4), tmp_path / "none", progress=False, score=False)
+    assert calls == []
+    run_refine(seq, RefineConfig(input="vlp16", end=4), tmp_path / "vlp16", progress=False, score=False)
+    assert sorted(calls) == [0, 1, 2]
+
+
+@needs_posed_drive
 def test_the_held_out_truth_is_deskewed_with_the_ground_truth_motion_whatever_the_runs_motion():
     """On a recording with poses and point times, the held-out returns a run is scored against do not depend
     on the motion the run deskews its input with: two runs with different motions get the same truth, and

@@ -179,7 +179,8 @@ class PrepareStage:
             start, first_scan = self.causal_start(frame)
             motion = start if start is not None else motion
         given = motion
-        motion = self.sweep(i, frame, motion) if cfg.deskew else None
+        # camera only: no scan to deskew (a recording's scan is only scored against), so no sweep motion to read
+        motion = self.sweep(i, frame, motion) if cfg.deskew and self.has_lidar else None
         # KISS-ICP's prediction for the next frame: the images' motion only where it overruled the last step
         # (the start and end of turns); elsewhere KISS-ICP keeps its own constant velocity
         self.sweep_of[i] = motion if motion is not given and given is not None else None
