@@ -139,15 +139,16 @@ class PrepareStage:
         nxt_frame = self.next_frame(i, frame)
         if nxt_frame is None:
             return None
-        return self._first_step(frame, nxt_frame)
+        self.start = self._first_step(frame, nxt_frame)
+        return self.start
 
     def _first_step(self, first: Frame, second: Frame) -> np.ndarray | None:
+        """The motion between two frames from their cheap scans as they are (KISS-ICP)."""
         from odometry.initial_pose import first_step
 
         scans = [frame_sample(self.seq, f.index, self.ccfg, None, self.frame_dt, self.camera_only, truth=False,
                               frame=f).kept_points for f in (first, second)]
-        self.start = first_step(*scans, first.T_cam_lidar)
-        return self.start
+        return first_step(*scans, first.T_cam_lidar)
 
     def causal_start(self, frame: Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
         """A causal run's second frame: the first step's motion from the first two scans as they are, and the
