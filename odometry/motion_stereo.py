@@ -81,7 +81,12 @@ def essential_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray
     E, inl = cv2.findEssentialMat(c[ok], p[ok], K, cv2.USAC_ACCURATE, 0.999, 0.5)
     if E is None or E.shape != (3, 3):
         return None
-    _, R, t, _ = cv2.recoverPose(E, c[ok], p[ok], K, mask=inl.copy())
+    # the pose among E's four whose points lie in front of both cameras: 300 inliers decide it as well as all
+    w = np.flatnonzero(inl.ravel())
+    if len(w) < 5:
+        return None
+    w = w[np.linspace(0, len(w) - 1, min(len(w), 300)).astype(int)]
+    _, R, t, _ = cv2.recoverPose(E, c[ok][w], p[ok][w], K)
     return np.hstack([R, t / max(np.linalg.norm(t), 1e-12)])
 
 
