@@ -340,3 +340,37 @@ def test_the_held_out_truth_is_deskewed_with_the_ground_truth_motion_whatever_th
     held = deferred.heldout_points
     own = heldout_truth(deferred.frame, deferred.frame.points[held.heldout_index], ccfg)
     assert (a.gt > 0).sum() > 10_000 and not np.array_equal(own, a.gt)
+
+
+@needs_posed_drive
+def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_front_end(tmp_path, monkeypatch):
+    """A spinning LiDAR's next frame needs nothing of this frame's front end (its sweep is deskewed with the step
+    before): it is handed to the generator stage before the front end runs, so the two overlap. A cone LiDAR's
+    next frame takes the earlier scans placed with this frame's pose: after. In line and in the generator thread
+    the outputs are the same."""
+    import torch
+
+    import leovr.pipeline.refine as refine
+    import leovr.pipeline.refine_prepare as prepare
+
+    events: list[tuple[str, int]] = []
+    prep, front = prepare.PrepareStage.prepare, refine.RefineRun.front_end
+    monkeypatch.setattr(prepare.PrepareStage, "prepare", lambda self, i, *a: events.append(("prepare", i)) or prep(self, i, *a))
+    monkeypatch.setattr(refine.RefineRun, "front_end", lambda self, n, i, p: events.append(("front", i)) or front(self, n, i, p))
+    seq = open_sequence(KITTI_RAW_POSES)
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)  # in line: the events in the order they ran
+    try:
+        for name in ("vlp16", "mid40"):
+            run_refine(seq, RefineConfig(input=name, end=4), tmp_path / f"{name}_line", progress=False, score=False)
+    finally:
+        torch.set_num_threads(before)
+    spinning, cone = events[:len(events) // 2], events[len(events) // 2:]
+    order = lambda ev: [e for e in ev if e != ("prepare", 0)]  # noqa: E731
+    assert order(spinning) == [("prepare", 1), ("front", 0), ("prepare", 2), ("front", 1), ("prepare", 3), ("front", 2), ("front", 3)]
+    assert order(cone) == [("front", 0), ("prepare", 1), ("front", 1), ("prepare", 2), ("front", 2), ("prepare", 3), ("front", 3)]
+    run_refine(seq, RefineConfig(input="vlp16", end=4), tmp_path / "vlp16_thread", progress=False, score=False)
+    poses = lambda name: np.loadtxt(tmp_path / name / "poses_kitti.txt")  # noqa: E731
+    np.testing.assert_array_equal(poses("vlp16_line"), poses("vlp16_thread"))
+    for png in sorted((tmp_path / "vlp16_line" / "depth").glob("*.png")):
+        assert png.read_bytes() == (tmp_path / "vlp16_thread" / "depth" / png.name).read_bytes(), png.name

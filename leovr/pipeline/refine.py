@@ -136,9 +136,9 @@ class RefineRun:
         desc = f"refine {input_label(self.cfg.input, self.has_lidar)} (window {self.cfg.window})"
         if self.done:
             desc += f", replaying {len(self.done)} finished"
-        # frame k+1 is read and run through the generator in a second thread while the graph optimises frame k
-        # (ONNX Runtime and OpenCV leave the interpreter lock); its inputs are known once the front
-        # end has processed frame k (the deskew motion), so the results are those of a sequential run
+        # frame k+1 is read and run through the generator in a second thread while frame k's front end (without
+        # earlier scans) and graph run (ONNX Runtime and OpenCV leave the interpreter lock); its inputs are
+        # known when it starts (`step`), so the results are those of a sequential run
         # (one core's worth of threads, as in a batch task with one CPU: sequential, in this thread);
         # and its files are read (image decoding leaves the interpreter lock) while this frame's front end runs
         # and each frame's files are compressed and written in a third thread while the next frame runs
@@ -163,18 +163,25 @@ class RefineRun:
         if not ahead.pending:
             ahead.submit(self.stage.prepare, i, self.front.velocity if self.front.prev is not None else None, None)
         p = ahead.result()
-        if n + 1 < len(self.indices):
+        following = n + 1 < len(self.indices)
+        if following:
             ahead.read_ahead(self.indices[n + 1])
             self.stage.read_sweep_ahead(self.indices[n + 1])  # beside this frame's front end
         if self.has_lidar and i not in self.done and not (p.sample.sparse > 0).any():
             self.empty.append(i)
+        self.judge_sensor(p.sample)
+        self.history.add(i, p.sample.kept_points)
+        # without earlier scans (a spinning LiDAR, or none) the next frame needs nothing of this one: it is
+        # prepared beside this frame's front end too, its sweep deskewed with the step before (10 Hz: the speed
+        # barely changes in a frame; in turns the images' motion sets the rotation)
+        early = following and not self.history.frames
+        if early:
+            self.submit_next(ahead, n, None)
         t1 = time.perf_counter()
         fi = self.front_end(n, i, p)
         t2 = time.perf_counter()
-        self.judge_sensor(p.sample)
-        self.history.add(i, p.sample.kept_points)
-        if n + 1 < len(self.indices):
-            self.submit_next(ahead, n, i, fi)
+        if following and not early:
+            self.submit_next(ahead, n, fi)
         self.pending[i] = p.depth, p.log_sigma, self.front.depth_scale
         t_base, c_base = time.perf_counter(), time.process_time()  # scoring and baselines: not a frame's time
         self.score_and_baselines(i, p.sample)
@@ -233,14 +240,17 @@ class RefineRun:
         if self.cfg.graph.depth_factors == "auto":
             self.graph.depth_factors = not spinning
 
-    def submit_next(self, ahead: Lookahead[PreparedFrame, Frame], n: int, i: int, fi: FrameInput) -> None:
-        """The frame after i handed to the generator stage, with the motion to deskew it and the earlier scans."""
+    def submit_next(self, ahead: Lookahead[PreparedFrame, Frame], n: int, fi: FrameInput | None) -> None:
+        """The frame after the n-th handed to the generator stage, with the motion to deskew it and the earlier
+        scans; `fi`: the n-th frame's front-end output, None when the next frame is prepared before it."""
         earlier = None
-        if self.history.frames and self.history.sensor_known:  # the next frame's pose predicted at constant velocity
-            poses = self.latest_poses([s.index for s in self.history.scans]) | {i: fi.T_init}
+        if fi is not None and self.history.frames and self.history.sensor_known:
+            # the next frame's pose predicted at constant velocity
+            poses = self.latest_poses([s.index for s in self.history.scans]) | {fi.index: fi.T_init}
             earlier = self.history.gather(poses, fi.T_init @ self.front.velocity)
-        # after the first frame no step is known yet: the first two scans' own motion
-        velocity = self.stage.start if n == 0 and self.stage.start is not None else self.front.velocity
+        # until the front end has measured a step: the first two scans' own motion
+        first = n == 0 or (fi is None and n == 1)
+        velocity = self.stage.start if first and self.stage.start is not None else self.front.velocity
         ahead.submit(self.stage.prepare, self.indices[n + 1], velocity, earlier)
 
     def score_and_baselines(self, i: int, sample: EvalSample) -> None:

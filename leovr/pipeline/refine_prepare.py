@@ -1,8 +1,9 @@
 """The generator stage of `leovr refine`: a frame's input (read, its sweep's motion, deskewed) and the depth
 the graph starts from (earlier scans joined, motion stereo, the generator), with the images' motion to the
-window's earlier frames. It runs in the lookahead's worker thread while the main thread updates the graph
-with the previous frame; its inputs are known once the front end has processed that frame (the deskew
-motion), so the results are those of a sequential run."""
+window's earlier frames. It runs in the lookahead's worker thread while the main thread processes the
+previous frame (from its front end on without earlier scans, else from its graph update, once the front end
+has placed the earlier scans); its inputs are known when it starts, so the results are those of a sequential
+run."""
 
 from __future__ import annotations
 
@@ -156,7 +157,7 @@ class PrepareStage:
         and a skewed scan in the map biases every later registration that matches it: the front end restarts
         KISS-ICP from the deskewed one."""
         first, self.first = self.first, None
-        motion = self._first_step(first, frame)
+        motion = self.start = self._first_step(first, frame)
         if motion is None:
             return None, None
         scan = frame_sample(self.seq, first.index, self.ccfg, motion, self.frame_dt, self.camera_only, truth=False,
@@ -191,7 +192,7 @@ class PrepareStage:
         return frame, sample, sweep_s, first_scan
 
     def prepare(self, i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> PreparedFrame:
-        """Frame i's input and generator depth; runs beside the graph update of the previous frame.
+        """Frame i's input and generator depth; runs beside the previous frame's front end or graph update.
         `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
         predicted camera (the generator's input only)."""
         frame, sample, sweep_s, first_scan = self.read_input(i, motion)
