@@ -38,16 +38,20 @@ def _truth(frames) -> np.ndarray:
 
 def test_the_camera_only_profile_puts_its_graph_settings_over_refine_graph():
     """Without LiDAR the graph runs with `refine.graph` and, in place of the keys it names,
-    `refine.camera_only.graph` (by default a loose landmark prior and depth-consistency sigma)."""
+    `refine.camera_only.graph` (by default a loose landmark prior and depth-consistency sigma); the front end
+    with `refine.camera_only.n_features` ORB features."""
     from leovr.config import CameraOnlyGraphConfig, GraphConfig
-    from leovr.pipeline.refine import camera_only_graph_config
+    from leovr.pipeline.refine import camera_only_config
 
     assert set(CameraOnlyGraphConfig.model_fields) <= set(GraphConfig.model_fields)
     cfg = RefineConfig(graph={"pixel_sigma": 2.0, "landmark_prior_rel": 0.4}, camera_only={"graph": {"consistency_sigma_log": 0.5}})
-    graph = camera_only_graph_config(cfg).graph
+    graph = camera_only_config(cfg).graph
     assert (graph.pixel_sigma, graph.landmark_prior_rel, graph.consistency_sigma_log) == (2.0, 10.0, 0.5)
     assert graph.model_copy(update={"landmark_prior_rel": 0.4, "consistency_sigma_log": 0.05}) == cfg.graph
     assert cfg.graph.landmark_prior_rel == 0.4  # the LiDAR runs' settings are left as they are
+    # and the front end its own ORB feature count (the graph's landmarks)
+    assert camera_only_config(cfg).frontend.n_features == cfg.camera_only.n_features == 500
+    assert cfg.frontend.n_features == 1000
 
 
 def test_epipolar_motion_points_the_way_the_camera_moved(drive):

@@ -43,7 +43,7 @@ from leovr.pipeline.completion import (EvalSample, frame_indices, generator_chec
 from leovr.pipeline.frame_writer import FrameWriter
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectories
 from leovr.pipeline.lookahead import Lookahead
-from leovr.pipeline.refine_input import (camera_only_graph_config, classical_source, completion_config, frame_sample,
+from leovr.pipeline.refine_input import (camera_only_config, classical_source, completion_config, frame_sample,
                                          road_height, stereo_image)
 from leovr.pipeline.refine_outputs import (CPU, PNG_FOLDER, SCORED, TIMED, WALL, FrameScore, Progress, check_replay,
                                            frame_score, input_label, single_frame_generator, timing_record,
@@ -58,7 +58,7 @@ if TYPE_CHECKING:
 __all__ = [  # the names other modules import from here
     "run_refine", "RefineRun", "FrameScore", "Progress", "frame_sample", "completion_config", "classical_source",
     "stereo_image", "TIMED", "WALL", "CPU", "SCORED", "PNG_FOLDER", "write_outputs", "timing_record", "frame_score",
-    "input_label", "check_replay", "road_height", "camera_only_graph_config",
+    "input_label", "check_replay", "road_height", "camera_only_config",
     "single_frame_generator", "torch_threads",
 ]
 
@@ -103,11 +103,11 @@ class RefineRun:
         self.generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
         self.first = first = seq[indices[0]]
         self.K = first.K
-        self.front = FrontEnd(cfg, first.K, first.shape, first.T_cam_lidar, use_lidar=has_lidar,
+        ocfg = cfg if has_lidar else camera_only_config(cfg)  # the odometry's settings
+        self.front = FrontEnd(ocfg, first.K, first.shape, first.T_cam_lidar, use_lidar=has_lidar,
                               camera_height=None if has_lidar else road_height(seq, cfg))
         self.textbook = MonoVO(first.K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
-        gcfg = cfg if has_lidar else camera_only_graph_config(cfg)
-        self.graph = WindowGraph(gcfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar)
+        self.graph = WindowGraph(ocfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar)
         # generator depth, its log uncertainty, and the road's scale for it (camera only)
         self.pending: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
         self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them

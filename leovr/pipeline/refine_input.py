@@ -27,12 +27,13 @@ def completion_config(cfg: RefineConfig) -> CompleteConfig:
     return CompleteConfig(method="generator", **settings)
 
 
-def camera_only_graph_config(cfg: RefineConfig) -> RefineConfig:
-    """The graph's settings without LiDAR: `refine.graph` with the camera-only profile's graph settings
-    (`refine.camera_only.graph`: the generator's depth, far less sure without LiDAR, gets a looser landmark
-    prior and depth-consistency sigma) in their place."""
+def camera_only_config(cfg: RefineConfig) -> RefineConfig:
+    """The front end's and graph's settings without LiDAR: `refine.graph` with the camera-only profile's graph
+    settings (`refine.camera_only.graph`: the generator's depth, far less sure without LiDAR, gets a looser landmark
+    prior and depth-consistency sigma) in their place, and its ORB feature count (`refine.camera_only.n_features`)."""
     graph = cfg.graph.model_copy(update=cfg.camera_only.graph.model_dump())
-    return cfg.model_copy(update={"graph": graph})
+    frontend = cfg.frontend.model_copy(update={"n_features": cfg.camera_only.n_features})
+    return cfg.model_copy(update={"graph": graph, "frontend": frontend})
 
 
 def road_height(seq: Sequence, cfg: RefineConfig) -> float | None:
