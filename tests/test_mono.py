@@ -341,3 +341,24 @@ def test_a_resumed_camera_only_run_gives_the_poses_of_an_uninterrupted_one(drive
         run_refine(seq, cfg, tmp_path / "cut", resume=True, progress=False, score=False)
     a, b = (read_kitti_poses(tmp_path / d / "poses_kitti.txt") for d in ("whole", "cut"))
     assert np.abs(a - b).max() < 1e-5 and len(a) == len(frames)
+
+
+@needs_shared
+def test_the_pose_recovered_from_an_essential_matrix_is_opencvs_on_every_pair_of_a_real_drive():
+    """`recover_pose` picks the pose on a sample of the inliers and tests only that pose on the rest: on every
+    consecutive pair of the real KITTI raw clip (its last frames barely move, where the sample cannot tell the four
+    poses apart) it gives OpenCV's recoverPose's count, rotation, translation and mask exactly."""
+    import cv2
+
+    from odometry.mono_vo import recover_pose
+
+    seq = open_sequence(kitti_raw_dir())
+    K = seq[0].K
+    images = [gray(seq[i].image) for i in range(len(seq))]
+    for a in range(len(seq) - 1):
+        p0, p1 = track(images[a], images[a + 1])
+        E, mask = cv2.findEssentialMat(p1, p0, K, method=cv2.USAC_ACCURATE, prob=0.999, threshold=1.0)
+        n, R, t, m = cv2.recoverPose(E[:3], p1, p0, K, mask=mask.copy())
+        n2, R2, t2, m2 = recover_pose(E[:3], p1, p0, K, mask.ravel() > 0)
+        assert n == n2 and np.array_equal(R, R2) and np.array_equal(t, t2), a
+        np.testing.assert_array_equal(m.ravel() > 0, m2)
