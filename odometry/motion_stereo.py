@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from leovr.config import MotionStereoConfig
+from odometry.mono_vo import recover_pose
 
 
 class GrayImages:
@@ -81,12 +82,7 @@ def essential_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray
     E, inl = cv2.findEssentialMat(c[ok], p[ok], K, cv2.USAC_ACCURATE, 0.999, 0.5)
     if E is None or E.shape != (3, 3):
         return None
-    # the pose among E's four whose points lie in front of both cameras: 300 inliers decide it as well as all
-    w = np.flatnonzero(inl.ravel())
-    if len(w) < 5:
-        return None
-    w = w[np.linspace(0, len(w) - 1, min(len(w), 300)).astype(int)]
-    _, R, t, _ = cv2.recoverPose(E, c[ok][w], p[ok][w], K)
+    _, R, t, _ = recover_pose(E, c[ok], p[ok], K, inl.ravel() > 0)
     return np.hstack([R, t / max(np.linalg.norm(t), 1e-12)])
 
 
