@@ -129,8 +129,9 @@ def test_the_kitti_clip_round_trips_through_a_bag_bit_identical(tmp_path, fmt):
 @needs_posed_drive
 def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_path):
     """`leovr refine` on the clip as an MCAP bag and as a ROS 1 bag, and on the bag's frames written to a folder:
-    the same metrics (to 1e-6: the folder keeps the ground-truth poses as text, which the held-out truth's deskew
-    reads). (Against the KITTI folder itself the extrinsic differs by 2e-8, KITTI's
+    the same metrics (to 1e-5: the folder keeps the ground-truth poses as text, which the held-out truth's deskew
+    reads, and the poses' last digits reach the generator's input through the deskew motion; measured 2.3e-6 on
+    the generator's MAE, 3e-8 on the nearest fill's). (Against the KITTI folder itself the extrinsic differs by 2e-8, KITTI's
     rectified calibration being that far from a rotation, which /tf_static's quaternion cannot carry: depth MAE
     then moves by about 0.1 %.)"""
     from leovr.config import RefineConfig
@@ -147,8 +148,8 @@ def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_pa
         runs[name] = ({k: v["mae_m"] for k, v in m["depth"].items()}, m["trajectory"]["leovr"]["ate_m"])
     for name in ("mcap", "ros1"):
         for key, mae in runs["folder"][0].items():
-            assert runs[name][0][key] == pytest.approx(mae, rel=1e-6), (name, key)
-        assert runs[name][1] == pytest.approx(runs["folder"][1], rel=1e-6)
+            assert runs[name][0][key] == pytest.approx(mae, rel=1e-5), (name, key)
+        assert runs[name][1] == pytest.approx(runs["folder"][1], rel=1e-5)
     assert runs["folder"][0]["refined"] < runs["folder"][0]["nearest"]
 
 
