@@ -197,7 +197,8 @@ class CameraOnlyConfig(_Model):
     triangulated_prior_rel: float = Field(1.0, gt=0)  # ... and their depth prior, sigma / depth
     # ORB features per frame in place of `frontend.n_features`: the graph marginalises a leaving frame's landmarks
     # into one dense factor, whose cost grows with them; 500 instead of 1000 gave the same ATE on kitti_raw_0013
-    # (0.056 -> 0.055 m) and odometry 06 (0.052 -> 0.053 m) at 0.55-0.9x the time a frame
+    # (0.055 against 0.056 m) and odometry 06 (0.053 against 0.052 m) at 0.55-0.85x the time a frame
+    # (`leovr refine CLIP --input none`, kitti_raw, kitti_raw_0013, odometry 06)
     n_features: int = Field(500, ge=50)
     # `refine.graph` settings used in their place without LiDAR (camera_only_config)
     graph: CameraOnlyGraphConfig = CameraOnlyGraphConfig()

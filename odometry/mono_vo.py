@@ -93,13 +93,13 @@ def recover_pose(E: np.ndarray, p1: np.ndarray, p0: np.ndarray, K: np.ndarray, i
         return 0, R1, t, np.zeros(len(p1), bool)
     sub = rows[np.linspace(0, len(rows) - 1, min(len(rows), sample)).astype(int)]
     poses = [(R1, t), (R2, t), (R1, -t), (R2, -t)]  # OpenCV's order: the first of equal counts wins
-    counts = [in_front(R, t, sub).sum() for R, t in poses]
-    if max(counts) < 0.5 * len(sub):  # no clear winner (the camera barely moves): every inlier decides, as OpenCV's
-        counts = [in_front(R, t, rows).sum() for R, t in poses]
-    R, t = poses[int(np.argmax(counts))]
+    fronts = [in_front(R, t, sub) for R, t in poses]
+    if max(f.sum() for f in fronts) < 0.5 * len(sub):  # no clear winner (the camera barely moves): every inlier decides
+        sub, fronts = rows, [in_front(R, t, rows) for R, t in poses]
+    best = int(np.argmax([f.sum() for f in fronts]))
     out = np.zeros(len(p1), bool)
-    out[rows] = in_front(R, t, rows)
-    return int(out.sum()), R, t, out
+    out[rows] = fronts[best] if sub is rows else in_front(*poses[best], rows)
+    return int(out.sum()), *poses[best], out
 
 
 @dataclass
