@@ -12,7 +12,7 @@ from typing import Optional
 import typer
 
 from leovr.cli_bench import ConfigOpt, bench_app
-from leovr.config import load_config, override
+from leovr.config import MapConfig, load_config, override
 from leovr.errors import LeovrError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -193,8 +193,8 @@ def _echo_map(r: dict) -> None:
 def map_command(
     run: Path = typer.Argument(..., help="A finished `leovr refine` output folder."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder: map.ply (mesh), map_points.ply, map.json."),
-    voxel: Optional[float] = typer.Option(None, help="Voxel edge in metres (default 0.1)."),
-    max_depth: Optional[float] = typer.Option(None, "--max-depth", help="Leave out depth beyond this (m, default 40)."),
+    voxel: Optional[float] = typer.Option(None, help=f"Voxel edge in metres (default {MapConfig().voxel_m:g})."),
+    max_depth: Optional[float] = typer.Option(None, "--max-depth", help=f"Leave out depth beyond this (m, default {MapConfig().max_depth_m:g})."),
     sigma_max: Optional[float] = typer.Option(None, "--sigma-max", help="Leave out pixels whose predicted uncertainty exceeds this fraction of their depth."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:

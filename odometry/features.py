@@ -42,18 +42,18 @@ def detect(image: np.ndarray, n_features: int = 1000) -> Features:
 
 
 def match(a: Features, b: Features, ratio: float = 0.8, max_distance: int = 64) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (ia, ib) of mutual best matches that pass Lowe's ratio test."""
+    """Indices (ia, ib) of mutual best matches that pass Lowe's ratio test, in the order of `a`.
+
+    OpenCV's brute-force Hamming distances (`batchDistance`, what its BFMatcher runs): each of a's two nearest in b,
+    then, for the b's that some a chose, their nearest in a (the mutual check needs no other b's)."""
     if len(a) < 2 or len(b) < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    fwd = bf.knnMatch(a.desc, b.desc, k=2)
-    back = {m.queryIdx: m.trainIdx for m in bf.match(b.desc, a.desc)}
-    ia, ib = [], []
-    for pair in fwd:
-        if len(pair) < 2:
-            continue
-        m, n = pair
-        if m.distance < ratio * n.distance and m.distance <= max_distance and back.get(m.trainIdx) == m.queryIdx:
-            ia.append(m.queryIdx)
-            ib.append(m.trainIdx)
-    return np.array(ia, np.int64), np.array(ib, np.int64)
+    dist, nearest = cv2.batchDistance(a.desc, b.desc, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)
+    ia = np.nonzero((dist[:, 0] < ratio * dist[:, 1]) & (dist[:, 0] <= max_distance))[0]
+    ib = nearest[ia, 0].astype(np.int64)
+    if not len(ia):
+        return ia.astype(np.int64), ib
+    chosen = np.unique(ib)
+    _, back = cv2.batchDistance(b.desc[chosen], a.desc, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=1)
+    mutual = back[np.searchsorted(chosen, ib), 0] == ia
+    return ia[mutual].astype(np.int64), ib[mutual]

@@ -12,6 +12,7 @@ from odometry.depth_field import CorrectionGrid, bilinear
 from odometry.factors import DepthConsistency, FrameDepth
 from odometry.initial_pose import choose_pose, pnp_pose, registration_covariance
 from odometry.lidar_assoc import associate
+from tests.conftest import needs_shared
 
 K = np.array([[200.0, 0, 79.5], [0, 200.0, 59.5], [0, 0, 1]])
 SHAPE = (120, 160)
@@ -463,3 +464,33 @@ def test_reprojection_factors_weigh_each_pixel_by_its_pyramid_level():
     idx = np.arange(len(feats))
     assert np.allclose(feats.pixel_scale(idx), SCALE_FACTOR ** feats.octave)
     assert _scaled_pixel_run(weighted=True) < 0.7 * _scaled_pixel_run(weighted=False)
+
+
+@needs_shared
+def test_orb_matches_are_those_of_opencvs_brute_force_matcher_on_a_real_drive():
+    """`match` computes the mutual check only for the chosen features: on consecutive frames of both KITTI raw
+    clips, at the front end's and the sweep's feature counts, it returns exactly the mutual ratio-test matches of
+    OpenCV's BFMatcher (knnMatch both ways), in the same order."""
+    from leovr.data import open_sequence
+    from leovr.paths import kitti_raw_clips
+    from odometry.features import detect, match
+
+    def reference(a, b, ratio=0.8, max_distance=64):
+        bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+        back = {m.queryIdx: m.trainIdx for m in bf.match(b.desc, a.desc)}
+        pairs = [(m.queryIdx, m.trainIdx) for m, n in bf.knnMatch(a.desc, b.desc, k=2)
+                 if m.distance < ratio * n.distance and m.distance <= max_distance and back.get(m.trainIdx) == m.queryIdx]
+        return np.array(pairs, np.int64).reshape(-1, 2).T
+
+    checked = 0
+    for clip in kitti_raw_clips():
+        seq = open_sequence(clip)
+        for k in range(0, len(seq) - 1, 6):
+            for n in (1000, 2000):
+                a, b = detect(seq[k].image, n), detect(seq[k + 1].image, n)
+                ia, ib = match(a, b)
+                ra, rb = reference(a, b)
+                assert len(ia) > 100
+                assert np.array_equal(ia, ra) and np.array_equal(ib, rb), (clip.name, k, n)
+                checked += 1
+    assert checked >= 10
