@@ -289,7 +289,9 @@ class MapConfig(_Model):
     # more accurate than none (0.03 most, completeness within 3 %), 0.02 lost a fifth of one map's completeness
     edge_jump: float | None = Field(0.03, gt=0.0)
     trunc_voxels: float = Field(4.0, gt=0.0)  # the signed distance is truncated at this many voxels
-    min_weight: float = Field(1.0, ge=0.0)  # voxels observed fewer times than this are not part of the surface
+    # voxels observed this many times or fewer are not part of the surface (Open3D keeps the voxels whose summed
+    # weight exceeds it): 1, the default, takes a surface seen by two frames or more
+    min_weight: float = Field(1.0, ge=0.0)
 
 
 class BenchMapConfig(_Model):

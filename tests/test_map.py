@@ -65,6 +65,19 @@ def test_a_refined_run_maps_the_rendered_drive_better_than_the_nearest_fill(tmp_
     assert refined["accuracy_m"] < 0.8 * near["accuracy_m"] and refined["completeness"] > 1.3 * near["completeness"], (refined, near)
 
 
+def test_a_surface_needs_more_views_than_min_weight():
+    """`min_weight` 1 (the default): a wall seen by one frame is not in the map, seen by two it is; 0 keeps it at one."""
+    K = np.array([[200.0, 0, 100], [0, 200, 60], [0, 0, 1]])
+    image, wall = np.zeros((120, 200, 3), np.uint8), np.full((120, 200), 5.0, np.float32)
+    triangles = {}
+    for min_weight, frames in ((1.0, 1), (1.0, 2), (0.0, 1)):
+        vol = TsdfMap(MapConfig(min_weight=min_weight))
+        for _ in range(frames):
+            vol.add(image, wall, K, np.eye(4))
+        triangles[min_weight, frames] = len(vol.mesh().triangles)
+    assert triangles[1.0, 1] == 0 and triangles[1.0, 2] > 5000 and triangles[0.0, 1] == triangles[1.0, 2]
+
+
 def test_the_map_keeps_depth_in_reach_certain_enough_and_off_depth_edges():
     depth = np.array([[5.0, 50.0, 10.0, 0.0]], np.float32)
     sigma = np.array([[0.5, 1.0, 5.0, 0.0]], np.float32)
