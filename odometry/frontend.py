@@ -10,7 +10,9 @@ parallax allows, seeded from the generator's depth elsewhere."""
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -50,6 +52,9 @@ class FrontEnd:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
+    _scale: float = 1.0  # camera only: the road's scale of the last frame's generator depth
+    _pool: ThreadPoolExecutor | None = None  # camera only: the next frame's motion, computed ahead (`prefetch_motion`)
+    _prefetched: tuple[int, Future] | None = None
 
     def __post_init__(self) -> None:
         cfg = self.cfg
@@ -63,7 +68,35 @@ class FrontEnd:
     def depth_scale(self) -> float:
         """The factor applied to the generator's depth of the last frame: the road's scale (camera only,
         with a camera height), else 1."""
-        return self.mono.depth_scale if self.mono is not None and self.camera_height else 1.0
+        return self._scale if self.mono is not None and self.camera_height else 1.0
+
+    def prefetch_motion(self, index: int, image: Callable[[], np.ndarray]) -> None:
+        """Camera only: start frame `index`'s motion from the last processed frame (`image()`: its image) in a
+        worker thread, beside the graph of the last frame and the generator of this one (Lucas-Kanade and the
+        essential matrix leave the interpreter lock); `process(index, ...)` takes it. It needs nothing of frame
+        `index` but its image, so the motion is the one `process` would compute."""
+        if self.mono is None:
+            return
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-motion")
+        self._prefetched = (index, self._pool.submit(lambda: self.mono.motion(image())))
+
+    def close(self) -> None:
+        """Wait for a motion computed ahead and stop its worker."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def _mono_step(self, index: int, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
+        """Camera only: frame `index`'s motion (computed ahead, else now), then its depth kept for the next."""
+        ahead, self._prefetched = self._prefetched, None
+        if ahead is not None and ahead[0] != index:
+            ahead[1].result()
+            raise RuntimeError(f"the motion of frame {ahead[0]} was computed ahead, frame {index} came instead")
+        step = ahead[1].result() if ahead is not None else self.mono.motion(image)
+        self.mono.remember(depth, log_sigma)
+        self._scale = step.depth_scale if step is not None else self.mono.depth_scale
+        return step
 
     def _feature_points(self, feats: Features, depth: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, list]:
         uv = feats.uv
@@ -88,7 +121,7 @@ class FrontEnd:
         as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP; `icp_guess`: the camera's motion
         from the previous frame read from the images, KISS-ICP's prediction)."""
         cfg = self.cfg
-        step = self.mono.step(image, depth, log_sigma) if self.mono is not None else None
+        step = self._mono_step(index, image, depth, log_sigma) if self.mono is not None else None
         if self.depth_scale != 1.0:  # the generator's depth at the road's metric scale
             depth, log_sigma = depth * self.depth_scale, log_sigma + np.log(self.depth_scale)
         feats = detect(image, cfg.frontend.n_features)

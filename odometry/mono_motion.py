@@ -40,6 +40,7 @@ class MonoStep:
     inliers: int
     parallax_px: float
     scale_source: str  # "ground", "depth" (each "+tracks" when tracks gave the change), "standing" or "constant_speed"
+    depth_scale: float = 1.0  # the generator depth's factor to the road's scale after this step (MonoMotion.depth_scale)
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -173,7 +174,15 @@ class MonoMotion:
         return float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
 
     def step(self, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
-        """The motion from the previous frame to this one; None for the first frame."""
+        """The motion from the previous frame to this one (None for the first frame); then this frame's depth
+        kept for the next step."""
+        result = self.motion(image)
+        self.remember(depth, log_sigma)
+        return result
+
+    def motion(self, image: np.ndarray) -> MonoStep | None:
+        """The motion from the previous frame to this one; None for the first frame. It needs the previous
+        frame's depth (`remember`) but not this frame's: it can run while the generator computes that."""
         cur = gray(image)
         prev = self.prev_gray
         result = None
@@ -183,11 +192,16 @@ class MonoMotion:
             road = (road_corners(prev, self.K, self.camera_height, self.max_road_corners) if self.camera_height
                     else np.zeros((0, 2)))
             result = self._motion(prev, cur, p0, n_old, road)
-        self.prev_gray, self.prev_depth = cur, depth
-        self.prev_w = 1.0 / np.maximum(np.exp(log_sigma) / np.maximum(depth, 1e-3), 1e-3) ** 2
+            result.depth_scale = self.depth_scale
+        self.prev_gray = cur
         if result is not None:
             self.last = result
         return result
+
+    def remember(self, depth: np.ndarray, log_sigma: np.ndarray) -> None:
+        """This frame's generator depth and log-sigma, which the next step's length is read from."""
+        self.prev_depth = depth
+        self.prev_w = 1.0 / np.maximum(np.exp(log_sigma) / np.maximum(depth, 1e-3), 1e-3) ** 2
 
     def _checked_ground(self, ground: tuple[float, float] | None) -> tuple[float, float] | None:
         """The road's step-length reading (log length, sigma), None where the filter finds it implausible; three

@@ -197,9 +197,9 @@ def test_adapt_blend_falls_back_to_the_prior_where_the_network_is_worse(tmp_path
 
 @needs_shared
 def test_adaptation_learns_the_masked_task_on_real_frames(tmp_path):
-    """Real KITTI frames, Mid-40-like input: two epochs from the shipped generator lower the error at the
-    training frames' hidden returns (every split, the network alone; measured 0.897 -> 0.863 m). When the
-    uncertainty head's NLL reached the depth path, the same two epochs raised it to 0.955 m."""
+    """Real KITTI frames, Mid-40-like input: four epochs from the shipped generator lower the error at the
+    training frames' hidden returns (every split, the network alone; measured 0.901 -> 0.859 m). After two epochs
+    the gain depends on the CPU's arithmetic (0.897 -> 0.863 m on one machine, 0.901 -> 0.897 on another)."""
     from leovr.config import AdaptConfig
     from leovr.depth.inference import load_generator
     from leovr.paths import shipped_checkpoint
@@ -207,7 +207,7 @@ def test_adaptation_learns_the_masked_task_on_real_frames(tmp_path):
     from selfsup.adapt_data import input_frames
 
     seq = open_sequence(KITTI_RAW)[:12]
-    cfg = AdaptConfig(input="mid40", val_every=0, epochs=2, splits_per_frame=2)
+    cfg = AdaptConfig(input="mid40", val_every=0, epochs=4, splits_per_frame=2)
     frames = input_frames([seq], cfg, progress=False)
     model = load_generator(shipped_checkpoint())
     model.cfg = replace(model.cfg, blend=1.0)

@@ -374,3 +374,28 @@ def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_fro
     np.testing.assert_array_equal(poses("vlp16_line"), poses("vlp16_thread"))
     for png in sorted((tmp_path / "vlp16_line" / "depth").glob("*.png")):
         assert png.read_bytes() == (tmp_path / "vlp16_thread" / "depth" / png.name).read_bytes(), png.name
+
+
+@needs_posed_drive
+def test_a_camera_only_run_computes_the_next_motion_ahead_with_the_same_poses(tmp_path, monkeypatch):
+    """Camera only, the next frame's motion (Lucas-Kanade tracks and the essential matrix) runs in a worker
+    thread beside this frame's graph: every frame but the first takes its motion from there, and the poses are
+    those of a run that computes each motion in line (one core: no worker threads)."""
+    import torch
+    from odometry.frontend import FrontEnd
+
+    seq, cfg = open_sequence(KITTI_RAW_POSES), RefineConfig(input="none", end=6)
+    taken: list[int] = []
+    prefetch = FrontEnd.prefetch_motion
+    monkeypatch.setattr(FrontEnd, "prefetch_motion", lambda self, i, image: taken.append(i) or prefetch(self, i, image))
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        run_refine(seq, cfg, tmp_path / "ahead", progress=False, score=False)
+        torch.set_num_threads(1)
+        run_refine(seq, cfg, tmp_path / "in_line", progress=False, score=False)
+    finally:
+        torch.set_num_threads(threads)
+    assert taken == [1, 2, 3, 4, 5]
+    ahead, in_line = ((tmp_path / r / "poses_kitti.txt").read_text() for r in ("ahead", "in_line"))
+    assert ahead == in_line and len(ahead.splitlines()) == 6

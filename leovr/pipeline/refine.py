@@ -152,6 +152,7 @@ class RefineRun:
                         self.step(ahead, n, i)
                 finally:
                     self.stage.close()
+                    self.front.close()
             left = self.graph.flush()
             if not self.cfg.causal:
                 self.finish(left)
@@ -166,6 +167,7 @@ class RefineRun:
         following = n + 1 < len(self.indices)
         if following:
             ahead.read_ahead(self.indices[n + 1])
+            next_read = ahead.future(self.indices[n + 1])  # held before the next frame's preparation takes it
             self.stage.read_sweep_ahead(self.indices[n + 1])  # beside this frame's front end
         if self.has_lidar and i not in self.done and not (p.sample.sparse > 0).any():
             self.empty.append(i)
@@ -180,6 +182,8 @@ class RefineRun:
         t1 = time.perf_counter()
         fi = self.front_end(n, i, p)
         t2 = time.perf_counter()
+        if following and not self.has_lidar and ahead.threaded:  # the next frame's camera motion, beside this graph
+            self.front.prefetch_motion(self.indices[n + 1], lambda: next_read.result().image)
         if following and not early:
             self.submit_next(ahead, n, fi)
         self.pending[i] = p.depth, p.log_sigma, self.front.depth_scale
