@@ -52,7 +52,9 @@ class FrontEnd:
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
-    _scale: float = 1.0  # camera only: the road's scale of the last frame's generator depth
+    # camera only: the road's scale of the last processed frame's generator depth (read once the next frame's motion
+    # may already be running ahead and moving MonoMotion's own)
+    _scale: float = 1.0
     _pool: ThreadPoolExecutor | None = None  # camera only: the next frame's motion, computed ahead (`prefetch_motion`)
     _prefetched: tuple[int, Future] | None = None
 
@@ -95,7 +97,7 @@ class FrontEnd:
             raise RuntimeError(f"the motion of frame {ahead[0]} was computed ahead, frame {index} came instead")
         step = ahead[1].result() if ahead is not None else self.mono.motion(image)
         self.mono.remember(depth, log_sigma)
-        self._scale = step.depth_scale if step is not None else self.mono.depth_scale
+        self._scale = self.mono.depth_scale  # nothing runs ahead yet: the next motion starts after this frame's
         return step
 
     def _feature_points(self, feats: Features, depth: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, list]:

@@ -40,7 +40,6 @@ class MonoStep:
     inliers: int
     parallax_px: float
     scale_source: str  # "ground", "depth" (each "+tracks" when tracks gave the change), "standing" or "constant_speed"
-    depth_scale: float = 1.0  # the generator depth's factor to the road's scale after this step (MonoMotion.depth_scale)
 
 
 def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -192,7 +191,6 @@ class MonoMotion:
             road = (road_corners(prev, self.K, self.camera_height, self.max_road_corners) if self.camera_height
                     else np.zeros((0, 2)))
             result = self._motion(prev, cur, p0, n_old, road)
-            result.depth_scale = self.depth_scale
         self.prev_gray = cur
         if result is not None:
             self.last = result

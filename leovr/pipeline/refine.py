@@ -165,9 +165,11 @@ class RefineRun:
             ahead.submit(self.stage.prepare, i, self.front.velocity if self.front.prev is not None else None, None)
         p = ahead.result()
         following = n + 1 < len(self.indices)
+        next_read = None  # camera only: the next frame's read, held before its preparation takes it (`prefetch_motion`)
         if following:
             ahead.read_ahead(self.indices[n + 1])
-            next_read = ahead.future(self.indices[n + 1])  # held before the next frame's preparation takes it
+            if not self.has_lidar and ahead.threaded:
+                next_read = ahead.future(self.indices[n + 1])
             self.stage.read_sweep_ahead(self.indices[n + 1])  # beside this frame's front end
         if self.has_lidar and i not in self.done and not (p.sample.sparse > 0).any():
             self.empty.append(i)
@@ -182,7 +184,7 @@ class RefineRun:
         t1 = time.perf_counter()
         fi = self.front_end(n, i, p)
         t2 = time.perf_counter()
-        if following and not self.has_lidar and ahead.threaded:  # the next frame's camera motion, beside this graph
+        if next_read is not None:  # the next frame's camera motion, beside this frame's graph
             self.front.prefetch_motion(self.indices[n + 1], lambda: next_read.result().image)
         if following and not early:
             self.submit_next(ahead, n, fi)
