@@ -377,6 +377,39 @@ def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_fro
 
 
 @needs_posed_drive
+def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outputs(tmp_path, monkeypatch):
+    """A cone LiDAR's frame: its corner tracks (motion stereo, pair motions) need nothing of its generator and
+    run in their own thread beside it; the poses and depth maps are those of a run that does both in line."""
+    import threading
+
+    import torch
+
+    import leovr.pipeline.refine_prepare as prepare
+
+    seq, cfg = open_sequence(KITTI_RAW_POSES), RefineConfig(input="mid40", end=6)
+    where: list[tuple[int, str]] = []
+    tracked = prepare.PrepareStage._tracked
+    monkeypatch.setattr(prepare.PrepareStage, "_tracked",
+                        lambda self, i, *a: where.append((i, threading.current_thread().name)) or tracked(self, i, *a))
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        run_refine(seq, cfg, tmp_path / "beside", progress=False, score=False)
+        torch.set_num_threads(1)
+        run_refine(seq, cfg, tmp_path / "in_line", progress=False, score=False)
+    finally:
+        torch.set_num_threads(threads)
+    beside, in_line = where[:len(where) // 2], where[len(where) // 2:]
+    assert [i for i, _ in beside] == list(range(6)) and all(name.startswith("leovr-tracks") for _, name in beside)
+    assert all(not name.startswith("leovr-tracks") for _, name in in_line)
+    assert (tmp_path / "beside" / "poses_kitti.txt").read_text() == (tmp_path / "in_line" / "poses_kitti.txt").read_text()
+    pngs = sorted((tmp_path / "in_line" / "depth").glob("*.png"))
+    assert len(pngs) == 6
+    for png in pngs:
+        assert png.read_bytes() == (tmp_path / "beside" / "depth" / png.name).read_bytes(), png.name
+
+
+@needs_posed_drive
 def test_a_camera_only_run_computes_the_next_motion_ahead_with_the_same_poses(tmp_path, monkeypatch):
     """Camera only, the next frame's motion (Lucas-Kanade tracks and the essential matrix) runs in a worker
     thread beside this frame's graph: every frame but the first takes its motion from there, and the poses are

@@ -88,6 +88,9 @@ class PrepareStage:
         # a sweep's images' motion (ORB matching, essential matrix) needs only the two images: it runs in its own
         # thread while the main thread's front end runs and this stage's thread would wait
         self.sweeper = ThreadPoolExecutor(1, thread_name_prefix="leovr-sweep") if frames.threaded else None
+        # a frame's corner tracks (motion stereo, pair motions) need nothing of its generator: they run in their own
+        # thread beside it
+        self.tracker = ThreadPoolExecutor(1, thread_name_prefix="leovr-tracks") if frames.threaded else None
         self.images_ahead: dict[int, Future] = {}  # frame -> its sweep's images' motion, started ahead
         self.sweep_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
         self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
@@ -132,8 +135,9 @@ class PrepareStage:
         return sweep_motion(seen, frame.K, motion)
 
     def close(self) -> None:
-        if self.sweeper is not None:
-            self.sweeper.shutdown(wait=True, cancel_futures=True)
+        for pool in (self.sweeper, self.tracker):
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
 
     def start_motion(self, i: int, frame: Frame) -> np.ndarray | None:
         """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
@@ -205,28 +209,43 @@ class PrepareStage:
                  ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray], np.ndarray | None]:
         """The generator's depth and log sigma on the sample (with the earlier scans that agree with it),
         moved towards the motion-stereo corners, the pair motions, and the corners."""
-        from odometry.motion_stereo import (FrameTracks, corrected_depth, motion_stereo_depth, neighbour_frames,
-                                            pair_motions)
+        from odometry.motion_stereo import corrected_depth
 
         cfg, stereo, K = self.cfg, self.stereo, sample.frame.K
         if earlier is not None:
             earlier = self.history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, K))
-        corners, pairs, tracks = None, {}, None
         with_stereo, with_pairs = self.cone.runs(stereo.enabled, sample), self.cone.runs(cfg.graph.pair_factors, sample)
-        if with_stereo or with_pairs:  # frame i's corners and tracks, shared by motion stereo and the pairs
+        tracked = None  # the corners and pair motions, beside the generator (`tracker`) or after it
+        if with_stereo or with_pairs:
             if i not in self.stereo_images.images:
                 self.stereo_images.put(i, frame.image)
-            tracks = FrameTracks(i, self.stereo_images, K, sample.sparse, stereo)
-        if with_stereo:
-            offsets = stereo.causal_offsets if cfg.causal else stereo.offsets
-            corners = motion_stereo_depth(i, neighbour_frames(i, self.indices, offsets, cfg.causal), self.stereo_images,
-                                          K, sample.sparse, seen.sparse, stereo, tracks)
+            args = i, K, sample.sparse, seen.sparse, with_stereo, with_pairs
+            tracked = self.tracker.submit(self._tracked, *args) if self.tracker is not None else None
         depth, log_sigma = self.generator(seen)
+        corners, pairs = (None, {}) if not (with_stereo or with_pairs) else (
+            tracked.result() if tracked is not None else self._tracked(*args))
         if corners is not None:  # the generator's depth moved towards the corners around them
             depth = corrected_depth(depth, corners, stereo.spread * float(K[0, 0]), stereo.support,
                                     stereo.range_log, stereo.edge_px)
+        return depth, log_sigma, pairs, corners
+
+    def _tracked(self, i: int, K: np.ndarray, own: np.ndarray, seen: np.ndarray, with_stereo: bool, with_pairs: bool
+                 ) -> tuple[np.ndarray | None, dict[int, np.ndarray]]:
+        """Frame i's motion-stereo corners (a sparse depth map, or None) and its pair motions to the window's
+        earlier frames, from one set of corner tracks. `own`: the frame's returns (each pair's length);
+        `seen`: with the earlier scans (no corner near a return)."""
+        from odometry.motion_stereo import FrameTracks, motion_stereo_depth, neighbour_frames, pair_motions
+
+        cfg, stereo = self.cfg, self.stereo
+        tracks = FrameTracks(i, self.stereo_images, K, own, stereo)
+        corners = None
+        if with_stereo:
+            offsets = stereo.causal_offsets if cfg.causal else stereo.offsets
+            corners = motion_stereo_depth(i, neighbour_frames(i, self.indices, offsets, cfg.causal), self.stereo_images,
+                                          K, own, seen, stereo, tracks)
+        pairs = {}
         if with_pairs:  # the images' motion to the window's earlier frames
             pairs = pair_motions(i, [i - o for o in cfg.graph.pair_offsets if i - o in self.selected], self.stereo_images,
-                                 K, sample.sparse, stereo, tracks)
-        return depth, log_sigma, pairs, corners
+                                 K, own, stereo, tracks)
+        return corners, pairs
