@@ -154,3 +154,23 @@ def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive):
     # the share test is what refused it: without it the free nodes move as in the first test
     off = photometric_offsets(wrong, _gray(f), unpinned, f.K, free, S.model_copy(update={"min_backed_share": 0.0}))
     assert np.median(off[free & (off != 0)]) == pytest.approx(-0.3, abs=0.1)
+
+
+def test_far_coordinates_are_brought_back_to_the_samples_opencv_takes_there():
+    """A point behind the camera lands 1e5-1e8 px outside the image; OpenCV reflects such a coordinate back one
+    period at a time (slow), so the sweep hands it the coordinate within a period that samples the same."""
+    import cv2
+
+    from odometry.photo_field import _reflected
+
+    rng = np.random.default_rng(0)
+    h, w = 12, 40
+    image = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    u = np.concatenate([rng.uniform(-w, 2 * w, 200), rng.uniform(-1e8, 1e8, 200), [-4e6 + 0.25, 3e7 + 0.5, -w - 0.5, 2 * w]])
+    u = u.astype(np.float32).reshape(1, -1)
+    v = np.full_like(u, 5.5)
+    brought = _reflected(u, w)
+    assert (brought >= -w).all() and (brought < 2 * w).all()
+    np.testing.assert_array_equal(brought[:, :200], u[:, :200])  # near the image: untouched
+    sample = lambda x: cv2.remap(image, x, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)  # noqa: E731
+    np.testing.assert_array_equal(sample(brought), sample(u))
