@@ -377,6 +377,29 @@ def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_fro
 
 
 @needs_posed_drive
+def test_a_spinning_lidars_window_is_smoothed_incrementally_with_the_batch_poses(tmp_path, monkeypatch):
+    """A spinning LiDAR's window (no resampled or pair factors, close first guesses) runs on iSAM2: its poses
+    are those of batch Levenberg-Marquardt smoothing within a centimetre and as near the GPS/IMU poses."""
+    from odometry import window_graph as wg
+
+    seq = open_sequence(KITTI_RAW_POSES)
+    cfg = RefineConfig(input="vlp16", end=10)
+    smoothers: list[str] = []
+    set_sensor = wg.WindowGraph.set_sensor
+    monkeypatch.setattr(wg.WindowGraph, "set_sensor",
+                        lambda self, spinning: set_sensor(self, spinning) or smoothers.append(type(self.smoother).__name__))
+    incremental = run_refine(seq, cfg, tmp_path / "incremental", progress=False)
+    monkeypatch.setattr(wg.WindowGraph, "set_sensor", lambda self, spinning: setattr(self, "depth_factors", not spinning))
+    batch = run_refine(seq, cfg, tmp_path / "batch", progress=False)
+    assert smoothers == ["IncrementalFixedLagSmoother"]
+    poses = lambda run: np.loadtxt(tmp_path / run / "poses_kitti.txt").reshape(-1, 3, 4)[:, :, 3]  # noqa: E731
+    gap = np.linalg.norm(poses("incremental") - poses("batch"), axis=1)
+    ate = [m["trajectory"]["leovr"]["ate_m"] for m in (incremental, batch)]
+    assert gap.max() < 0.01
+    assert ate[0] < 1.05 * ate[1]
+
+
+@needs_posed_drive
 def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outputs(tmp_path, monkeypatch):
     """A cone LiDAR's frame: its corner tracks (motion stereo, pair motions) need nothing of its generator and
     run in their own thread beside it; the poses and depth maps are those of a run that does both in line."""

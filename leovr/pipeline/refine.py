@@ -232,7 +232,7 @@ class RefineRun:
 
     def judge_sensor(self, sample: EvalSample) -> None:
         """Judged on the first scan with returns: a spinning sensor keeps its own scan, and with
-        `depth_factors: auto` the graph leaves the depth to the generator."""
+        `depth_factors: auto` the graph leaves the depth to the generator, its window smoothed incrementally."""
         from odometry.initial_pose import is_spinning
 
         kept = sample.kept_points
@@ -243,8 +243,7 @@ class RefineRun:
         self.cone.spinning = spinning
         if spinning:
             self.history.frames = 0
-        if self.cfg.graph.depth_factors == "auto":
-            self.graph.depth_factors = not spinning
+        self.graph.set_sensor(spinning)
 
     def submit_next(self, ahead: Lookahead[PreparedFrame, Frame], n: int, fi: FrameInput | None) -> None:
         """The frame after the n-th handed to the generator stage, with the motion to deskew it and the earlier
