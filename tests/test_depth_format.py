@@ -36,3 +36,23 @@ def test_run_folders_record_their_depth_scale(tmp_path):
     (new / "run.json").write_text('{"depth_png": {"scale": -1}}')
     with pytest.raises(DataError, match="run.json"):
         run_depth_scale(new)
+
+
+def test_a_frames_equal_maps_are_encoded_once_and_written_alike(tmp_path, monkeypatch):
+    """A frame's depth maps go out as PNGs each; a map equal to an earlier one in PNG units (a spinning LiDAR's
+    refined depth is its generator's) reuses that PNG: the same bytes as written on its own, one encoding less."""
+    import leovr.pipeline.refine_outputs as outputs
+
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(1.0, 80.0, (20, 30)).astype(np.float32)
+    maps = {"depth_generator": depth, "depth": depth.astype(np.float64) * 1.0, "sigma": depth * 0.1}
+    encoded = []
+    encode = outputs.depth_png_bytes
+    monkeypatch.setattr(outputs, "depth_png_bytes", lambda units: encoded.append(units) or encode(units))
+    outputs.write_frame_files(tmp_path / "run", "000007.png", maps, tmp_path / "run" / "progress.json", "{}\n")
+    assert len(encoded) == 2
+    for folder, m in maps.items():
+        write_depth_png(tmp_path / "alone" / folder / "000007.png", m)
+        assert (tmp_path / "run" / folder / "000007.png").read_bytes() == (tmp_path / "alone" / folder / "000007.png").read_bytes()
+    np.testing.assert_allclose(read_depth_png(tmp_path / "run" / "sigma" / "000007.png"), depth * 0.1, atol=0.5 / 256)
+    assert (tmp_path / "run" / "progress.json").read_text() == "{}\n"

@@ -141,14 +141,22 @@ def check_output_file(path: Path) -> Path:
     return path
 
 
+def depth_png_bytes(units: np.ndarray) -> bytes:
+    """A uint16 depth map (`depth_to_uint16`) encoded as PNG."""
+    ok, buf = cv2.imencode(".png", units)
+    if not ok:
+        raise ValueError("OpenCV could not encode the depth map as PNG")
+    return buf.tobytes()
+
+
+def write_png_bytes(path: Path, data: bytes) -> None:
+    """Write an encoded PNG atomically."""
+    atomic_write(path, lambda tmp: tmp.write_bytes(data))
+
+
 def write_depth_png(path: Path, depth: np.ndarray, scale: float = DEPTH_SCALE) -> None:
     """Write depth in metres as a uint16 PNG (metres x 256 by default), atomically."""
-
-    def _write(tmp: Path) -> None:
-        if not cv2.imwrite(str(tmp), depth_to_uint16(depth, scale)):
-            raise DataError(path, "could not write depth PNG")
-
-    atomic_write(path, _write)
+    write_png_bytes(path, depth_png_bytes(depth_to_uint16(depth, scale)))
 
 
 def write_image(path: Path, image: np.ndarray) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 from tqdm import tqdm
 
 from leovr.config import CompleteConfig, RefineConfig
-from leovr.data.io import format_max_depth, write_depth_png, write_text
+from leovr.data.io import depth_png_bytes, depth_to_uint16, format_max_depth, write_png_bytes, write_text
 from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.run_info import read_run_depth
@@ -110,9 +110,17 @@ class Progress:
 
 
 def write_frame_files(out: Path, name: str, maps: dict[str, np.ndarray], state_path: Path, state: str) -> None:
-    """A leaving frame's depth maps (folder -> metres) as PNGs, then the run's progress record that names it."""
+    """A leaving frame's depth maps (folder -> metres) as PNGs, then the run's progress record that names it.
+    A map equal to an earlier one in its PNG units is not encoded again (a spinning LiDAR's refined depth is
+    its generator's: a PNG is 10 ms)."""
+    encoded: list[tuple[np.ndarray, bytes]] = []
     for folder, depth in maps.items():
-        write_depth_png(out / folder / name, depth)
+        units = depth_to_uint16(depth)
+        data = next((png for seen, png in encoded if np.array_equal(seen, units)), None)
+        if data is None:
+            data = depth_png_bytes(units)
+            encoded.append((units, data))
+        write_png_bytes(out / folder / name, data)
     write_text(state_path, state)
 
 
