@@ -376,6 +376,20 @@ def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_fro
         assert png.read_bytes() == (tmp_path / "vlp16_thread" / "depth" / png.name).read_bytes(), png.name
 
 
+def _threaded_then_in_line(seq, cfg: RefineConfig, threaded, in_line) -> None:
+    """The run with two torch threads (its worker threads on), then with one (every stage in line)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        run_refine(seq, cfg, threaded, progress=False, score=False)
+        torch.set_num_threads(1)
+        run_refine(seq, cfg, in_line, progress=False, score=False)
+    finally:
+        torch.set_num_threads(threads)
+
+
 @needs_posed_drive
 def test_a_spinning_lidars_window_is_smoothed_incrementally_with_the_batch_poses(tmp_path, monkeypatch):
     """A spinning LiDAR's window (no resampled or pair factors, close first guesses) runs on iSAM2: its poses
@@ -405,8 +419,6 @@ def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outp
     run in their own thread beside it; the poses and depth maps are those of a run that does both in line."""
     import threading
 
-    import torch
-
     import leovr.pipeline.refine_prepare as prepare
 
     seq, cfg = open_sequence(KITTI_RAW_POSES), RefineConfig(input="mid40", end=6)
@@ -414,14 +426,7 @@ def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outp
     tracked = prepare.PrepareStage._tracked
     monkeypatch.setattr(prepare.PrepareStage, "_tracked",
                         lambda self, i, *a: where.append((i, threading.current_thread().name)) or tracked(self, i, *a))
-    threads = torch.get_num_threads()
-    try:
-        torch.set_num_threads(2)
-        run_refine(seq, cfg, tmp_path / "beside", progress=False, score=False)
-        torch.set_num_threads(1)
-        run_refine(seq, cfg, tmp_path / "in_line", progress=False, score=False)
-    finally:
-        torch.set_num_threads(threads)
+    _threaded_then_in_line(seq, cfg, tmp_path / "beside", tmp_path / "in_line")
     beside, in_line = where[:len(where) // 2], where[len(where) // 2:]
     assert [i for i, _ in beside] == list(range(6)) and all(name.startswith("leovr-tracks") for _, name in beside)
     assert all(not name.startswith("leovr-tracks") for _, name in in_line)
@@ -437,21 +442,13 @@ def test_a_camera_only_run_computes_the_next_motion_ahead_with_the_same_poses(tm
     """Camera only, the next frame's motion (Lucas-Kanade tracks and the essential matrix) runs in a worker
     thread beside this frame's graph: every frame but the first takes its motion from there, and the poses are
     those of a run that computes each motion in line (one core: no worker threads)."""
-    import torch
     from odometry.frontend import FrontEnd
 
     seq, cfg = open_sequence(KITTI_RAW_POSES), RefineConfig(input="none", end=6)
     taken: list[int] = []
     prefetch = FrontEnd.prefetch_motion
     monkeypatch.setattr(FrontEnd, "prefetch_motion", lambda self, i, image: taken.append(i) or prefetch(self, i, image))
-    threads = torch.get_num_threads()
-    try:
-        torch.set_num_threads(2)
-        run_refine(seq, cfg, tmp_path / "ahead", progress=False, score=False)
-        torch.set_num_threads(1)
-        run_refine(seq, cfg, tmp_path / "in_line", progress=False, score=False)
-    finally:
-        torch.set_num_threads(threads)
+    _threaded_then_in_line(seq, cfg, tmp_path / "ahead", tmp_path / "in_line")
     assert taken == [1, 2, 3, 4, 5]
     ahead, in_line = ((tmp_path / r / "poses_kitti.txt").read_text() for r in ("ahead", "in_line"))
     assert ahead == in_line and len(ahead.splitlines()) == 6
