@@ -66,7 +66,7 @@ def _reflected(x: np.ndarray, n: int) -> np.ndarray:
     """Coordinates (float32) where cv2.remap with BORDER_REFLECT samples what it samples at `x` along an axis of
     `n` pixels: the reflection repeats every 2n pixels, and OpenCV finds a coordinate far outside (a point behind
     the camera lands 1e5-1e8 px out) by reflecting it back one period at a time, 0.6 ms a 448 x 256 warp
-    against 0.05. Exact below 2^31 px (OpenCV's integer pixel), where OpenCV's own sample is garbage."""
+    against 0.05. Exact below 2^31 px; beyond, OpenCV's integer pixel overflows and its own sample is garbage."""
     far = (x < -n) | (x >= 2 * n)
     if not far.any():
         return x

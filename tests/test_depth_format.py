@@ -48,7 +48,7 @@ def test_a_frames_equal_maps_are_encoded_once_and_written_alike(tmp_path, monkey
     maps = {"depth_generator": depth, "depth": depth.astype(np.float64) * 1.0, "sigma": depth * 0.1}
     encoded = []
     encode = outputs.depth_png_bytes
-    monkeypatch.setattr(outputs, "depth_png_bytes", lambda units: encoded.append(units) or encode(units))
+    monkeypatch.setattr(outputs, "depth_png_bytes", lambda units, path: encoded.append(units) or encode(units, path))
     outputs.write_frame_files(tmp_path / "run", "000007.png", maps, tmp_path / "run" / "progress.json", "{}\n")
     assert len(encoded) == 2
     for folder, m in maps.items():

@@ -141,11 +141,11 @@ def check_output_file(path: Path) -> Path:
     return path
 
 
-def depth_png_bytes(units: np.ndarray) -> bytes:
-    """A uint16 depth map (`depth_to_uint16`) encoded as PNG."""
+def depth_png_bytes(units: np.ndarray, path: Path) -> bytes:
+    """A uint16 depth map (`depth_to_uint16`) encoded as PNG, for `path` (named by the error)."""
     ok, buf = cv2.imencode(".png", units)
     if not ok:
-        raise ValueError("OpenCV could not encode the depth map as PNG")
+        raise DataError(path, "could not write depth PNG")
     return buf.tobytes()
 
 
@@ -156,7 +156,7 @@ def write_png_bytes(path: Path, data: bytes) -> None:
 
 def write_depth_png(path: Path, depth: np.ndarray, scale: float = DEPTH_SCALE) -> None:
     """Write depth in metres as a uint16 PNG (metres x 256 by default), atomically."""
-    write_png_bytes(path, depth_png_bytes(depth_to_uint16(depth, scale)))
+    write_png_bytes(path, depth_png_bytes(depth_to_uint16(depth, scale), path))
 
 
 def write_image(path: Path, image: np.ndarray) -> None:

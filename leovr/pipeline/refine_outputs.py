@@ -118,7 +118,7 @@ def write_frame_files(out: Path, name: str, maps: dict[str, np.ndarray], state_p
         units = depth_to_uint16(depth)
         data = next((png for seen, png in encoded if np.array_equal(seen, units)), None)
         if data is None:
-            data = depth_png_bytes(units)
+            data = depth_png_bytes(units, out / folder / name)
             encoded.append((units, data))
         write_png_bytes(out / folder / name, data)
     write_text(state_path, state)

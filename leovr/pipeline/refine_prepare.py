@@ -216,15 +216,15 @@ class PrepareStage:
             earlier = self.history.keep_consistent(earlier, sample.kept_points)
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, K))
         with_stereo, with_pairs = self.cone.runs(stereo.enabled, sample), self.cone.runs(cfg.graph.pair_factors, sample)
-        tracked = None  # the corners and pair motions, beside the generator (`tracker`) or after it
+        tracked = done_future((None, {}))  # the corners and pair motions, beside the generator (`tracker`) or here
         if with_stereo or with_pairs:
             if i not in self.stereo_images.images:
                 self.stereo_images.put(i, frame.image)
             args = i, K, sample.sparse, seen.sparse, with_stereo, with_pairs
-            tracked = self.tracker.submit(self._tracked, *args) if self.tracker is not None else None
+            tracked = (self.tracker.submit(self._tracked, *args) if self.tracker is not None
+                       else done_future(self._tracked(*args)))
         depth, log_sigma = self.generator(seen)
-        corners, pairs = (None, {}) if not (with_stereo or with_pairs) else (
-            tracked.result() if tracked is not None else self._tracked(*args))
+        corners, pairs = tracked.result()
         if corners is not None:  # the generator's depth moved towards the corners around them
             depth = corrected_depth(depth, corners, stereo.spread * float(K[0, 0]), stereo.support,
                                     stereo.range_log, stereo.edge_px)
