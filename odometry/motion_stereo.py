@@ -58,6 +58,8 @@ def track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray, s: MotionStereoCo
     """Corners of g0 in g1 (pyramidal Lucas-Kanade) and which of them came back within s.track_check_px."""
     lk = dict(winSize=(s.lk_window_px, s.lk_window_px), maxLevel=s.lk_levels,
               criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, s.lk_iterations, 0.01))
+    if not len(corners):
+        return corners.copy(), np.zeros(0, bool)
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(g0, g1, corners, None, **lk)
     p0, st0, _ = cv2.calcOpticalFlowPyrLK(g1, g0, p1, None, **lk)
     ok = (st1[:, 0] == 1) & (st0[:, 0] == 1) & (np.linalg.norm(p0 - corners, axis=1) < s.track_check_px)
@@ -185,16 +187,57 @@ def detect_corners(g0: np.ndarray, s: MotionStereoConfig) -> np.ndarray | None:
 
 class FrameTracks:
     """Frame i's corners, the LiDAR depth at each and their tracks into neighbours with each pair's motion,
-    computed once per neighbour: motion stereo and the pair motions both track into frame i - 2."""
+    computed once per neighbour: motion stereo and the pair motions both track into frame i - 2.
+
+    Along the `ladder` (motion stereo's neighbours), a neighbour tracks only the corners that its rung before
+    on the same side (the next nearer neighbour) tracked: a corner lost two frames away is rarely found again
+    sixteen away, and the forward-backward check throws such a track out anyway. On both KITTI raw drives
+    (Mid-40-like, every third frame) this halves the Lucas-Kanade time (223 -> 113 and 176 -> 109 ms a frame)
+    with as many corners kept (609 -> 590, 455 -> 462) and the same error against the full scan. The nearest
+    rung on each side and the neighbours off the ladder (the pair motions' frames i - 1, i - 3) track every
+    corner."""
 
     def __init__(self, i: int, images: GrayImages, K: np.ndarray, own: np.ndarray,
-                 s: MotionStereoConfig = MotionStereoConfig()) -> None:
-        self.images, self.K, self.s = images, K, s
+                 s: MotionStereoConfig = MotionStereoConfig(), ladder: list[int] | tuple[int, ...] = ()) -> None:
+        self.i, self.images, self.K, self.s = i, images, K, s
         g0 = images[i]
         self.g0 = g0
         self.corners = None if g0 is None or not (own > 0).any() else detect_corners(g0, s)
         self.lidar = None if self.corners is None else returns_at(own, self.corners, s.scale_radius_px)
+        # each rung's previous one: the next nearer ladder neighbour on the same side of frame i
+        self.below: dict[int, int] = {}
+        for side in (-1, 1):
+            rungs = sorted((j for j in set(ladder) if (j - i) * side > 0), key=lambda j: abs(j - i))
+            self.below.update(zip(rungs[1:], rungs[:-1]))
+        self._tracked: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}  # j -> pixels in j, tracked
         self._pairs: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray] | None] = {}
+
+    def _candidates(self, j: int) -> np.ndarray | None:
+        """The corners neighbour j tracks (a boolean mask), None for every corner: those its nearest rung
+        below with an image tracked."""
+        k = self.below.get(j)
+        while k is not None:
+            found = self._track(k)
+            if found is not None:
+                return found[1]
+            k = self.below.get(k)
+        return None
+
+    def _track(self, j: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The corners' pixels in frame j and which of them tracked; None when its image is missing."""
+        if j not in self._tracked:
+            g1 = self.images[j]
+            found = None
+            if g1 is not None and g1.shape == self.g0.shape:
+                cand = self._candidates(j)
+                if cand is None:
+                    found = track(self.g0, g1, self.corners, self.s)
+                else:
+                    p, ok = self.corners.copy(), np.zeros(len(self.corners), bool)
+                    p[cand], ok[cand] = track(self.g0, g1, self.corners[cand], self.s)
+                    found = p, ok
+            self._tracked[j] = found
+        return self._tracked[j]
 
     def pair(self, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """([R | t] of frame i -> j, the corners' pixels in j, which tracked), or None when the image is
@@ -202,10 +245,10 @@ class FrameTracks:
         if self.corners is None:
             return None
         if j not in self._pairs:
-            g1 = self.images[j]
+            tracked = self._track(j)
             found = None
-            if g1 is not None and g1.shape == self.g0.shape:
-                p, ok = track(self.g0, g1, self.corners, self.s)
+            if tracked is not None:
+                p, ok = tracked
                 Rt = pair_motion(self.corners, p, ok, self.K, self.lidar, self.s)
                 found = None if Rt is None else (Rt, p, ok)
             self._pairs[j] = found
@@ -239,7 +282,7 @@ def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: n
     none = Corners(*(np.zeros(0, t) for t in (int, int, float, float, float, int)))
     if not neighbours:
         return none
-    tracks = FrameTracks(i, images, K, own, s) if tracks is None else tracks
+    tracks = FrameTracks(i, images, K, own, s, neighbours) if tracks is None else tracks
     views = [found for found in map(tracks.pair, neighbours) if found is not None]
     if not views:
         return none

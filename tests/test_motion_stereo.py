@@ -174,7 +174,7 @@ def test_returns_at_takes_the_nearest_return_within_the_radius():
 
 def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, monkeypatch):
     """Motion stereo and the pair motions of one frame track its corners into each neighbour once, with the
-    same results as on their own."""
+    same results as on their own, whatever the order the neighbours are asked in."""
     import odometry.motion_stereo as ms
 
     seq, frames = drive
@@ -183,11 +183,13 @@ def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, mon
     images = GrayImages(lambda j: frames[j].image, keep=16)
     neighbours = neighbour_frames(4, list(range(9)), SETTINGS.offsets)
     alone = motion_stereo_depth(4, neighbours, images, f.K, own, s=SETTINGS)
-    pairs_alone = ms.pair_motions(4, [3, 2, 1], images, f.K, own, SETTINGS)
+    # the pairs alone, asked farthest first: each rung tracks its rung below first
+    pairs_alone = ms.pair_motions(4, [1, 2, 3], images, f.K, own, SETTINGS,
+                                  tracks=ms.FrameTracks(4, images, f.K, own, SETTINGS, neighbours))
     tracked = []
     real_track = ms.track
     monkeypatch.setattr(ms, "track", lambda g0, g1, c, s: tracked.append(1) or real_track(g0, g1, c, s))
-    tracks = ms.FrameTracks(4, images, f.K, own, SETTINGS)
+    tracks = ms.FrameTracks(4, images, f.K, own, SETTINGS, neighbours)
     shared = motion_stereo_depth(4, neighbours, images, f.K, own, s=SETTINGS, tracks=tracks)
     pairs = ms.pair_motions(4, [3, 2, 1], images, f.K, own, SETTINGS, tracks=tracks)
     assert len(tracked) == len(neighbours)  # frames 3, 2 and 1 are motion stereo's neighbours too
@@ -195,3 +197,32 @@ def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, mon
     assert sorted(pairs) == sorted(pairs_alone) == [1, 2, 3]
     for j in pairs:
         np.testing.assert_allclose(pairs[j], pairs_alone[j], atol=1e-9)
+
+
+def test_a_farther_neighbour_tracks_only_the_corners_its_nearer_one_tracked(drive, monkeypatch):
+    """Along motion stereo's neighbours, frame i + 4 is asked only for the corners that reached i + 2 (and
+    came back), and so on outwards; the corners kept are about those of tracking every corner everywhere."""
+    import odometry.motion_stereo as ms
+
+    seq, frames = drive
+    f = frames[4]
+    own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
+    images = GrayImages(lambda j: frames[j].image, keep=16)
+    s = MotionStereoConfig(offsets=[1, 2, 4])
+    neighbours = neighbour_frames(4, list(range(9)), s.offsets)
+    asked = []
+    real_track = ms.track
+    monkeypatch.setattr(ms, "track", lambda g0, g1, c, s: asked.append(len(c)) or real_track(g0, g1, c, s))
+    tracks = ms.FrameTracks(4, images, f.K, own, s, neighbours)
+    ladder = motion_stereo_depth(4, neighbours, images, f.K, own, s=s, tracks=tracks)
+    n = len(tracks.corners)
+    assert asked[:2] == [n, n]  # frames 3 and 5: every corner
+    for far, near in ((2, 3), (6, 5), (0, 2), (8, 6)):
+        ok_far, ok_near = tracks._track(far)[1], tracks._track(near)[1]
+        assert not (ok_far & ~ok_near).any(), (far, near)
+    assert max(asked[2:]) < n  # the farther ones: fewer
+    every = motion_stereo_depth(4, neighbours, images, f.K, own, s=s, tracks=ms.FrameTracks(4, images, f.K, own, s))
+    both = (ladder > 0) & (every > 0)
+    assert abs((ladder > 0).sum() - (every > 0).sum()) < 0.15 * (every > 0).sum()
+    assert both.sum() > 0.8 * (every > 0).sum()
+    np.testing.assert_allclose(ladder[both], every[both], rtol=0.05)

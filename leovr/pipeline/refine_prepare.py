@@ -238,12 +238,12 @@ class PrepareStage:
         from odometry.motion_stereo import FrameTracks, motion_stereo_depth, neighbour_frames, pair_motions
 
         cfg, stereo = self.cfg, self.stereo
-        tracks = FrameTracks(i, self.stereo_images, K, own, stereo)
+        offsets = stereo.causal_offsets if cfg.causal else stereo.offsets
+        neighbours = neighbour_frames(i, self.indices, offsets, cfg.causal) if with_stereo else []
+        tracks = FrameTracks(i, self.stereo_images, K, own, stereo, neighbours)
         corners = None
         if with_stereo:
-            offsets = stereo.causal_offsets if cfg.causal else stereo.offsets
-            corners = motion_stereo_depth(i, neighbour_frames(i, self.indices, offsets, cfg.causal), self.stereo_images,
-                                          K, own, seen, stereo, tracks)
+            corners = motion_stereo_depth(i, neighbours, self.stereo_images, K, own, seen, stereo, tracks)
         pairs = {}
         if with_pairs:  # the images' motion to the window's earlier frames
             pairs = pair_motions(i, [i - o for o in cfg.graph.pair_offsets if i - o in self.selected], self.stereo_images,
