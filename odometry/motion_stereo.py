@@ -88,14 +88,11 @@ def essential_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray
     return np.hstack([R, t / max(np.linalg.norm(t), 1e-12)])
 
 
-def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
-                s: MotionStereoConfig) -> np.ndarray | None:
-    """Frame i -> j as [R | t] (3 x 4) from the tracks: rotation and direction from the essential matrix,
-    length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
-    when either cannot be had."""
-    Rt = essential_motion(c, p, ok, K)
-    if Rt is None:
-        return None
+def scaled_motion(Rt: np.ndarray, c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
+                  s: MotionStereoConfig) -> np.ndarray | None:
+    """Frame i -> j as [R | t] (3 x 4): the essential matrix's rotation and direction `Rt` (`essential_motion`),
+    its length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
+    with too few LiDAR-backed corners."""
     Xh = cv2.triangulatePoints(K @ np.eye(3, 4), K @ Rt, c[ok].T.astype(np.float64), p[ok].T.astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = Xh[2] / Xh[3]
@@ -105,8 +102,9 @@ def pair_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lid
     use = (d > 0) & (z > 0) & (par > 2.0) & np.isfinite(z)
     if use.sum() < s.scale_min_points:
         return None
-    Rt[:, 3] *= float(np.median(d[use] / z[use]))
-    return Rt
+    out = Rt.copy()
+    out[:, 3] *= float(np.median(d[use] / z[use]))
+    return out
 
 
 def triangulate(c: np.ndarray, views: list[tuple[np.ndarray, np.ndarray, np.ndarray]], K: np.ndarray
@@ -197,20 +195,38 @@ class FrameTracks:
     rung on each side and the neighbours off the ladder (the pair motions' frames i - 1, i - 3) track every
     corner."""
 
-    def __init__(self, i: int, images: GrayImages, K: np.ndarray, own: np.ndarray,
+    def __init__(self, i: int, images: GrayImages, K: np.ndarray, own: np.ndarray | None,
                  s: MotionStereoConfig = MotionStereoConfig(), ladder: list[int] | tuple[int, ...] = ()) -> None:
-        self.i, self.images, self.K, self.s = i, images, K, s
+        self.i, self.images, self.K, self.s, self.ladder = i, images, K, s, tuple(ladder)
         g0 = images[i]
         self.g0 = g0
-        self.corners = None if g0 is None or not (own > 0).any() else detect_corners(g0, s)
-        self.lidar = None if self.corners is None else returns_at(own, self.corners, s.scale_radius_px)
+        self.corners = None if g0 is None else detect_corners(g0, s)
+        self.lidar: np.ndarray | None = None
         # each rung's previous one: the next nearer ladder neighbour on the same side of frame i
         self.below: dict[int, int] = {}
         for side in (-1, 1):
             rungs = sorted((j for j in set(ladder) if (j - i) * side > 0), key=lambda j: abs(j - i))
             self.below.update(zip(rungs[1:], rungs[:-1]))
         self._tracked: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}  # j -> pixels in j, tracked
+        self._motions: dict[int, np.ndarray | None] = {}  # j -> the essential matrix's [R | t], unit t
         self._pairs: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray] | None] = {}
+        if own is not None:
+            self.set_returns(own)
+
+    def set_returns(self, own: np.ndarray) -> None:
+        """The frame's own returns (sparse depth): the LiDAR depth at each corner, each pair's length. A frame
+        without any has no pair length and no corner to triangulate."""
+        if not (own > 0).any():
+            self.corners = None
+        self.lidar = None if self.corners is None else returns_at(own, self.corners, self.s.scale_radius_px)
+        self._pairs = {}
+
+    def track_into(self, neighbours: list[int]) -> None:
+        """Track the corners into each neighbour and read each pair's rotation and direction: what needs only
+        the images, so it can run before the frame's returns are known (`set_returns`)."""
+        if self.corners is not None:
+            for j in neighbours:
+                self._motion(j)
 
     def _candidates(self, j: int) -> np.ndarray | None:
         """The corners neighbour j tracks (a boolean mask), None for every corner: those its nearest rung
@@ -239,17 +255,26 @@ class FrameTracks:
             self._tracked[j] = found
         return self._tracked[j]
 
+    def _motion(self, j: int) -> np.ndarray | None:
+        """The essential matrix's [R | t] (unit t) of frame i -> j from the tracks; None without one."""
+        if j not in self._motions:
+            tracked = self._track(j)
+            self._motions[j] = None if tracked is None else essential_motion(self.corners, *tracked, self.K)
+        return self._motions[j]
+
     def pair(self, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """([R | t] of frame i -> j, the corners' pixels in j, which tracked), or None when the image is
-        missing or the motion cannot be had (`pair_motion`)."""
+        missing or the motion cannot be had (`essential_motion`, `scaled_motion`). Needs `set_returns`."""
         if self.corners is None:
             return None
+        if self.lidar is None:
+            raise ValueError("FrameTracks.pair needs the frame's returns (set_returns)")
         if j not in self._pairs:
-            tracked = self._track(j)
+            Rt = self._motion(j)
             found = None
-            if tracked is not None:
-                p, ok = tracked
-                Rt = pair_motion(self.corners, p, ok, self.K, self.lidar, self.s)
+            if Rt is not None:
+                p, ok = self._tracked[j]
+                Rt = scaled_motion(Rt, self.corners, p, ok, self.K, self.lidar, self.s)
                 found = None if Rt is None else (Rt, p, ok)
             self._pairs[j] = found
         return self._pairs[j]
@@ -260,7 +285,7 @@ def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarra
                  ) -> dict[int, np.ndarray]:
     """Frame i's motion to each neighbour j as a 4 x 4 T_j_i (camera i's points into camera j): rotation and
     direction from the essential matrix of the tracked corners, length from the frame's own LiDAR returns
-    (`pair_motion`). Neighbours where either fails are left out. For the window graph: on the simulator's
+    (`essential_motion`, `scaled_motion`). Neighbours where either fails are left out. For the window graph: on the simulator's
     Mid-40 validation drives the essential matrix's rotation is 5x nearer the truth than the graph's own
     (median 0.03 against 0.14-0.34 degrees; docs/decisions/0006-pair-factors-cone-only.md). `tracks`: frame i's, to share with motion
     stereo (built here when None)."""

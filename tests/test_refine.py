@@ -416,20 +416,33 @@ def test_a_spinning_lidars_window_is_smoothed_incrementally_with_the_batch_poses
 @needs_posed_drive
 def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outputs(tmp_path, monkeypatch):
     """A cone LiDAR's frame: its corner tracks (motion stereo, pair motions) need nothing of its generator and
-    run in their own thread beside it; the poses and depth maps are those of a run that does both in line."""
+    run in their own thread beside it, what of them needs only the images started there once the frame before
+    has its tracks; the poses and depth maps are those of a run that does all of it in line."""
     import threading
 
     import leovr.pipeline.refine_prepare as prepare
 
     seq, cfg = open_sequence(KITTI_RAW_POSES), RefineConfig(input="mid40", end=6)
     where: list[tuple[int, str]] = []
-    tracked = prepare.PrepareStage._tracked
+    ahead: list[int] = []
+    tracked, images_tracks = prepare.PrepareStage._tracked, prepare.PrepareStage._images_tracks
     monkeypatch.setattr(prepare.PrepareStage, "_tracked",
                         lambda self, i, *a: where.append((i, threading.current_thread().name)) or tracked(self, i, *a))
+
+    def started_ahead(self, i, *a):
+        out = images_tracks(self, i, *a)
+        if out is not None and threading.current_thread().name.startswith("leovr-tracks"):
+            ahead.append(i)
+        return out
+
+    monkeypatch.setattr(prepare.PrepareStage, "_images_tracks", started_ahead)
     _threaded_then_in_line(seq, cfg, tmp_path / "beside", tmp_path / "in_line")
     beside, in_line = where[:len(where) // 2], where[len(where) // 2:]
     assert [i for i, _ in beside] == list(range(6)) and all(name.startswith("leovr-tracks") for _, name in beside)
     assert all(not name.startswith("leovr-tracks") for _, name in in_line)
+    # the first two frames are tracked in their own turn (the sensor is judged on the first; the second's image
+    # was no neighbour's before), the others ahead
+    assert ahead == [2, 3, 4, 5]
     assert (tmp_path / "beside" / "poses_kitti.txt").read_text() == (tmp_path / "in_line" / "poses_kitti.txt").read_text()
     pngs = sorted((tmp_path / "in_line" / "depth").glob("*.png"))
     assert len(pngs) == 6

@@ -51,6 +51,14 @@ class ConeSteps:
     has_lidar: bool
     spinning: bool | None = None  # once judged on the first scan with returns
 
+    def known(self, setting: bool | str) -> bool | None:
+        """Whether the step runs for every frame from now on, None while the sensor is not judged yet."""
+        if not self.has_lidar or setting is False:
+            return False
+        if setting is True:
+            return True
+        return None if self.spinning is None else not self.spinning
+
     def runs(self, setting: bool | str, sample: EvalSample) -> bool:
         if not self.has_lidar or setting is False:
             return False
@@ -89,8 +97,10 @@ class PrepareStage:
         # thread while the main thread's front end runs and this stage's thread would wait
         self.sweeper = ThreadPoolExecutor(1, thread_name_prefix="leovr-sweep") if frames.threaded else None
         # a frame's corner tracks (motion stereo, pair motions) need nothing of its generator: they run in their own
-        # thread beside it
+        # thread beside it; and what of them needs only the images starts there as soon as the frame before has
+        # its tracks (`track_ahead`), before the frame's input is read
         self.tracker = ThreadPoolExecutor(1, thread_name_prefix="leovr-tracks") if frames.threaded else None
+        self.tracks_ahead: dict[int, Future] = {}  # frame -> its FrameTracks (or None), started ahead
         self.images_ahead: dict[int, Future] = {}  # frame -> its sweep's images' motion, started ahead
         self.sweep_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
         self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
@@ -217,12 +227,12 @@ class PrepareStage:
         seen = sample if earlier is None else replace(sample, sparse=with_history(sample.sparse, earlier, K))
         with_stereo, with_pairs = self.cone.runs(stereo.enabled, sample), self.cone.runs(cfg.graph.pair_factors, sample)
         tracked = done_future((None, {}))  # the corners and pair motions, beside the generator (`tracker`) or here
+        ahead = self.tracks_ahead.pop(i, None)
         if with_stereo or with_pairs:
-            if i not in self.stereo_images.images:
-                self.stereo_images.put(i, frame.image)
-            args = i, K, sample.sparse, seen.sparse, with_stereo, with_pairs
+            args = i, frame.image, K, sample.sparse, seen.sparse, with_stereo, with_pairs, ahead
             tracked = (self.tracker.submit(self._tracked, *args) if self.tracker is not None
                        else done_future(self._tracked(*args)))
+            self.track_ahead(i, K)
         depth, log_sigma = self.generator(seen)
         corners, pairs = tracked.result()
         if corners is not None:  # the generator's depth moved towards the corners around them
@@ -230,22 +240,59 @@ class PrepareStage:
                                     stereo.range_log, stereo.edge_px)
         return depth, log_sigma, pairs, corners
 
-    def _tracked(self, i: int, K: np.ndarray, own: np.ndarray, seen: np.ndarray, with_stereo: bool, with_pairs: bool
-                 ) -> tuple[np.ndarray | None, dict[int, np.ndarray]]:
-        """Frame i's motion-stereo corners (a sparse depth map, or None) and its pair motions to the window's
-        earlier frames, from one set of corner tracks. `own`: the frame's returns (each pair's length);
-        `seen`: with the earlier scans (no corner near a return)."""
-        from odometry.motion_stereo import FrameTracks, motion_stereo_depth, neighbour_frames, pair_motions
+    def _neighbours(self, i: int, with_stereo: bool, with_pairs: bool) -> tuple[list[int], list[int]]:
+        """Frame i's motion-stereo neighbours and the earlier frames of its pair motions."""
+        from odometry.motion_stereo import neighbour_frames
 
         cfg, stereo = self.cfg, self.stereo
         offsets = stereo.causal_offsets if cfg.causal else stereo.offsets
         neighbours = neighbour_frames(i, self.indices, offsets, cfg.causal) if with_stereo else []
-        tracks = FrameTracks(i, self.stereo_images, K, own, stereo, neighbours)
+        earlier = [i - o for o in cfg.graph.pair_offsets if i - o in self.selected] if with_pairs else []
+        return neighbours, earlier
+
+    def track_ahead(self, i: int, K: np.ndarray) -> None:
+        """Queue the next frame's tracks (what needs only the images) in the tracks thread behind frame i's,
+        when the sensor is known to need them: they then run beside this frame's generator and the main
+        thread's front end, off the next frame's path."""
+        k = self.following.get(i)
+        with_stereo, with_pairs = self.cone.known(self.stereo.enabled), self.cone.known(self.cfg.graph.pair_factors)
+        if self.tracker is None or k is None or not (with_stereo or with_pairs):
+            return
+        self.tracks_ahead[k] = self.tracker.submit(self._images_tracks, k, K, *self._neighbours(k, bool(with_stereo),
+                                                                                                 bool(with_pairs)))
+
+    def _images_tracks(self, i: int, K: np.ndarray, neighbours: list[int], earlier: list[int]):
+        """Frame i's corners tracked into its neighbours with each pair's rotation and direction, or None where its
+        image is not read yet: a frame not met as a neighbour before takes its own decoded image (`_tracked`),
+        as a sequential run does. Runs in the tracks thread, which alone touches `stereo_images`."""
+        from odometry.motion_stereo import FrameTracks
+
+        if i not in self.stereo_images.images:
+            return None
+        tracks = FrameTracks(i, self.stereo_images, K, None, self.stereo, neighbours)
+        tracks.track_into([*neighbours, *earlier])
+        return tracks
+
+    def _tracked(self, i: int, image: np.ndarray, K: np.ndarray, own: np.ndarray, seen: np.ndarray, with_stereo: bool,
+                 with_pairs: bool, ahead: Future | None) -> tuple[np.ndarray | None, dict[int, np.ndarray]]:
+        """Frame i's motion-stereo corners (a sparse depth map, or None) and its pair motions to the window's
+        earlier frames, from one set of corner tracks (`ahead`: started by `track_ahead`, used when it tracked
+        the same neighbours). `own`: the frame's returns (each pair's length); `seen`: with the earlier scans
+        (no corner near a return)."""
+        from odometry.motion_stereo import FrameTracks, motion_stereo_depth, pair_motions
+
+        stereo = self.stereo
+        neighbours, earlier = self._neighbours(i, with_stereo, with_pairs)
+        tracks = None if ahead is None else ahead.result()
+        if tracks is None or tracks.ladder != tuple(neighbours) or not np.array_equal(tracks.K, K):
+            if i not in self.stereo_images.images:
+                self.stereo_images.put(i, image)
+            tracks = FrameTracks(i, self.stereo_images, K, None, stereo, neighbours)
+        tracks.set_returns(own)
         corners = None
         if with_stereo:
             corners = motion_stereo_depth(i, neighbours, self.stereo_images, K, own, seen, stereo, tracks)
         pairs = {}
         if with_pairs:  # the images' motion to the window's earlier frames
-            pairs = pair_motions(i, [i - o for o in cfg.graph.pair_offsets if i - o in self.selected], self.stereo_images,
-                                 K, own, stereo, tracks)
+            pairs = pair_motions(i, earlier, self.stereo_images, K, own, stereo, tracks)
         return corners, pairs
