@@ -75,7 +75,9 @@ class MotionStereoConfig(_Model):
     # image corners outside the LiDAR's reach, triangulated over +-16 frames, correct the generator's depth;
     # auto: cone LiDAR only; needs a LiDAR (docs/decisions/0005-motion-stereo-cone-only.md)
     enabled: bool | Literal["auto"] = "auto"
-    offsets: list[int] = [2, 4, 8, 12, 16]  # frames before and after frame i that its corners are tracked into
+    # frames before and after frame i that its corners are tracked into; a farther one only the corners that the
+    # nearer one on the same side kept
+    offsets: list[int] = [2, 4, 8, 12, 16]
     # a causal run's frames before frame i: the previous frame too (without it a causal Mid-40-like run on
     # kitti_raw_0013 lost its way, ATE 1.23 against 0.14 m; depth better on both real drives and a rendered one)
     causal_offsets: list[int] = [1, 2, 4, 8, 12, 16]
