@@ -23,6 +23,7 @@ from leovr.pipeline.lookahead import Lookahead, done_future
 from leovr.pipeline.refine_input import frame_sample, stereo_image
 
 if TYPE_CHECKING:
+    from odometry.motion_stereo import FrameTracks
     from odometry.sweep_motion import ImagesMotion
 
 Generator = Callable[[EvalSample], tuple[np.ndarray, np.ndarray]]  # sample -> depth, log sigma
@@ -261,7 +262,7 @@ class PrepareStage:
         self.tracks_ahead[k] = self.tracker.submit(self._images_tracks, k, K, *self._neighbours(k, bool(with_stereo),
                                                                                                  bool(with_pairs)))
 
-    def _images_tracks(self, i: int, K: np.ndarray, neighbours: list[int], earlier: list[int]):
+    def _images_tracks(self, i: int, K: np.ndarray, neighbours: list[int], earlier: list[int]) -> FrameTracks | None:
         """Frame i's corners tracked into its neighbours with each pair's rotation and direction, or None where its
         image is not read yet: a frame not met as a neighbour before takes its own decoded image (`_tracked`),
         as a sequential run does. Runs in the tracks thread, which alone touches `stereo_images`."""
