@@ -61,17 +61,16 @@ class ConeSteps:
         return None if self.spinning is None else not self.spinning
 
     def runs(self, setting: bool | str, sample: EvalSample) -> bool:
-        if not self.has_lidar or setting is False:
-            return False
-        if setting is True:
-            return True
+        """Whether the step runs for this frame: before the sensor is judged, on this frame's own scan."""
+        known = self.known(setting)
+        if known is not None:
+            return known
         kept = sample.kept_points
-        spinning = self.spinning
-        if spinning is None and kept is not None and len(kept) >= 100:
-            from odometry.initial_pose import is_spinning
+        if kept is None or len(kept) < 100:
+            return False
+        from odometry.initial_pose import is_spinning
 
-            spinning = is_spinning(kept[:, :3])
-        return spinning is False
+        return not is_spinning(kept[:, :3])
 
 
 class PrepareStage:
