@@ -242,7 +242,9 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
         typer.echo(f"depth not scored: no ground truth ({why})")
     for name, t in m.get("trajectory", {}).items():
         scale = f", scale {t['scale']:.3f}" if t["align"] == "sim3" else ""
-        typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m ({t['align']} aligned{scale})")
+        drift = (f"  KITTI {t['kitti_t_err_pct']:.2f} % {t['kitti_r_err_deg_per_m']:.4f} deg/m"
+                 if t.get("kitti_t_err_pct") is not None else "")
+        typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m{drift} ({t['align']} aligned{scale})")
     t = m["timing"]
     wall = t["stats"].get("wall_ms", {}).get("median")
     cpu = t["stats"].get("cpu_ms", {}).get("median")

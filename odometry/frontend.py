@@ -177,8 +177,10 @@ class FrontEnd:
             lidar_uvz = np.stack([lu, lv, sparse[lv, lu]], 1).astype(float)
         rel_sigma = np.exp(log_sigma) / np.maximum(depth, 1e-3)
         self.prev = _Prev(index, feats, cam_pts, lidar_cam, landmark, T_icp)
-        icp_pose = None  # KISS-ICP as the graph's pose prior: spinning LiDARs only (a Mid-40 cone misleads it)
-        if T_icp is not None and self.icp.spinning and self.icp.covariance is not None:
+        # KISS-ICP's motion, the graph's metric scale that holds over a drive, with its registration covariance (a
+        # cone's is loose sideways and in yaw, where the images' motion holds it)
+        icp_pose = None
+        if T_icp is not None and self.icp.covariance is not None:
             icp_pose = (T_icp, self.icp.covariance)
         return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
                           trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,

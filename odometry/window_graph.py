@@ -282,18 +282,21 @@ class WindowGraph:
         drop = self._condition_leaving(f.index, graph)
         try:
             self.smoother.update(graph, values, stamps, drop)
-        except RuntimeError as exc:
-            if "ndetermin" not in str(exc):
+        except (RuntimeError, IndexError) as exc:
+            if not self.incremental and "ndetermin" not in str(exc):
                 raise
-            self._anchor_landmarks(f.index)
+            self._anchor_landmarks(f.index, exc)
         self.last = f.index
         return self._collect()
 
-    def _anchor_landmarks(self, index: int, rel: float = 1.0) -> None:
+    def _anchor_landmarks(self, index: int, failure: Exception, rel: float = 1.0) -> None:
         """gtsam found the window's system (nearly) indeterminate, which loose landmark priors (camera only)
         can make it: give every landmark of the window a depth prior of `rel` per metre at its current
-        estimate and update again (the failed update's factors and values are already in the smoother)."""
-        est = self.smoother.calculateEstimate()
+        estimate and update again (the failed update's factors and values are already in the smoother).
+        iSAM2 (Gauss-Newton, undamped) is left half-updated by a failed update (its Bayes tree lacks the new
+        variables, and the next update fails on them too): its window is rebuilt, a new smoother given the
+        old one's factors, linearisation point and time stamps, with the landmark priors."""
+        est = self.smoother.getLinearizationPoint() if self.incremental else self.smoother.calculateEstimate()
         centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
         graph = gtsam.NonlinearFactorGraph()
         for k in self.landmarks:
@@ -301,11 +304,23 @@ class WindowGraph:
                 P = est.atPoint3(L(k))
                 sigma = rel * max(1.0, float(np.linalg.norm(P - centre)))
                 graph.add(gtsam.PriorFactorPoint3(L(k), P, gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
-        warnings.warn(f"frame {index}: the window's system was indeterminate; every landmark got a depth prior of "
-                      f"{rel} per metre", stacklevel=3)
+        reason = "indeterminate" if "ndetermin" in str(failure) else "could not be updated"
+        warnings.warn(f"frame {index}: the window's system was {reason}; every landmark got a depth prior of "
+                      f"{rel} per metre" + (" and the window was rebuilt" if self.incremental else ""), stacklevel=3)
+        values, stamps = gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap()
+        if self.incremental:
+            old = self.smoother
+            factors = old.getFactors()
+            for n in range(factors.size()):
+                if factors.at(n) is not None:
+                    graph.add(factors.at(n))
+            values = est
+            for key, stamp in old.timestamps().items():
+                stamps.insert((key, stamp))
+            self.smoother = self._new_smoother()
         try:
-            self.smoother.update(graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
-        except RuntimeError as exc:  # not the landmarks: a pose or a depth field without support
+            self.smoother.update(graph, values, stamps)
+        except (RuntimeError, IndexError) as exc:  # not the landmarks: a pose or a depth field without support
             raise RuntimeError(f"frame {index}: the window's system stayed indeterminate after every landmark got a "
                                f"depth prior ({str(exc).strip().splitlines()[0]})") from exc
 

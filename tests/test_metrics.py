@@ -90,3 +90,34 @@ def test_ate_split_along_the_reference_cameras_axes():
 def test_trajectory_metrics_reject_bad_shapes():
     with pytest.raises(ValueError):
         trajectory_metrics(_line(5), _line(6))
+
+
+def test_kitti_relative_errors_as_the_devkit_computes_them():
+    """120 frames 1 m apart on a straight line. Steps 2 % long: KITTI's translation error 2 % of each segment, over
+    every length that fits (25 and 50 m from every 10th frame, 100 m from frames 0 and 10), divided as in the devkit
+    by the nominal length of a segment that ends at the first frame past it (26 m for 25); a heading that
+    turns 0.01 deg per frame against the straight truth: 0.01 deg/m. Stretch ATEs (32 frames each, the last 24
+    join none: 120 = 3 x 32 + 24) and the median step ratio say where the error lies."""
+    n = 120
+    ref = np.stack([make_T(np.eye(3), [0, 0, 1.0 * i]) for i in range(n)])
+    long = ref.copy()
+    long[:, :3, 3] *= 1.02
+    m = trajectory_metrics(long, ref, "none")
+    seg = m["kitti_segments"]
+    assert seg["25"]["segments"] == 10 and seg["50"]["segments"] == 7 and seg["100"]["segments"] == 2
+    for length in (25, 50, 100):
+        assert seg[str(length)]["t_err_pct"] == pytest.approx(2.0 * (length + 1) / length)
+    assert m["kitti_t_err_pct"] == pytest.approx((10 * 2.08 + 7 * 2.04 + 2 * 2.02) / 19)
+    assert m["kitti_r_err_deg_per_m"] == pytest.approx(0.0)
+    assert m["step_ratio_median"] == pytest.approx(1.02)
+    assert len(m["ate_per_stretch_m"]) == 4
+    curved = _line(60)
+    half = curved.copy()
+    half[:, :3, 3] *= 0.5
+    assert trajectory_metrics(half, curved, "none")["kitti_t_err_pct"] == pytest.approx(50.0, rel=0.05)
+    assert trajectory_metrics(half, curved, "sim3")["kitti_t_err_pct"] == pytest.approx(0.0, abs=1e-6)  # scale taken out
+    a = np.radians(0.01) * np.arange(n)
+    turning = np.stack([make_T(np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]]),
+                               [0, 0, 1.0 * i]) for i, t in enumerate(a)])
+    assert trajectory_metrics(turning, ref, "none")["kitti_r_err_deg_per_m"] == pytest.approx(0.01, rel=0.05)
+    assert trajectory_metrics(_line(20), _line(20), "none")["kitti_t_err_pct"] is None  # no 25 m segment fits

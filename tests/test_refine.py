@@ -272,13 +272,13 @@ def test_a_cone_lidars_refined_depth_beats_the_generator_and_the_accumulated_fil
 
 @needs_posed_drive
 def test_visual_lidar_poses_beat_kiss_icp_on_the_real_drive_with_poses(tmp_path):
-    """The real drive with GPS/IMU poses, VLP-16-like input: the graph's trajectory (KISS-ICP's motion as its
+    """The real drive with GPS/IMU poses, its first 32 frames, VLP-16-like input: the graph's trajectory (KISS-ICP's motion as its
     pose prior, images and returns added) is at least as good as KISS-ICP alone on the same input, deskewed
     by KISS-ICP or not; with KISS-ICP's covariance inflated 60x it was 1.35x."""
     seq = open_sequence(KITTI_RAW_POSES)
-    m = run_refine(seq, RefineConfig(input="vlp16"), tmp_path / "out", progress=False)
+    m = run_refine(seq, RefineConfig(input="vlp16", end=32), tmp_path / "out", progress=False)
     t = m["trajectory"]
-    assert {"leovr", "kiss_icp", "kiss_icp_no_deskew"} <= set(t) and t["leovr"]["frames"] == len(seq) == 32
+    assert {"leovr", "kiss_icp", "kiss_icp_no_deskew"} <= set(t) and t["leovr"]["frames"] == 32
     assert t["leovr"]["ate_m"] < min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"])
     assert t["leovr"]["ate_m"] < 0.08
 
@@ -411,6 +411,70 @@ def test_a_spinning_lidars_window_is_smoothed_incrementally_with_the_batch_poses
     ate = [m["trajectory"]["leovr"]["ate_m"] for m in (incremental, batch)]
     assert gap.max() < 0.01
     assert ate[0] < 1.05 * ate[1]
+
+
+@needs_posed_drive
+def test_an_incremental_window_that_fails_its_update_is_rebuilt_and_the_run_goes_on(tmp_path, monkeypatch):
+    """A spinning LiDAR's iSAM2 window given a landmark that one ray alone fixes (no prior: free along the ray)
+    at frame 5: iSAM2 throws on the indeterminate system and is left half-updated (its Bayes tree lacks the new
+    variables, and the next update fails on them). The window is rebuilt from its factors with every landmark
+    anchored; the run ends with every pose, near the GPS/IMU poses, and says so in a warning."""
+    from odometry import window_graph as wg
+
+    frame_factors = wg.WindowGraph._frame_factors
+
+    def with_a_loose_landmark(self, f, graph, values):
+        frame_factors(self, f, graph, values)
+        if f.index == 5:
+            o = f.observations[0]
+            values.insert(wg.L(10**6), self.landmarks[o.landmark] * 1.5)
+            self.landmarks[10**6] = self.landmarks[o.landmark] * 1.5
+            graph.add(wg.projection_factor(o.uv, wg.X(f.index), wg.L(10**6), self.cal, 1.0))
+
+    monkeypatch.setattr(wg.WindowGraph, "_frame_factors", with_a_loose_landmark)
+    seq = open_sequence(KITTI_RAW_POSES)
+    with pytest.warns(UserWarning, match="window was rebuilt"):
+        m = run_refine(seq, RefineConfig(input="vlp16", end=10), tmp_path / "o", progress=False)
+    assert m["trajectory"]["leovr"]["frames"] == 10
+    assert m["trajectory"]["leovr"]["ate_m"] < 0.1
+
+
+@needs_posed_drive
+def test_the_real_drives_own_scan_runs_past_the_window_iSAM2_once_found_indeterminate(tmp_path):
+    """The real drive with poses, its own HDL-64 scan: at frame 68 iSAM2 once found the window indeterminate and
+    the run stopped with gtsam's traceback; it now runs to the end with every pose near the GPS/IMU poses."""
+    from leovr.eval.trajectory import trajectory_metrics
+
+    seq = open_sequence(KITTI_RAW_POSES)
+    run_refine(seq, RefineConfig(input="full", end=70), tmp_path / "o", progress=False, score=False)
+    est = np.loadtxt(tmp_path / "o" / "poses_kitti.txt").reshape(-1, 3, 4)
+    est = np.concatenate([est, np.tile([[[0, 0, 0, 1.0]]], (len(est), 1, 1))], axis=1)
+    assert len(est) == 70
+    assert trajectory_metrics(est, np.stack([seq.pose(i) for i in range(70)]))["ate_m"] < 0.3
+
+
+@needs_posed_drive
+def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkeypatch):
+    """The metric scale comes from measurements that hold over a drive (the LiDAR's returns, KISS-ICP), not
+    from the generator's learned depth: with its depth scaled by 0.9 and 1.1, the Mid-40-like run's median step
+    over the real drive's first 32 frames moves by at most 1.5 % (measured: 1.05 % with 1.1; landmarks seeded
+    from the generator's depth still pass a little of it on)."""
+    from leovr.pipeline import refine as refine_module
+
+    method = refine_module.generator_method
+    seq = open_sequence(KITTI_RAW_POSES)
+    steps = {}
+    for scale in (1.0, 0.9, 1.1):
+        def scaled(ccfg, scale=scale):
+            run = method(ccfg)
+            return lambda sample: (lambda d, s: (d * scale, s + np.log(scale)))(*run(sample))
+        monkeypatch.setattr(refine_module, "generator_method", scaled)
+        run_refine(seq, RefineConfig(input="mid40", end=32), tmp_path / str(scale), progress=False, score=False)
+        xyz = np.loadtxt(tmp_path / str(scale) / "poses_kitti.txt").reshape(-1, 3, 4)[:, :, 3]
+        steps[scale] = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    for scale in (0.9, 1.1):
+        ratio = float(np.median(steps[scale] / steps[1.0]))
+        assert abs(ratio - 1.0) < 0.015, (scale, ratio)
 
 
 @needs_posed_drive

@@ -131,9 +131,11 @@ def add_adapted(shipped: FrameScore, adapted: FrameScore) -> None:
 
 
 def trajectory_entry(metrics: dict) -> dict:
-    """ATE and RPE of leovr and the baselines of one refine run, and leovr's ATE over KISS-ICP's (the
-    better of its two deskew settings)."""
-    keys = ("ate_m", "ate_lateral_m", "ate_vertical_m", "ate_forward_m", "rpe_m")
+    """ATE (whole clip and per stretch of 32 frames), RPE, KITTI's relative errors and the median step ratio of
+    leovr and the baselines of one refine run, and leovr's ATE over KISS-ICP's (the better of its two deskew
+    settings)."""
+    keys = ("ate_m", "ate_lateral_m", "ate_vertical_m", "ate_forward_m", "ate_per_stretch_m", "rpe_m",
+            "kitti_t_err_pct", "kitti_r_err_deg_per_m", "kitti_segments", "step_ratio_median")
     t = {k: {key: v[key] for key in keys if key in v} for k, v in metrics["trajectory"].items()}
     kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
     return t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}

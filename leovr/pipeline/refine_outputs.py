@@ -241,6 +241,21 @@ def trajectory_record(poses: np.ndarray, gt_poses: list[np.ndarray], has_lidar: 
     return record
 
 
+def plot_steps(poses: np.ndarray, gt_poses: list[np.ndarray], record: dict,
+               baselines: dict[str, tuple[np.ndarray, str]] | None, path: Path) -> None:
+    """`step_ratio.png`: each trajectory's step lengths over the ground truth's along the run (at the scale it is
+    scored at: a Sim(3)-aligned one times its alignment's scale)."""
+    from leovr.viz.step_plot import plot_step_ratios
+
+    tracks = {"leovr": poses} | {name: est for name, (est, _) in (baselines or {}).items()}
+    scaled = {}
+    for name, est in tracks.items():
+        est = np.array(est, float)
+        est[:, :3, 3] *= record[name]["scale"]
+        scaled[name] = est
+    plot_step_ratios(scaled, np.stack(gt_poses), path)
+
+
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
                   out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
                   scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None,
@@ -272,5 +287,6 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     }
     if score and all(T is not None for T in gt_poses) and len(indices) >= 3:
         metrics["trajectory"] = trajectory_record(poses, gt_poses, has_lidar, state, indices, baselines)
+        plot_steps(poses, gt_poses, metrics["trajectory"], baselines, out / "step_ratio.png")
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return metrics
