@@ -59,9 +59,9 @@ class GraphConfig(_Model):
 
 
 class AccumulationConfig(_Model):
-    """A cone LiDAR's earlier scans, placed with KISS-ICP's poses, in the generator's input."""
+    """A cone LiDAR's earlier scans, placed with the graph's poses, in the generator's input."""
 
-    # cone LiDAR: earlier frames' inputs placed with KISS-ICP's poses fill the generator's input (frames; 0: off;
+    # cone LiDAR: earlier frames' inputs placed with the graph's poses fill the generator's input (frames; 0: off;
     # spinning LiDAR: off) (docs/decisions/0004-earlier-scans-cone-only.md)
     frames: int = Field(16, ge=0)
     # drop an earlier return once a later scan sees free space or a surface in front of it (RangeImage)

@@ -2,7 +2,7 @@
 
 A Livox Mid-40 sees a 38.4-degree cone, less than half a wide camera's view, and its rosette covers
 different directions from scan to scan. Driving forward moves what the cone saw a moment ago out to the
-sides of the image, so the returns of the last few frames, placed with KISS-ICP's poses, add depth where
+sides of the image, so the returns of the last few frames, placed with the graph's poses, add depth where
 this frame's scan has none (LeoVR, Sec. V-C2, also accumulates the Mid-40's sampling points). A spinning LiDAR
 already spans the image; on the development drives its accumulated returns made the generator worse,
 so `refine` keeps this for non-spinning sensors (docs/decisions/0004-earlier-scans-cone-only.md).

@@ -119,7 +119,7 @@ class RefineRun:
                   input=cfg.input if has_lidar else "none", sequence=str(Path(seq.path).resolve()),
                   frame_numbers=self.names, **({} if has_lidar else {"camera_height_m": self.front.camera_height}))
         self.frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
-        # a narrow-cone LiDAR's last scans, placed by KISS-ICP's poses, join the generator's input (spinning: off)
+        # a narrow-cone LiDAR's last scans, placed by the graph's poses, join the generator's input (spinning: off)
         self.history = ScanHistory(cfg.accumulation.frames if has_lidar else 0, first.T_cam_lidar, cfg.accumulation.check)
         self.cone = ConeSteps(has_lidar)  # whether the `auto` cone-LiDAR steps run; the sensor is judged once
         # the photometric correction of a leaving frame: its neighbours' images and the nodes free to move
@@ -128,7 +128,6 @@ class RefineRun:
         self.photo_images = GrayImages(lambda j: stereo_image(seq, j),
                                        keep=cfg.window + 2 * max(cfg.photometric.offsets, default=0) + 3)
         self.photo_free: dict[int, np.ndarray] = {}
-        self.icp_track: dict[int, np.ndarray] = {}  # KISS-ICP's pose of the latest frames: where earlier scans lie
         self.t_end = time.perf_counter()  # the end of the last frame's turn on the run's clock
         self.c_end = time.process_time()  # ... and on the process's CPU clock (every thread, user + system)
 
@@ -185,10 +184,6 @@ class RefineRun:
         t1 = time.perf_counter()
         fi = self.front_end(n, i, p)
         t2 = time.perf_counter()
-        if self.front.prev is not None and self.front.prev.T_icp is not None:
-            self.icp_track[i] = self.front.prev.T_icp
-            if n > self.history.frames:
-                self.icp_track.pop(self.indices[n - self.history.frames - 1], None)
         if next_read is not None:  # the next frame's camera motion, beside this frame's graph
             self.front.prefetch_motion(self.indices[n + 1], lambda: next_read.result().image)
         if following and not early:
@@ -255,12 +250,9 @@ class RefineRun:
         scans; `fi`: the n-th frame's front-end output, None when the next frame is prepared before it."""
         earlier = None
         if fi is not None and self.history.frames and self.history.sensor_known:
-            # placed with KISS-ICP's poses, the next frame's at its constant velocity: a motion the graph does not
-            # set (placed with the graph's own poses, the earlier scans fed its estimate back into the generator's
-            # depth and from there into the poses: the steps shrank along a drive)
-            icp, prev = self.icp_track, self.indices[n - 1] if n else None
-            if fi.index in icp and prev in icp:
-                earlier = self.history.gather(icp, icp[fi.index] @ invert_T(icp[prev]) @ icp[fi.index])
+            # the next frame's pose predicted at constant velocity
+            poses = self.latest_poses([s.index for s in self.history.scans]) | {fi.index: fi.T_init}
+            earlier = self.history.gather(poses, fi.T_init @ self.front.velocity)
         # until the front end has measured a step: the first two scans' own motion
         first = n == 0 or (fi is None and n == 1)
         velocity = self.stage.start if first and self.stage.start is not None else self.front.velocity
