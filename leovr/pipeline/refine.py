@@ -217,7 +217,7 @@ class RefineRun:
         sample = p.sample
         prev_i = self.indices[n - 1] if n else None
         guess = self.stage.sweep_of.pop(prev_i, None)  # the previous sweep's motion, read from its images: to this frame
-        # spinning LiDARs only: measured there (a cone's KISS-ICP pose only competes with PnP as the initial pose)
+        # spinning LiDARs only: measured there
         spinning_now = self.cone.spinning is True
         guess = guess if spinning_now else None
         if p.first_scan is not None and self.front.icp is not None:
