@@ -30,6 +30,12 @@ from odometry.mono_motion import MonoMotion, MonoStep, rotation_parallax, sampso
 from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
 
 
+# With a LiDAR, a landmark seeded from the generator's depth (no return at its pixel) gets this depth prior (sigma /
+# depth) instead of `graph.landmark_prior_rel`: the generator's learned scale may not set the poses' scale (at 0.3,
+# its depth scaled by 0.9 made a Mid-40-like run's steps 1-3 % shorter; at 1.0 within 0.6 %, and kitti_raw_0013's
+# whole-drive ATE 0.365 -> 0.345 m over seeds 0-2; docs/decisions/0001-icp-covariance-inflation.md)
+GENERATOR_LANDMARK_PRIOR_REL = 1.0
+
 @dataclass
 class _Prev:
     index: int
@@ -219,6 +225,8 @@ class FrontEnd:
                 new_landmarks[k] = obj[m]
                 if road_placed[m]:
                     prior_rel[k] = self.cfg.camera_only.triangulated_prior_rel
+                elif self.use_lidar and p.lidar_cam[a] is None:
+                    prior_rel[k] = GENERATOR_LANDMARK_PRIOR_REL
                 observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a],
                                                 float(scale_prev[m])))
             landmark[b] = k

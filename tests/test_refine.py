@@ -457,8 +457,8 @@ def test_the_real_drives_own_scan_runs_past_the_window_iSAM2_once_found_indeterm
 def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkeypatch):
     """The metric scale comes from measurements that hold over a drive (the LiDAR's returns, KISS-ICP), not
     from the generator's learned depth: with its depth scaled by 0.9 and 1.1, the Mid-40-like run's median step
-    over the real drive's first 32 frames moves by at most 1.5 % (measured: 1.05 % with 1.1; landmarks seeded
-    from the generator's depth still pass a little of it on)."""
+    over the real drive's first 32 frames moves by under 1 % (measured 0.6 and 0.15 %; with landmarks seeded from
+    the generator's depth held at 0.3 of their depth and no KISS-ICP motion in a cone's graph, 1-5 % over the drive)."""
     from leovr.pipeline import refine as refine_module
 
     method = refine_module.generator_method
@@ -474,7 +474,7 @@ def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkey
         steps[scale] = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     for scale in (0.9, 1.1):
         ratio = float(np.median(steps[scale] / steps[1.0]))
-        assert abs(ratio - 1.0) < 0.015, (scale, ratio)
+        assert abs(ratio - 1.0) < 0.01, (scale, ratio)
 
 
 @needs_posed_drive
