@@ -94,7 +94,7 @@ def complete(
 def convert(
     seq: Path = typer.Argument(..., help="Sequence folder or ROS bag in any supported layout."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder in the native format, or a ROS bag: "
-                                                      "NAME.mcap or NAME.db3 (ROS 2), NAME.bag (ROS 1)."),
+                                                      "NAME.mcap or NAME.db3 (a ROS 2 bag folder NAME/), NAME.bag (ROS 1)."),
     overwrite: bool = typer.Option(False, help="Replace a sequence (finished or interrupted) already in --out."),
 ) -> None:
     """Copy a sequence into leovr's native format (docs/formats.md), or write it as a ROS bag."""
@@ -105,7 +105,9 @@ def convert(
     source = open_sequence(seq)
     if bag_format(out) is not None:
         check_output_dir(out.parent)
-        typer.echo(f"wrote {write_bag(source, out)}")
+        bag = write_bag(source, out)
+        typer.echo(f"wrote {bag}" + (f" (a ROS 2 bag: {', '.join(sorted(p.name for p in bag.iterdir()))})"
+                                     if bag.is_dir() else ""))
         return
     typer.echo(f"wrote {write_native(source, check_output_dir(out), overwrite=overwrite)}")
 

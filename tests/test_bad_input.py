@@ -53,10 +53,11 @@ def test_nan_and_inf_points_are_dropped_with_warning(kitti_raw_tiny):
     assert len(f.points) == len(pts) - 3 and np.isfinite(f.points).all()
 
 
-def test_empty_scan_names_the_file(kitti_raw_tiny):
+def test_an_empty_scan_is_a_frame_without_returns_and_its_file_is_named(kitti_raw_tiny):
     (kitti_raw_tiny / "velodyne_points" / "data" / "0000000001.bin").write_bytes(b"")
-    with pytest.raises(DataError, match=r"0000000001\.bin: empty LiDAR scan"):
-        open_sequence(kitti_raw_tiny)[1]
+    with pytest.warns(UserWarning, match=r"0000000001\.bin: empty LiDAR scan .*no LiDAR return"):
+        f = open_sequence(kitti_raw_tiny)[1]
+    assert f.points.shape == (0, 4)
 
 
 def test_frames_are_paired_by_number_not_by_position(tmp_path):

@@ -206,8 +206,7 @@ def write_text(path: Path, text: str) -> None:
 def read_point_file(path: Path, fields: int = 4) -> np.ndarray:
     """Read a float32 point file (`fields` values per point), dropping NaN/inf points with a warning.
 
-    Raises a DataError when the file is missing, its size is not a whole number of points, or it
-    holds no valid point.
+    Raises a DataError when the file is missing or its size is not a whole number of points.
     """
     require_file(path, "LiDAR scan")
     size = path.stat().st_size
@@ -222,14 +221,15 @@ MIN_SCAN_POINTS = 100  # fewer and a scan is suspect (KISS-ICP skips such scans 
 
 
 def clean_points(pts: np.ndarray, source: str | Path) -> np.ndarray:
-    """Drop non-finite points (warning with the source name); an empty result is an error."""
+    """Drop non-finite points (warning with the source name); an empty result is a frame without returns,
+    as a bag's image without a scan is (a warning names it)."""
     finite = np.isfinite(pts).all(axis=1)
     if not finite.all():
         warnings.warn(f"{source}: dropped {int((~finite).sum())} NaN or infinite points", stacklevel=3)
         pts = pts[finite]
     if len(pts) == 0:
-        raise DataError(Path(source), "empty LiDAR scan (no valid points)")
-    if len(pts) < MIN_SCAN_POINTS:
+        warnings.warn(f"{source}: empty LiDAR scan (no valid point): the frame has no LiDAR return", stacklevel=3)
+    elif len(pts) < MIN_SCAN_POINTS:
         warnings.warn(f"{source}: only {len(pts)} valid point(s); a LiDAR sweep has thousands (a truncated file?), "
                       "so this frame's depth and LiDAR odometry rest on almost nothing", stacklevel=3)
     return pts

@@ -224,7 +224,8 @@ class NativeWriter:
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
         self.first: Frame | None = None
-        self.fields: list[str] = []
+        self.fields: list[str] = []  # fixed by the first scan with returns
+        self.empty_only = True  # every scan so far had no return
         self.numbers: list[int] = []
 
     def write(self, frame: Frame, number: int | None = None) -> None:
@@ -246,10 +247,15 @@ class NativeWriter:
             if frame.point_times is not None:
                 cols.append(np.asarray(frame.point_times)[:, None])
                 fields.append("time")
-            if self.fields and fields != self.fields:
+            empty = len(frame.points) == 0  # a frame without returns: an empty file, whatever the fields
+            if empty:
+                self.fields = self.fields or fields  # until a scan with returns sets them
+            elif self.empty_only:
+                self.fields = fields
+            elif fields != self.fields:
                 raise ValueError(f"frame {i}: LiDAR fields {fields} differ from the first frame's {self.fields}")
-            self.fields = fields
-            data = np.hstack(cols).astype(np.float32)
+            self.empty_only = self.empty_only and empty
+            data = np.hstack(cols).astype(np.float32) if not empty else np.zeros(0, np.float32)
             atomic_write(self.out / "lidar" / frame_name(i, "bin"), lambda tmp: data.tofile(tmp))
         if frame.depth is not None:
             write_depth_png(self.out / "depth" / frame_name(i, "png"), frame.depth, self.depth_scale)

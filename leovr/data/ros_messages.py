@@ -110,17 +110,8 @@ def time_field(fields: dict[str, tuple[int, str]]) -> str | None:
     return next((n for n in TIME_FIELDS if n in fields), None)
 
 
-def decode_cloud(msg: Any, ref_ns: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """A PointCloud2 as N x 4 float32 (x, y, z, intensity; 0 without one) and each point's time in seconds
-    from `ref_ns` (the image's stamp, ns; None without a time field). Points with a non-finite coordinate
-    are dropped.
-
-    Times: integer fields are nanoseconds, float fields seconds; values of more than a day are absolute
-    (from the epoch), smaller ones are offsets from the cloud's own stamp."""
-    fields = cloud_fields(msg)
-    missing = [n for n in "xyz" if n not in fields]
-    if missing:
-        raise MessageError(f"point cloud has no {', '.join(missing)} field (fields: {', '.join(fields)})")
+def _records(msg: Any, fields: dict[str, tuple[int, str]]) -> np.ndarray:
+    """The cloud's points as an N x point_step byte array (padded rows cut)."""
     step, n = int(msg.point_step), int(msg.width) * int(msg.height)
     data = np.asarray(msg.data, np.uint8)
     row = int(msg.row_step) or int(msg.width) * step
@@ -128,35 +119,76 @@ def decode_cloud(msg: Any, ref_ns: int) -> tuple[np.ndarray, np.ndarray | None]:
         data = data[: int(msg.height) * row].reshape(int(msg.height), row)[:, : int(msg.width) * step].ravel()
     if len(data) < n * step:
         raise MessageError(f"point cloud data holds {len(data)} bytes, {n} points of {step} need {n * step}")
-    if n == 0:
+    return data[: n * step].reshape(n, step)
+
+
+def _column(recs: np.ndarray, fields: dict[str, tuple[int, str]], name: str) -> np.ndarray:
+    off, typ = fields[name]
+    size = np.dtype(typ).itemsize
+    return recs[:, off: off + size].copy().view(typ).ravel()
+
+
+def _point_times(msg: Any, fields: dict[str, tuple[int, str]], recs: np.ndarray) -> tuple[np.ndarray, bool] | None:
+    """Each point's time in seconds and whether it is absolute (from the epoch) or an offset from the
+    cloud's stamp; None without a time field. Integer fields are nanoseconds, float fields seconds;
+    values of more than a day are absolute."""
+    tname = time_field(fields)
+    if tname is None or not len(recs):
+        return None
+    t = _column(recs, fields, tname).astype(np.float64) * (1e-9 if np.dtype(fields[tname][1]).kind in "iu" else 1.0)
+    finite = t[np.isfinite(t)]
+    return t, bool(len(finite) and np.median(finite) > 86400.0)
+
+
+def decode_cloud(msg: Any, ref_ns: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """A PointCloud2 as N x 4 float32 (x, y, z, intensity; 0 without one) and each point's time in seconds
+    from `ref_ns` (the image's stamp, ns; None without a time field). Points with a non-finite coordinate
+    are dropped. Times as `_point_times` reads them."""
+    fields = cloud_fields(msg)
+    missing = [n for n in "xyz" if n not in fields]
+    if missing:
+        raise MessageError(f"point cloud has no {', '.join(missing)} field (fields: {', '.join(fields)})")
+    recs = _records(msg, fields)
+    if len(recs) == 0:
         return np.zeros((0, 4), np.float32), None
-    recs = data[: n * step].reshape(n, step)
-
-    def column(name: str) -> np.ndarray:
-        off, typ = fields[name]
-        size = np.dtype(typ).itemsize
-        return recs[:, off: off + size].copy().view(typ).ravel()
-
-    pts = np.zeros((n, 4), np.float32)
+    pts = np.zeros((len(recs), 4), np.float32)
     for c, name in enumerate("xyz"):
-        pts[:, c] = column(name)
+        pts[:, c] = _column(recs, fields, name)
     inten = next((f for f in INTENSITY_FIELDS if f in fields), None)
     if inten is not None:
-        pts[:, 3] = column(inten)
+        pts[:, 3] = _column(recs, fields, inten)
     times = None
-    tname = time_field(fields)
-    if tname is not None:
-        raw = column(tname)
-        t = raw.astype(np.float64) * (1e-9 if np.dtype(fields[tname][1]).kind in "iu" else 1.0)
-        if np.nanmedian(t) > 86400.0:  # absolute
-            times = t - 1e-9 * ref_ns
-        else:  # from the cloud's stamp; the stamps' difference in integer ns keeps full precision
-            times = t + 1e-9 * (stamp_ns(msg) - ref_ns)
+    if (timed := _point_times(msg, fields, recs)) is not None:
+        t, absolute = timed
+        # from the cloud's stamp: the stamps' difference in integer ns keeps full precision
+        times = t - 1e-9 * ref_ns if absolute else t + 1e-9 * (stamp_ns(msg) - ref_ns)
     keep = np.isfinite(pts[:, :3]).all(1)
     if not keep.all():
         pts = pts[keep]
         times = None if times is None else times[keep]
     return pts, times
+
+
+def cloud_time_span(msg: Any) -> tuple[int, int] | None:
+    """The first and last point time of a cloud (absolute, ns): its stamp plus the smallest and largest
+    per-point offset, or the absolute times' range. Offsets after the stamp mean a sweep stamped at its
+    start (Ouster, Livox), before it a sweep stamped at its end. None without per-point times, without
+    points, or when they span nothing or more than a second (not a sweep's times)."""
+    try:
+        fields = cloud_fields(msg)
+        timed = _point_times(msg, fields, _records(msg, fields))
+    except MessageError:
+        return None
+    if timed is None:
+        return None
+    t, absolute = timed
+    t = t[np.isfinite(t)]
+    if not len(t) or not 0.0 < float(t.max() - t.min()) <= 1.0:
+        return None
+    if absolute:
+        return int(round(float(t.min()) * 1e9)), int(round(float(t.max()) * 1e9))
+    base = stamp_ns(msg)
+    return base + int(round(float(t.min()) * 1e9)), base + int(round(float(t.max()) * 1e9))
 
 
 def transform_matrix(tf: Any) -> np.ndarray:

@@ -13,9 +13,17 @@ a frame's image and scan are read from the bag when the pipeline asks for the fr
   images' stamps and moved to the camera through `/tf_static` when their body frame is another.
 
 Each is picked automatically when the bag holds one candidate; `TopicChoice` (the CLI's `--camera-topic`,
-`--lidar-topic`, ...) names it otherwise. Each image is paired with the scan nearest in time (header
-stamps) within half a scan period; an image without one becomes a frame with an empty scan, or is left
-out (`drop_unpaired`).
+`--lidar-topic`, ...) names it otherwise.
+
+Stamps: messages are taken in recording order; one whose header stamp repeats or goes back against the
+message of its topic recorded before it is left out, with a warning naming it (a topic whose stamps mostly
+go back is refused).
+
+Pairing: each image takes the sweep whose points' times span the image's stamp (clouds with per-point
+times: the stamp plus the offsets, whichever end of the sweep the driver stamps), else the sweep nearest in
+time within half the time between sweeps; clouds without per-point times pair by nearest header stamp
+within half a scan period. An image
+without a scan becomes a frame without returns, or is left out (`drop_unpaired`).
 """
 
 from __future__ import annotations
@@ -32,7 +40,6 @@ import numpy as np
 
 from leovr.data import ros_messages as rm
 from leovr.data.bag_salvage import SalvagedBag, storage_files
-from leovr.data.io import associate
 from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
 from leovr.errors import DataError, brief
@@ -88,6 +95,7 @@ class _Index:
 
     images: list[tuple[int, int]] = field(default_factory=list)  # (log time, header stamp), ns
     clouds: list[tuple[int, int]] = field(default_factory=list)
+    spans: list[tuple[int, int] | None] = field(default_factory=list)  # each cloud's point times, ns
     poses: list[tuple[int, np.ndarray, str]] = field(default_factory=list)  # (stamp ns, T_world_body, body frame)
     info: Any = None
     tree: rm.FrameTree = field(default_factory=rm.FrameTree)
@@ -224,6 +232,7 @@ class RosbagSequence(Sequence):
                     idx.camera_frame = idx.camera_frame or str(msg.header.frame_id)
                 elif topic == self.lidar:
                     idx.clouds.append((log_ns, rm.stamp_ns(msg)))
+                    idx.spans.append(rm.cloud_time_span(msg))
                     idx.lidar_frame = idx.lidar_frame or str(msg.header.frame_id)
                 elif topic == self.info_topic:
                     idx.info = msg
@@ -264,16 +273,32 @@ class RosbagSequence(Sequence):
         self.K = np.asarray(K, np.float64)
 
     def _pair(self, idx: _Index) -> None:
-        """Each image with the scan nearest in time, within half the scan period."""
-        order = sorted(range(len(idx.images)), key=lambda k: idx.images[k][1])
-        images = [idx.images[k] for k in order]
+        """Each image with the sweep whose point times span its stamp, else the nearest (module docstring)."""
+        keep_img = _increasing(self.path, self.camera, [s for _, s in idx.images])
+        images = [idx.images[k] for k in keep_img]
         img_ns = np.array([s for _, s in images], np.int64)
         scan = np.full(len(images), -1, np.int64)
-        self._clouds = sorted(idx.clouds, key=lambda c: c[1])
-        if self.lidar is not None and self._clouds:
+        self._clouds, spans = [], []
+        self.pairing_rule = ""
+        self._sweep_offsets = np.zeros((0, 2))
+        if self.lidar is not None:
+            keep_cl = _increasing(self.path, self.lidar, [s for _, s in idx.clouds]) if idx.clouds else []
+            self._clouds = [idx.clouds[k] for k in keep_cl]
+            spans = [idx.spans[k] for k in keep_cl]
+        if self._clouds:
             cl_ns = np.array([s for _, s in self._clouds], np.int64)
+            lo = np.array([sp[0] if sp else s for sp, s in zip(spans, cl_ns)], np.int64)
+            hi = np.array([sp[1] if sp else s for sp, s in zip(spans, cl_ns)], np.int64)
+            timed = sum(sp is not None for sp in spans)
+            self.pairing_rule = ("sweep time span (per-point times)" if timed == len(spans) else
+                                 "nearest header stamp (no per-point times)" if not timed else
+                                 f"sweep time span where clouds carry per-point times ({timed} of {len(spans)}), "
+                                 "else nearest header stamp")
             period = float(np.median(np.diff(cl_ns))) if len(cl_ns) > 1 else 1e8
-            scan = associate(img_ns, cl_ns, period / 2)
+            # outside every sweep: the nearest within half the time between sweeps (a lost sweep's images stay unpaired)
+            scan = pair_by_span(img_ns, lo, hi, cl_ns, max(period - float(np.median(hi - lo)), 0.0) / 2)
+            paired = scan >= 0
+            self._sweep_offsets = np.c_[img_ns[paired] - lo[scan[paired]], cl_ns[scan[paired]] - img_ns[paired]] * 1e-9
         keep = scan >= 0 if (self.choice.drop_unpaired and self.lidar is not None) else np.ones(len(images), bool)
         if not keep.any():
             raise DataError(self.path, f"no image of {self.camera} has a scan of {self.lidar} within half a scan period")
@@ -378,8 +403,56 @@ class RosbagSequence(Sequence):
                 for t in sorted(self.topics.values(), key=lambda t: t.name)]
 
     def pairing(self) -> dict:
-        out = {"images": len(self), "paired_with_a_scan": len(self) - self.unpaired, "unpaired": self.unpaired}
+        """Images paired and not, the rule that paired them, and where the images fell: seconds from the
+        start of their sweep's points (`image_after_sweep_start_s`) and from the image to its scan's header
+        stamp (`scan_stamp_after_image_s`), each as min / median / max."""
+        out: dict = {"images": len(self), "paired_with_a_scan": len(self) - self.unpaired, "unpaired": self.unpaired}
+        if self.pairing_rule:
+            out["pairing"] = self.pairing_rule
+        if len(self._sweep_offsets):
+            for k, name in enumerate(("image_after_sweep_start_s", "scan_stamp_after_image_s")):
+                col = self._sweep_offsets[:, k]
+                out[name] = [round(float(v), 4) for v in (col.min(), np.median(col), col.max())]
         return out | ({"damaged": self.damaged} if self.damaged else {})
+
+
+def pair_by_span(t: np.ndarray, lo: np.ndarray, hi: np.ndarray, stamp: np.ndarray, max_gap: float) -> np.ndarray:
+    """Index of the span [lo, hi] that holds each time of `t` (of those that do, the one whose middle is
+    nearest; on a tie, whose `stamp` is), else of the nearest span within `max_gap`; -1 when none is."""
+    if not len(lo):
+        return np.full(len(t), -1, np.int64)
+    order = np.argsort(lo, kind="stable")
+    lo_s, hi_s, st_s = lo[order], hi[order], stamp[order]
+    j = np.searchsorted(lo_s, t, side="right") - 1
+    cand = np.clip(j[:, None] + np.arange(-2, 2)[None], 0, len(lo) - 1)
+    tt = t[:, None].astype(np.float64)
+    gap = np.maximum(lo_s[cand] - tt, 0.0) + np.maximum(tt - hi_s[cand], 0.0)
+    closeness = np.abs((lo_s[cand] + hi_s[cand]) / 2.0 - tt) + 1e-3 * np.abs(st_s[cand] - tt)
+    best = np.argmin(np.where(gap == gap.min(1, keepdims=True), closeness, np.inf), axis=1)
+    rows = np.arange(len(t))
+    return np.where(gap[rows, best] <= max_gap, order[cand[rows, best]], -1).astype(np.int64)
+
+
+def _increasing(path: Path, topic: str, stamps: list[int]) -> list[int]:
+    """Indices of the messages (in recording order) kept: each one's stamp after the last kept one's. The
+    others are named in one warning; a topic whose stamps mostly go back is refused."""
+    kept: list[int] = []
+    dropped: list[str] = []
+    for k, s in enumerate(stamps):
+        if kept and s <= stamps[kept[-1]]:
+            last = kept[-1]
+            what = "repeats" if s == stamps[last] else "goes back from"
+            dropped.append(f"message {k} stamped {s * 1e-9:.6f} s {what} message {last}'s {stamps[last] * 1e-9:.6f} s")
+            continue
+        kept.append(k)
+    if len(dropped) * 2 > len(stamps):
+        raise DataError(path, f"{topic}: the stamps of {len(dropped)} of {len(stamps)} messages repeat or go back "
+                              f"against the recording order ({dropped[0]}): not a recording leovr can order")
+    if dropped:
+        warnings.warn(f"{path}: {topic}: {len(dropped)} message(s) whose stamp repeats or goes back against the "
+                      f"recording order left out ({'; '.join(dropped[:5])}{'; ...' if len(dropped) > 5 else ''})",
+                      stacklevel=4)
+    return kept
 
 
 def _repair_hint(path: Path) -> str:

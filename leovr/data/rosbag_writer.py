@@ -6,7 +6,8 @@ Topics: `/camera/image_raw` (Image, rgb8 or mono8), `/camera/camera_info` (the p
 `/lidar/points` (PointCloud2: x, y, z float32, intensity float32 when present, `time` float64 seconds from
 the stamp when the scan has point times), `/tf_static` (the LiDAR in the camera's frame) and
 `/ground_truth/pose` (PoseStamped: the camera in the world) when the sequence has poses. Every message of a
-frame is stamped with the frame's time (from a fixed epoch when the sequence counts from zero).
+frame is stamped with the frame's time (from a fixed epoch when the sequence counts from zero), a scan with
+point times at its sweep's first or last point when asked (`cloud_stamp`), as many LiDAR drivers stamp.
 """
 
 from __future__ import annotations
@@ -119,17 +120,27 @@ def open_bag_writer(out: Path, fmt: str) -> Any:
     return Writer(out, version=9, storage_plugin=plugin)
 
 
-def write_bag(seq: Sequence, out: str | Path, fmt: str | None = None, progress: bool = True) -> Path:
-    """Write `seq` as a bag at `out` (format from its suffix unless `fmt`: mcap, sqlite3, ros1). A bag is written
-    whole or not at all: an interrupted write removes what it began."""
+CLOUD_STAMPS = ("image", "sweep_start", "sweep_end")
+
+
+def write_bag(seq: Sequence, out: str | Path, fmt: str | None = None, progress: bool = True,
+              cloud_stamp: str = "image") -> Path:
+    """Write `seq` as a bag at `out` (format from its suffix unless `fmt`: mcap, sqlite3, ros1) and return its
+    path: `NAME.bag` a ROS 1 file, `NAME.mcap` or `NAME.db3` a ROS 2 bag folder `NAME/` holding that storage
+    file and its metadata.yaml. A bag is written whole or not at all: an interrupted write removes what it began. `cloud_stamp`: a scan with point times is
+    stamped with its image's time (`image`), or at its first (`sweep_start`) or last point (`sweep_end`)."""
     import shutil
 
     out = Path(out)
     fmt = fmt or bag_format(out)
     if fmt not in ("mcap", "sqlite3", "ros1"):
         raise DataError(out, "a bag's name ends in .mcap or .db3 (ROS 2) or .bag (ROS 1)")
+    if fmt != "ros1" and out.suffix.lower() in (".mcap", ".db3"):
+        out = out.with_suffix("")  # a ROS 2 bag is a folder: NAME/NAME.mcap beside NAME/metadata.yaml
     if out.exists():
         raise DataError(out, "already exists; a bag is written to a new path")
+    if cloud_stamp not in CLOUD_STAMPS:
+        raise ValueError(f"cloud_stamp is one of {CLOUD_STAMPS}, not {cloud_stamp!r}")
     m = RosMessages(fmt == "ros1")
     stamps = np.asarray(seq.timestamps(), np.float64)
     base = EPOCH_NS if len(stamps) and stamps[0] < 86400.0 else 0
@@ -137,7 +148,7 @@ def write_bag(seq: Sequence, out: str | Path, fmt: str | None = None, progress: 
     writer = open_bag_writer(out, fmt)
     try:
         with writer:
-            _write_frames(writer, m, seq, ns, progress)
+            _write_frames(writer, m, seq, ns, progress, cloud_stamp)
     except BaseException:
         if out.is_dir():
             shutil.rmtree(out, ignore_errors=True)
@@ -147,7 +158,7 @@ def write_bag(seq: Sequence, out: str | Path, fmt: str | None = None, progress: 
     return out
 
 
-def _write_frames(writer: Any, m: RosMessages, seq: Sequence, ns: list[int], progress: bool) -> None:
+def _write_frames(writer: Any, m: RosMessages, seq: Sequence, ns: list[int], progress: bool, cloud_stamp: str) -> None:
     conns: dict[str, Any] = {}
 
     def put(key: str, msgtype: str, t: int, msg: Any) -> None:
@@ -162,6 +173,10 @@ def _write_frames(writer: Any, m: RosMessages, seq: Sequence, ns: list[int], pro
         put("image", "sensor_msgs/msg/Image", t, m.image(t, frame.image, i))
         put("info", "sensor_msgs/msg/CameraInfo", t, m.camera_info(t, frame.K, frame.height, frame.width, i))
         if frame.points is not None:
-            put("cloud", "sensor_msgs/msg/PointCloud2", t, m.cloud(t, frame.points, frame.point_times, i))
+            times, tc = frame.point_times, t
+            if times is not None and len(times) and cloud_stamp != "image":
+                shift = int(round(float(times.min() if cloud_stamp == "sweep_start" else times.max()) * 1e9))
+                times, tc = times - shift * 1e-9, t + shift
+            put("cloud", "sensor_msgs/msg/PointCloud2", t, m.cloud(tc, frame.points, times, i))
         if frame.T_world_cam is not None:
             put("pose", "geometry_msgs/msg/PoseStamped", t, m.pose(t, frame.T_world_cam, i))
