@@ -170,6 +170,34 @@ def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_pat
 
 
 @needs_shared
+def test_an_interrupted_causal_run_resumed_records_every_frame(tmp_path):
+    """A causal run finishes each frame in its own step: killed after 3 of 6 frames and resumed, its progress
+    record (poses, KISS-ICP's poses, pose sources, times) and timing.json hold every frame, as a non-causal
+    run's do; a record that lacks a finished frame is completed by the next resume, from the frame's replay."""
+    from leovr.paths import kitti_raw_dir
+
+    seq, cfg = open_sequence(kitti_raw_dir()), RefineConfig(input="vlp16", end=6, causal=True)
+    run = tmp_path / "cut"
+    with killed_after_saves(3):
+        run_refine(seq, cfg, run, progress=False, score=False)
+    run_refine(seq, cfg, run, resume=True, progress=False, score=False)
+
+    def complete() -> bool:
+        rec = json.loads((run / "progress.json").read_text())
+        timed = json.loads((run / "timing.json").read_text())["frames_timed"]
+        return timed == 6 and all(sorted(rec[k], key=int) == [str(i) for i in range(6)]
+                                  for k in ("poses", "icp_poses", "sources", "times"))
+
+    assert complete()
+    rec = json.loads((run / "progress.json").read_text())
+    for k in ("icp_poses", "sources", "times"):
+        del rec[k]["2"]
+    (run / "progress.json").write_text(json.dumps(rec))
+    run_refine(seq, cfg, run, resume=True, progress=False, score=False)
+    assert complete()
+
+
+@needs_shared
 def test_refine_without_lidar_runs_on_vision_and_depth(tmp_path):
     seq = open_sequence(kitti_odometry_dir())
     m = run_refine(seq, RefineConfig(end=5), tmp_path / "o", progress=False)

@@ -111,6 +111,7 @@ class RefineRun:
         # generator depth, its log uncertainty, and the road's scale for it (camera only)
         self.pending: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
         self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
+        self.unwritten: list[tuple[str, dict[str, np.ndarray]]] = []  # finished frames' depth maps, to write
         self.empty: list[int] = []  # frames whose LiDAR input has no return inside the image
         self.scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
         stamps = seq.timestamps()
@@ -156,6 +157,7 @@ class RefineRun:
             left = self.graph.flush()
             if not self.cfg.causal:
                 self.finish(left)
+                self.write_finished()
         return self.conclude(pool, collect)
 
     def step(self, ahead: Lookahead[PreparedFrame, Frame], n: int, i: int) -> None:
@@ -202,12 +204,12 @@ class RefineRun:
         wall = 1000.0 * ((t4 - self.t_end) - (t2b - t_base))
         cpu = 1000.0 * ((c4 - self.c_end) - (c2b - c_base))  # every thread's CPU time over the same span
         self.t_end, self.c_end = time.perf_counter(), time.process_time()
-        if i in self.done:
-            return
-        self.state.sources[i] = self.front.sources[-1]
-        if self.front.prev is not None and self.front.prev.T_icp is not None:
-            self.state.icp_poses[i] = self.front.prev.T_icp.ravel().tolist()
-        self.state.times[i] = [p.generator_ms, 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3), wall, cpu]
+        if i not in self.done or i not in self.state.times:  # a resumed frame's record completed by its replay
+            self.state.sources[i] = self.front.sources[-1]
+            if self.front.prev is not None and self.front.prev.T_icp is not None:
+                self.state.icp_poses[i] = self.front.prev.T_icp.ravel().tolist()
+            self.state.times[i] = [p.generator_ms, 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3), wall, cpu]
+        self.write_finished()  # after the frame's record: a causal frame is finished in its own step
 
     def front_end(self, n: int, i: int, p: PreparedFrame) -> FrameInput:
         """Frame i's initial pose and observations for the graph, with its pair motions and motion-stereo
@@ -291,10 +293,15 @@ class RefineRun:
             # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
             sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
             self.state.poses[r.index] = r.T_world_cam.ravel().tolist()
-            maps = {"depth_generator": gen_depth, "depth": refined, "sigma": sigma}
-            # the progress record after the frame's files: a resume never finds the pose without them
-            self.writer.submit(write_frame_files, self.out, png_name(self.names, r.index), maps, self.state_path,
-                               self.state.text())
+            self.unwritten.append((png_name(self.names, r.index), {"depth_generator": gen_depth, "depth": refined,
+                                                                   "sigma": sigma}))
+
+    def write_finished(self) -> None:
+        """The finished frames' files, each followed by the progress record as it stands now (a resume never
+        finds a pose without its files, nor a finished frame without its record)."""
+        for name, maps in self.unwritten:
+            self.writer.submit(write_frame_files, self.out, name, maps, self.state_path, self.state.text())
+        self.unwritten.clear()
 
     def latest_poses(self, indices_kept: list[int]) -> dict[int, np.ndarray]:
         """The graph's current pose of each frame still in the window, else the pose it left with."""
