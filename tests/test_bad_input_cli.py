@@ -152,6 +152,7 @@ ROWS = [
      "run: this run did not finish (no metrics.json or poses_kitti.txt yet)"),
     ("map of a sequence, not a run", lambda d, t: [str(d), "--out", str(t / "m")], "map",
      "not a leovr refine run (no metrics.json and poses_kitti.txt)"),
+    ("map of a missing folder", lambda d, t: [str(t / "nowhere"), "--out", str(t / "m")], "map", "nowhere: no such folder"),
     ("corrupt metrics.json to viz", lambda d, t: ((t / "run").mkdir(), (t / "run" / "metrics.json").write_text("{oops"),
                                                   (t / "run" / "poses_kitti.txt").write_text(" ".join(["0"] * 12) + "\n"),
                                                   [str(t / "run"), "--out", str(t / "r.rrd")])[3], "viz", "metrics.json: not readable JSON"),

@@ -332,3 +332,16 @@ def test_convert_writes_a_frame_without_a_scan_as_one_without_returns_and_a_ros2
     assert f"wrote {tmp_path / 'x'}" in r.stdout and not (tmp_path / "x.mcap").exists()
     back = open_sequence(tmp_path / "x")
     assert len(back) == 4 and len(back[3].points) == 0 and len(back[2].points) == len(_cloud(2))
+
+
+def test_a_run_in_which_no_frame_has_a_return_says_so(tmp_path, monkeypatch):
+    """Every cloud empty: the run goes on from the images, its warning points at the pairing too, and its
+    metrics do not call it visual-LiDAR."""
+    from leovr.config import RefineConfig
+    from leovr.pipeline.refine import run_refine
+
+    monkeypatch.setattr(sys.modules[__name__], "_cloud", lambda k, n=0: np.zeros((0, 4), np.float32))
+    bag = _bag(tmp_path / "e", frames=4)
+    with pytest.warns(UserWarning, match=r"4 frame\(s\) have no LiDAR return inside the image .*`leovr info`"):
+        m = run_refine(open_sequence(bag), RefineConfig(input="full"), tmp_path / "run", progress=False)
+    assert m["mode"].startswith("visual-LiDAR input without a LiDAR return inside any image")

@@ -39,6 +39,8 @@ def read_run(run: Path) -> RunFolder:
     """The run in `run`; one clear error when it did not finish or its files disagree with each other or with
     its sequence."""
     run = Path(run)
+    if not run.is_dir():
+        raise DataError(run, "no such folder" if not run.exists() else "not a folder (a leovr refine run is one)")
     if not is_finished_run(run):
         if (run / "run.json").is_file():
             missing = [n for n in ("metrics.json", "poses_kitti.txt") if not (run / n).is_file()]

@@ -100,10 +100,11 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True,
 
 
 def warn_empty_input(seq: Sequence, frames: list[int]) -> None:
-    """Say which frames had no LiDAR return inside the image (points behind the camera, or a
-    calibration that does not match the recording)."""
+    """Say which frames had no LiDAR return inside the image (no scan paired with the image, points behind
+    the camera, or a calibration that does not match the recording)."""
     warnings.warn(f"{seq.path}: {len(frames)} frame(s) have no LiDAR return inside the image ({brief(frames)}); "
-                  "check the scans and the LiDAR-camera calibration", stacklevel=2)
+                  "check which scan each image is paired with (`leovr info`), the scans and the LiDAR-camera "
+                  "calibration", stacklevel=2)
 
 
 def generator_checkpoint(cfg: CompleteConfig) -> Path:

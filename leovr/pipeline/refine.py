@@ -355,7 +355,7 @@ class RefineRun:
             accumulated_fills(seq, indices, self.ccfg, icp, self.scored, several, cfg.accumulation.frames,
                               causal=cfg.causal, frame_dt=self.frame_dt, progress=self.progress)
         return write_outputs(seq, cfg, self.ccfg, indices, state, self.out, self.has_lidar, self.progress, pool,
-                             self.score, self.scored, collect, baselines)
+                             self.score, self.scored, collect, baselines, no_returns=len(self.empty) == len(indices))
 
     def pose_baselines(self, several: bool) -> tuple[dict[str, tuple[np.ndarray, str]], np.ndarray | None]:
         """The trajectories scored beside leovr's (name -> poses, alignment), their pose files written, and

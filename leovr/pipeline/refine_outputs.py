@@ -259,8 +259,9 @@ def plot_steps(poses: np.ndarray, gt_poses: list[np.ndarray], record: dict,
 def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
                   out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
                   scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None,
-                  baselines: dict[str, tuple[np.ndarray, str]] | None = None) -> dict:
-    """Poses in KITTI and TUM form, timing, and depth / trajectory metrics. Depth is scored from the
+                  baselines: dict[str, tuple[np.ndarray, str]] | None = None, no_returns: bool = False) -> dict:
+    """Poses in KITTI and TUM form, timing, and depth / trajectory metrics (`no_returns`: a LiDAR run in
+    which no frame had a return inside its image, said in its `mode`). Depth is scored from the
     arrays the run produced (`scored`); frames finished before a resume are read back from their PNGs.
     `baselines` (name -> poses of the same frames and their alignment, "sim3" for a monocular one) are
     scored beside leovr's trajectory."""
@@ -279,7 +280,8 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
         "sequence": str(Path(seq.path).resolve()), "reader": seq.name, "input": cfg.input if seq.has_lidar else "none (no LiDAR)",
         "input_note": input_label(cfg.input, has_lidar),
         "frames": len(indices), "window": cfg.window, "causal": cfg.causal,
-        "mode": "visual-LiDAR" if has_lidar else input_label(cfg.input, has_lidar),
+        "mode": (input_label(cfg.input, has_lidar) if not has_lidar else "visual-LiDAR" if not no_returns else
+                 "visual-LiDAR input without a LiDAR return inside any image: depth and poses from the images alone"),
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds))
         + ("; " + TRUTH_DESKEW_NOTE if "heldout" in kinds else ""),
         "depth": {m: a.result() for m, a in accs.items() if not a.empty},

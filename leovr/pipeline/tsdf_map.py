@@ -142,6 +142,9 @@ def write_map(vol: TsdfMap, out: Path) -> dict:
     mesh = vol.mesh()
     if not len(mesh.triangles):
         raise DataError(out, "the map is empty: no depth within reach was fused (check --max-depth and --sigma-max)")
+    # the volume's colour averages can pass 1 by a rounding step: clipped here, not by Open3D's writer (which
+    # says so on stdout for every file)
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.clip(np.asarray(mesh.vertex_colors), 0.0, 1.0))
     cloud = o3d.geometry.PointCloud(mesh.vertices)
     cloud.colors = mesh.vertex_colors
     atomic_write(out / "map.ply", lambda tmp: _check(o3d.io.write_triangle_mesh(str(tmp), mesh), out / "map.ply"))
