@@ -54,6 +54,8 @@ def info(
     topics = summary.pop("topics", None)
     width = max(len(k) for k in summary)
     for k, v in summary.items():
+        if k.endswith("_s") and isinstance(v, list) and len(v) == 3:  # a bag's pairing offsets
+            v = f"{v[0]} / {v[1]} / {v[2]} (min / median / max)"
         typer.echo(f"{k:<{width}}  {v}")
     if topics:
         w = [max(len(str(r[c])) for r in topics) for c in ("topic", "type", "messages")]
