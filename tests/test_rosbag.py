@@ -40,12 +40,13 @@ def _cloud(k: int, n: int = 500) -> np.ndarray:
 def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...] = ("/cam0/image_raw",),
          compressed: bool = False, tf: bool = True, missing_clouds: tuple[int, ...] = (), offset_ns: bool = False,
          distortion: np.ndarray | None = None, mono16: bool = False, encoding: str = "", stamp_at: str = "image",
-         restamp: dict[int, float] | None = None) -> Path:
+         restamp: dict[int, float] | None = None, times_as: str = "s") -> Path:
     """A small bag: camera(s) with their CameraInfo, a cloud (the LiDAR frame is the camera's turned 90
     degrees about y), optionally /tf_static, at 10 Hz. `stamp_at`: each cloud's stamp at its image's time
     (its points' times spanning 50 ms either side), or at the start or end of a 100 ms sweep that the image
     fires 53 ms into; `restamp`: frame -> header stamps (s after the first frame's) in place of its own,
-    the messages staying where they are in the recording."""
+    the messages staying where they are in the recording; `times_as`: point times in seconds, milliseconds
+    ("ms"), or seconds with every third one NaN ("nan_third")."""
     m = RosMessages(fmt == "ros1")
     T = m.T
     conns: dict[str, object] = {}
@@ -100,6 +101,10 @@ def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...
                 into = {"image": 0.05, "sweep_start": 0.053, "sweep_end": 0.053}[stamp_at]
                 tc = t + {"image": 0, "sweep_start": -53_000_000, "sweep_end": 47_000_000}[stamp_at]
                 times = np.linspace(-into, 0.1 - into, len(pts)) + (t - tc) * 1e-9
+                if times_as == "ms":
+                    times = times * 1e3
+                elif times_as == "nan_third":
+                    times[::3] = np.nan
                 msg = m.cloud(tc, lidar, times, k)
                 msg.header.frame_id = "lidar"
                 if offset_ns:  # a Livox cloud: offset_time, uint32 nanoseconds from the stamp
@@ -299,20 +304,25 @@ def test_the_kitti_clip_with_scans_stamped_at_one_end_of_their_sweep_reads_back_
         assert np.abs(a.point_times - b.point_times).max() < 1e-8  # the stamp's offset rounded to a nanosecond
 
 
-def test_a_stamp_that_repeats_or_goes_back_is_named_and_its_message_left_out(tmp_path):
-    """Frame 2 of 4 stamped like frame 1, or 0.9 s before frame 0: left out with a warning naming the topic,
-    the message and both stamps; the other frames keep their order, images and scans."""
-    for name, stamp, what in (("rep", 0.1, "repeats"), ("back", -0.9, "goes back from")):
-        with pytest.warns(UserWarning, match=rf"/cam0/image_raw: 1 message\(s\) whose stamp repeats or goes back .*"
-                                             rf"message 2 stamped {1600000000 + stamp:.6f} s {what} message 1's "
-                                             r"1600000000\.100000 s"):
-            seq = RosbagSequence(_bag(tmp_path / name, restamp={2: stamp}), TopicChoice())
-        assert len(seq) == 3 and np.allclose(seq.timestamps(), [0.0, 0.1, 0.3]) and seq.unpaired == 0
-        for i, k in enumerate((0, 1, 3)):
+def test_a_stamp_that_repeats_goes_back_or_jumps_is_named_and_its_message_left_out(tmp_path):
+    """Frame 2 of 4 stamped like frame 1, 0.9 s before frame 0, or 1000 s ahead; frame 0 stamped 0 (a clock
+    not set): that frame left out with a warning naming the topic, the message and its stamp; the other frames
+    keep their order, images and scans."""
+    cases = (({2: 0.1}, r"message 2 stamped 1600000000\.100000 s repeats message 1's 1600000000\.100000 s", (0, 1, 3)),
+             ({2: -0.9}, r"message 2 stamped 1599999999\.100000 s goes back from message 1's", (0, 1, 3)),
+             ({2: 1000.2}, r"message 2 stamped 1600001000\.200000 s, message 3 1600000000\.300000 s", (0, 1, 3)),
+             ({0: -1.6e9}, r"message 0 stamped 0\.000000 s, message 1 1600000000\.100000 s", (1, 2, 3)))
+    for n, (restamp, named, frames) in enumerate(cases):
+        with pytest.warns(UserWarning, match=r"/cam0/image_raw: 1 message\(s\) whose stamp repeats, goes back or jumps "
+                                             r"against the recording order left out \(" + named):
+            seq = RosbagSequence(_bag(tmp_path / str(n), restamp=restamp), TopicChoice())
+        assert len(seq) == 3 and np.allclose(seq.timestamps(), (np.array(frames) - frames[0]) * 0.1)
+        assert seq.unpaired == 0
+        for i, k in enumerate(frames):
             f = seq[i]
             cam = f.points[:, :3] @ f.T_cam_lidar[:3, :3].T + f.T_cam_lidar[:3, 3]
             assert np.array_equal(f.image, _image(k)) and np.abs(cam - _cloud(k)[:, :3]).max() < 1e-4
-    with pytest.raises(DataError, match=r"/cam0/image_raw: the stamps of 3 of 4 messages repeat or go back"):
+    with pytest.raises(DataError, match=r"/cam0/image_raw: the stamps of 3 of 4 messages repeat, go back or jump"):
         RosbagSequence(_bag(tmp_path / "reversed", restamp={k: -0.1 * k for k in range(4)}), TopicChoice())
 
 
@@ -345,3 +355,17 @@ def test_a_run_in_which_no_frame_has_a_return_says_so(tmp_path, monkeypatch):
     with pytest.warns(UserWarning, match=r"4 frame\(s\) have no LiDAR return inside the image .*`leovr info`"):
         m = run_refine(open_sequence(bag), RefineConfig(input="full"), tmp_path / "run", progress=False)
     assert m["mode"].startswith("visual-LiDAR input without a LiDAR return inside any image")
+
+
+def test_point_times_in_another_unit_or_partly_missing_are_read_against_the_scan_period(tmp_path):
+    """Milliseconds in a float `time` field (a sweep 1000x the scan period as seconds): read x0.001 with a
+    warning; NaN times: those points keep their coordinates and take the sweep's median time."""
+    with pytest.warns(UserWarning, match=r"/points: a sweep's per-point times span 100 s as read, 1e\+03x the scan "
+                                         r"period of 0\.100 s: read x0\.001"):
+        seq = RosbagSequence(_bag(tmp_path / "ms", times_as="ms"), TopicChoice())
+    f = seq[1]
+    assert seq.unpaired == 0 and abs(f.point_times.min() + 0.05) < 1e-6 and abs(f.point_times.max() - 0.05) < 1e-6
+    seq = RosbagSequence(_bag(tmp_path / "nan", times_as="nan_third"), TopicChoice())
+    f = seq[1]
+    assert len(f.points) == len(_cloud(1)) and np.isfinite(f.point_times).all()
+    assert np.abs(f.point_times[::3] - np.median(f.point_times[1::3].tolist() + f.point_times[2::3].tolist())).max() < 1e-3

@@ -130,20 +130,26 @@ def _column(recs: np.ndarray, fields: dict[str, tuple[int, str]], name: str) -> 
 
 def _point_times(msg: Any, fields: dict[str, tuple[int, str]], recs: np.ndarray) -> tuple[np.ndarray, bool] | None:
     """Each point's time in seconds and whether it is absolute (from the epoch) or an offset from the
-    cloud's stamp; None without a time field. Integer fields are nanoseconds, float fields seconds;
-    values of more than a day are absolute."""
+    cloud's stamp; None without a time field or without a finite time. Integer fields are nanoseconds,
+    float fields seconds; values of more than a day are absolute. A point without a finite time takes the
+    sweep's median time."""
     tname = time_field(fields)
     if tname is None or not len(recs):
         return None
     t = _column(recs, fields, tname).astype(np.float64) * (1e-9 if np.dtype(fields[tname][1]).kind in "iu" else 1.0)
-    finite = t[np.isfinite(t)]
-    return t, bool(len(finite) and np.median(finite) > 86400.0)
+    finite = np.isfinite(t)
+    if not finite.any():
+        return None
+    if not finite.all():
+        t = np.where(finite, t, np.median(t[finite]))
+    return t, bool(np.median(t) > 86400.0)
 
 
-def decode_cloud(msg: Any, ref_ns: int) -> tuple[np.ndarray, np.ndarray | None]:
+def decode_cloud(msg: Any, ref_ns: int, time_scale: float | None = 1.0) -> tuple[np.ndarray, np.ndarray | None]:
     """A PointCloud2 as N x 4 float32 (x, y, z, intensity; 0 without one) and each point's time in seconds
     from `ref_ns` (the image's stamp, ns; None without a time field). Points with a non-finite coordinate
-    are dropped. Times as `_point_times` reads them."""
+    are dropped. Times as `_point_times` reads them, offsets from the stamp x `time_scale` (a driver writing
+    another unit; None: the times are not used)."""
     fields = cloud_fields(msg)
     missing = [n for n in "xyz" if n not in fields]
     if missing:
@@ -158,10 +164,10 @@ def decode_cloud(msg: Any, ref_ns: int) -> tuple[np.ndarray, np.ndarray | None]:
     if inten is not None:
         pts[:, 3] = _column(recs, fields, inten)
     times = None
-    if (timed := _point_times(msg, fields, recs)) is not None:
+    if time_scale is not None and (timed := _point_times(msg, fields, recs)) is not None:
         t, absolute = timed
         # from the cloud's stamp: the stamps' difference in integer ns keeps full precision
-        times = t - 1e-9 * ref_ns if absolute else t + 1e-9 * (stamp_ns(msg) - ref_ns)
+        times = t - 1e-9 * ref_ns if absolute else t * time_scale + 1e-9 * (stamp_ns(msg) - ref_ns)
     keep = np.isfinite(pts[:, :3]).all(1)
     if not keep.all():
         pts = pts[keep]
@@ -169,11 +175,9 @@ def decode_cloud(msg: Any, ref_ns: int) -> tuple[np.ndarray, np.ndarray | None]:
     return pts, times
 
 
-def cloud_time_span(msg: Any) -> tuple[int, int] | None:
-    """The first and last point time of a cloud (absolute, ns): its stamp plus the smallest and largest
-    per-point offset, or the absolute times' range. Offsets after the stamp mean a sweep stamped at its
-    start (Ouster, Livox), before it a sweep stamped at its end. None without per-point times, without
-    points, or when they span nothing or more than a second (not a sweep's times)."""
+def cloud_time_range(msg: Any) -> tuple[float, float, bool] | None:
+    """The smallest and largest per-point time of a cloud as `_point_times` reads them (seconds) and whether
+    they are absolute; None without per-point times or points."""
     try:
         fields = cloud_fields(msg)
         timed = _point_times(msg, fields, _records(msg, fields))
@@ -182,13 +186,7 @@ def cloud_time_span(msg: Any) -> tuple[int, int] | None:
     if timed is None:
         return None
     t, absolute = timed
-    t = t[np.isfinite(t)]
-    if not len(t) or not 0.0 < float(t.max() - t.min()) <= 1.0:
-        return None
-    if absolute:
-        return int(round(float(t.min()) * 1e9)), int(round(float(t.max()) * 1e9))
-    base = stamp_ns(msg)
-    return base + int(round(float(t.min()) * 1e9)), base + int(round(float(t.max()) * 1e9))
+    return float(t.min()), float(t.max()), absolute
 
 
 def transform_matrix(tf: Any) -> np.ndarray:

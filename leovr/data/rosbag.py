@@ -15,9 +15,10 @@ a frame's image and scan are read from the bag when the pipeline asks for the fr
 Each is picked automatically when the bag holds one candidate; `TopicChoice` (the CLI's `--camera-topic`,
 `--lidar-topic`, ...) names it otherwise.
 
-Stamps: messages are taken in recording order; one whose header stamp repeats or goes back against the
-message of its topic recorded before it is left out, with a warning naming it (a topic whose stamps mostly
-go back is refused).
+Stamps: messages are taken in recording order; of each topic, the largest set of messages whose header
+stamps increase in that order is kept (a stamp that repeats, goes back or jumps ahead loses its own message
+only), and of those the largest stretch without an hour's gap (a clock not set stamps 0). Each message left
+out is named in a warning; a topic that would lose more than half its messages is refused.
 
 Pairing: each image takes the sweep whose points' times span the image's stamp (clouds with per-point
 times: the stamp plus the offsets, whichever end of the sweep the driver stamps), else the sweep nearest in
@@ -95,7 +96,7 @@ class _Index:
 
     images: list[tuple[int, int]] = field(default_factory=list)  # (log time, header stamp), ns
     clouds: list[tuple[int, int]] = field(default_factory=list)
-    spans: list[tuple[int, int] | None] = field(default_factory=list)  # each cloud's point times, ns
+    spans: list[tuple[float, float, bool] | None] = field(default_factory=list)  # each cloud's point times
     poses: list[tuple[int, np.ndarray, str]] = field(default_factory=list)  # (stamp ns, T_world_body, body frame)
     info: Any = None
     tree: rm.FrameTree = field(default_factory=rm.FrameTree)
@@ -232,7 +233,7 @@ class RosbagSequence(Sequence):
                     idx.camera_frame = idx.camera_frame or str(msg.header.frame_id)
                 elif topic == self.lidar:
                     idx.clouds.append((log_ns, rm.stamp_ns(msg)))
-                    idx.spans.append(rm.cloud_time_span(msg))
+                    idx.spans.append(rm.cloud_time_range(msg))
                     idx.lidar_frame = idx.lidar_frame or str(msg.header.frame_id)
                 elif topic == self.info_topic:
                     idx.info = msg
@@ -280,6 +281,7 @@ class RosbagSequence(Sequence):
         scan = np.full(len(images), -1, np.int64)
         self._clouds, spans = [], []
         self.pairing_rule = ""
+        self.time_scale: float | None = 1.0  # per-point times' unit, as found against the scan period
         self._sweep_offsets = np.zeros((0, 2))
         if self.lidar is not None:
             keep_cl = _increasing(self.path, self.lidar, [s for _, s in idx.clouds]) if idx.clouds else []
@@ -287,16 +289,24 @@ class RosbagSequence(Sequence):
             spans = [idx.spans[k] for k in keep_cl]
         if self._clouds:
             cl_ns = np.array([s for _, s in self._clouds], np.int64)
-            lo = np.array([sp[0] if sp else s for sp, s in zip(spans, cl_ns)], np.int64)
-            hi = np.array([sp[1] if sp else s for sp, s in zip(spans, cl_ns)], np.int64)
+            period = float(np.median(np.diff(cl_ns))) if len(cl_ns) > 1 else 1e8
+            self.time_scale = _time_scale(self.path, self.lidar, spans, period * 1e-9)
+            if self.time_scale is None:
+                spans = [None] * len(spans)
+            lo, hi = cl_ns.copy(), cl_ns.copy()
+            for k, sp in enumerate(spans):
+                if sp is not None:
+                    a, b, absolute = sp
+                    lo[k], hi[k] = ((round(a * 1e9), round(b * 1e9)) if absolute else
+                                    (cl_ns[k] + round(a * self.time_scale * 1e9), cl_ns[k] + round(b * self.time_scale * 1e9)))
             timed = sum(sp is not None for sp in spans)
             self.pairing_rule = ("sweep time span (per-point times)" if timed == len(spans) else
                                  "nearest header stamp (no per-point times)" if not timed else
                                  f"sweep time span where clouds carry per-point times ({timed} of {len(spans)}), "
                                  "else nearest header stamp")
-            period = float(np.median(np.diff(cl_ns))) if len(cl_ns) > 1 else 1e8
-            # outside every sweep: the nearest within half the time between sweeps (a lost sweep's images stay unpaired)
-            scan = pair_by_span(img_ns, lo, hi, cl_ns, max(period - float(np.median(hi - lo)), 0.0) / 2)
+            # outside every sweep: the nearest within half the time between sweeps (a lost sweep's images stay
+            # unpaired); a cloud without point times within half a scan period of its stamp
+            scan = pair_by_span(img_ns, lo, hi, cl_ns, np.maximum(period - (hi - lo), 0.0) / 2)
             paired = scan >= 0
             self._sweep_offsets = np.c_[img_ns[paired] - lo[scan[paired]], cl_ns[scan[paired]] - img_ns[paired]] * 1e-9
         keep = scan >= 0 if (self.choice.drop_unpaired and self.lidar is not None) else np.ones(len(images), bool)
@@ -384,7 +394,7 @@ class RosbagSequence(Sequence):
             else:
                 cloud, _ = self._message(self.lidar, *self._clouds[k])
                 try:
-                    points, times = rm.decode_cloud(cloud, int(self._stamps_ns[i]))
+                    points, times = rm.decode_cloud(cloud, int(self._stamps_ns[i]), self.time_scale)
                 except rm.MessageError as exc:
                     raise DataError(self.path, f"{self.lidar} scan of frame {i}: {exc}") from exc
         return Frame(index=i, timestamp=float(self._times[i]), image=image, K=self.K, T_cam_lidar=self.T_cam_lidar,
@@ -416,13 +426,36 @@ class RosbagSequence(Sequence):
         return out | ({"damaged": self.damaged} if self.damaged else {})
 
 
-def pair_by_span(t: np.ndarray, lo: np.ndarray, hi: np.ndarray, stamp: np.ndarray, max_gap: float) -> np.ndarray:
+def _time_scale(path: Path, topic: str, spans: list[tuple[float, float, bool] | None], period_s: float) -> float | None:
+    """The factor that brings the clouds' per-point time offsets to seconds: 1 when a sweep's times span
+    between 5 % and twice the scan period, else the power of 1000 that makes them (a driver writing ms or
+    us; said in a warning); None when none does (the times are not used, said too)."""
+    spread = [b - a for sp in spans if sp is not None and not sp[2] for a, b in [sp[:2]]]
+    if not spread or period_s <= 0 or np.median(spread) <= 0:
+        return 1.0
+    ratio = float(np.median(spread)) / period_s
+    for scale in (1.0, 1e-3, 1e3, 1e-6, 1e6):
+        if 0.05 <= ratio * scale <= 2.0:
+            if scale != 1.0:
+                warnings.warn(f"{path}: {topic}: a sweep's per-point times span {np.median(spread):.6g} s as read, "
+                              f"{ratio:.3g}x the scan period of {period_s:.3f} s: read x{scale:g} (another unit)",
+                              stacklevel=4)
+            return scale
+    warnings.warn(f"{path}: {topic}: a sweep's per-point times span {np.median(spread):.6g} s, {ratio:.3g}x the scan "
+                  f"period of {period_s:.3f} s, in no unit a sweep's could: not used", stacklevel=4)
+    return None
+
+
+def pair_by_span(t: np.ndarray, lo: np.ndarray, hi: np.ndarray, stamp: np.ndarray, max_gap: np.ndarray) -> np.ndarray:
     """Index of the span [lo, hi] that holds each time of `t` (of those that do, the one whose middle is
-    nearest; on a tie, whose `stamp` is), else of the nearest span within `max_gap`; -1 when none is."""
+    nearest; on a tie, whose `stamp` is), else of the nearest span within its `max_gap`; -1 when none is.
+    Times in integer ns, taken relative to the first span's start (float64 then resolves them to the ns)."""
     if not len(lo):
         return np.full(len(t), -1, np.int64)
+    t0 = int(lo.min())
+    t, lo, hi, stamp = t - t0, lo - t0, hi - t0, stamp - t0
     order = np.argsort(lo, kind="stable")
-    lo_s, hi_s, st_s = lo[order], hi[order], stamp[order]
+    lo_s, hi_s, st_s, gap_s = lo[order], hi[order], stamp[order], np.asarray(max_gap, np.float64)[order]
     j = np.searchsorted(lo_s, t, side="right") - 1
     cand = np.clip(j[:, None] + np.arange(-2, 2)[None], 0, len(lo) - 1)
     tt = t[:, None].astype(np.float64)
@@ -430,29 +463,70 @@ def pair_by_span(t: np.ndarray, lo: np.ndarray, hi: np.ndarray, stamp: np.ndarra
     closeness = np.abs((lo_s[cand] + hi_s[cand]) / 2.0 - tt) + 1e-3 * np.abs(st_s[cand] - tt)
     best = np.argmin(np.where(gap == gap.min(1, keepdims=True), closeness, np.inf), axis=1)
     rows = np.arange(len(t))
-    return np.where(gap[rows, best] <= max_gap, order[cand[rows, best]], -1).astype(np.int64)
+    return np.where(gap[rows, best] <= gap_s[cand[rows, best]], order[cand[rows, best]], -1).astype(np.int64)
+
+
+CLOCK_GAP_S = 3600.0  # stamps this far from the rest of their topic come from another clock (or none: stamp 0)
 
 
 def _increasing(path: Path, topic: str, stamps: list[int]) -> list[int]:
-    """Indices of the messages (in recording order) kept: each one's stamp after the last kept one's. The
-    others are named in one warning; a topic whose stamps mostly go back is refused."""
-    kept: list[int] = []
-    dropped: list[str] = []
-    for k, s in enumerate(stamps):
-        if kept and s <= stamps[kept[-1]]:
-            last = kept[-1]
-            what = "repeats" if s == stamps[last] else "goes back from"
-            dropped.append(f"message {k} stamped {s * 1e-9:.6f} s {what} message {last}'s {stamps[last] * 1e-9:.6f} s")
-            continue
-        kept.append(k)
+    """Indices of the messages kept, in recording order: the largest set whose stamps increase in that order
+    (one stamp glitch, back or ahead, loses that message only), within the largest stretch of them without a
+    gap of an hour (a clock not set stamps 0). The others are named in one warning; a topic that would lose
+    more than half its messages is refused."""
+    kept = _longest_increasing(stamps)
+    t = np.array([stamps[k] for k in kept], np.float64) * 1e-9
+    cuts = np.nonzero(np.diff(t) > CLOCK_GAP_S)[0] + 1
+    parts = np.split(np.arange(len(kept)), cuts)
+    best = max(parts, key=len)
+    kept = [kept[j] for j in best]
+    dropped = [k for k in range(len(stamps)) if k not in set(kept)]
     if len(dropped) * 2 > len(stamps):
-        raise DataError(path, f"{topic}: the stamps of {len(dropped)} of {len(stamps)} messages repeat or go back "
-                              f"against the recording order ({dropped[0]}): not a recording leovr can order")
+        raise DataError(path, f"{topic}: the stamps of {len(dropped)} of {len(stamps)} messages repeat, go back or "
+                              f"jump against the recording order ({_glitch(stamps, dropped[0])}): not a recording "
+                              "leovr can order")
     if dropped:
-        warnings.warn(f"{path}: {topic}: {len(dropped)} message(s) whose stamp repeats or goes back against the "
-                      f"recording order left out ({'; '.join(dropped[:5])}{'; ...' if len(dropped) > 5 else ''})",
-                      stacklevel=4)
+        warnings.warn(f"{path}: {topic}: {len(dropped)} message(s) whose stamp repeats, goes back or jumps against "
+                      f"the recording order left out ({'; '.join(_glitch(stamps, k) for k in dropped[:5])}"
+                      f"{'; ...' if len(dropped) > 5 else ''})", stacklevel=4)
     return kept
+
+
+def _glitch(stamps: list[int], k: int) -> str:
+    """How message k's stamp stands against the messages recorded beside it."""
+    s = stamps[k]
+    if k and s == stamps[k - 1]:
+        return f"message {k} stamped {s * 1e-9:.6f} s repeats message {k - 1}'s {stamps[k - 1] * 1e-9:.6f} s"
+    if k and s < stamps[k - 1]:
+        return f"message {k} stamped {s * 1e-9:.6f} s goes back from message {k - 1}'s {stamps[k - 1] * 1e-9:.6f} s"
+    if k + 1 < len(stamps):
+        return f"message {k} stamped {s * 1e-9:.6f} s, message {k + 1} {stamps[k + 1] * 1e-9:.6f} s"
+    return f"message {k} stamped {s * 1e-9:.6f} s"
+
+
+def _longest_increasing(stamps: list[int]) -> list[int]:
+    """Indices of a longest strictly increasing subsequence of `stamps` (patience sorting), the first of
+    repeated stamps kept."""
+    import bisect
+
+    tails: list[int] = []  # stamps ending the best subsequence of each length
+    ends: list[int] = []  # ... and their indices
+    parent = [-1] * len(stamps)
+    for k, s in enumerate(stamps):
+        j = bisect.bisect_left(tails, s)
+        if j < len(tails) and tails[j] == s:  # a repeat: the earlier message stays
+            continue
+        parent[k] = ends[j - 1] if j else -1
+        if j == len(tails):
+            tails.append(s)
+            ends.append(k)
+        else:
+            tails[j], ends[j] = s, k
+    out, k = [], ends[-1] if ends else -1
+    while k >= 0:
+        out.append(k)
+        k = parent[k]
+    return out[::-1]
 
 
 def _repair_hint(path: Path) -> str:
