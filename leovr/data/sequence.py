@@ -89,9 +89,15 @@ class Sequence(ABC):
         return list(range(len(self)))
 
     def info(self) -> SequenceInfo:
-        """Summarise the sequence by loading its first frame only."""
+        """Summarise the sequence by loading its first frame (and, when that one has no LiDAR return, the
+        first of the next ten that has, for the scans' figures)."""
         first = self[0] if len(self) else None
-        pts = 0 if first is None or first.points is None else len(first.points)
+        scan = first
+        for i in range(1, min(len(self), 11)):
+            if not self.has_lidar or (scan is not None and scan.points is not None and len(scan.points)):
+                break
+            scan = self[i]
+        pts = 0 if scan is None or scan.points is None else len(scan.points)
         return SequenceInfo(
             reader=self.name,
             path=str(self.path),
@@ -102,7 +108,7 @@ class Sequence(ABC):
             rate_hz=float(self.rate_hz),
             has_lidar=self.has_lidar,
             points_per_scan=pts,
-            has_point_times=first is not None and first.point_times is not None,
+            has_point_times=scan is not None and scan.point_times is not None,
             has_poses=self.has_poses,
             has_depth=self.has_depth,
         )
