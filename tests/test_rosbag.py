@@ -209,6 +209,7 @@ def test_images_without_a_scan_are_kept_empty_or_dropped(tmp_path):
     late = RosbagSequence(_bag(tmp_path / "late", frames=4, missing_clouds=(0,)), TopicChoice())  # a LiDAR starting late
     info = late.info()
     assert late.unpaired == 1 and info.points_per_scan == 500 and info.has_point_times
+    assert {t["topic"]: t["rate_hz"] for t in late.topic_table()}["/points"] == 10.0  # over its own messages' span
 
 
 def test_mono16_and_a_distorted_lens(tmp_path):

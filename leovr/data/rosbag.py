@@ -103,6 +103,7 @@ class _Index:
     camera_frame: str = ""
     lidar_frame: str = ""
     damaged: str = ""  # why the pass stopped early, when it did
+    log_span: dict[str, tuple[int, int]] = field(default_factory=dict)  # topic -> first and last log time read
 
 
 class RosbagSequence(Sequence):
@@ -125,6 +126,7 @@ class RosbagSequence(Sequence):
         self.pose_topic = self._pick((*rm.POSE_TYPES,), self.choice.poses, "pose", "--pose-topic", required=False,
                                      ambiguous_ok=True)
         idx = self._index(reader)
+        self._log_span = idx.log_span
         self._setup_camera(idx)
         self._pair(idx)
         self.T_cam_lidar = self._extrinsic(idx) if self.lidar is not None else np.eye(4)
@@ -225,6 +227,8 @@ class RosbagSequence(Sequence):
             for conn, log_ns, raw in reader.messages(connections=conns):
                 n += 1
                 topic = conn.topic
+                first = idx.log_span.get(topic, (log_ns, log_ns))[0]
+                idx.log_span[topic] = (first, log_ns)
                 if topic == self.info_topic and idx.info is not None:
                     continue
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -403,13 +407,19 @@ class RosbagSequence(Sequence):
     # -- what `leovr info` prints ---------------------------------------------------------------------------
 
     def topic_table(self) -> list[dict]:
-        """Every topic: type, messages, rate (Hz, from the log times) and what leovr uses it for."""
+        """Every topic: type, messages, rate (Hz, from its log times where read, else over the bag's span) and
+        what leovr uses it for."""
         use = {self.camera: "camera", self.info_topic: "camera info", self.lidar: "LiDAR", self.pose_topic: "poses"}
         if self.lidar is not None and self.choice.extrinsic is None:
             use |= {t: "extrinsic" for t in ("/tf_static", "tf_static")}
-        span = max((self._reader.end_time - self._reader.start_time) * 1e-9, 1e-9)
-        return [{"topic": t.name, "type": t.msgtype, "messages": t.count,
-                 "rate_hz": round((t.count - 1) / span, 2) if t.count > 1 else 0.0, "used_as": use.get(t.name, "")}
+        bag_span = max((self._reader.end_time - self._reader.start_time) * 1e-9, 1e-9)
+
+        def rate(t: _Topic) -> float:
+            a, b = self._log_span.get(t.name, (0, 0))
+            span = (b - a) * 1e-9 if b > a else bag_span
+            return round((t.count - 1) / span, 2) if t.count > 1 else 0.0
+
+        return [{"topic": t.name, "type": t.msgtype, "messages": t.count, "rate_hz": rate(t), "used_as": use.get(t.name, "")}
                 for t in sorted(self.topics.values(), key=lambda t: t.name)]
 
     def pairing(self) -> dict:
