@@ -40,13 +40,14 @@ def _cloud(k: int, n: int = 500) -> np.ndarray:
 def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...] = ("/cam0/image_raw",),
          compressed: bool = False, tf: bool = True, missing_clouds: tuple[int, ...] = (), offset_ns: bool = False,
          distortion: np.ndarray | None = None, mono16: bool = False, encoding: str = "", stamp_at: str = "image",
-         restamp: dict[int, float] | None = None, times_as: str = "s") -> Path:
+         restamp: dict[int, float] | None = None, times_as: str = "s", lidar_clock_s: float = 0.0) -> Path:
     """A small bag: camera(s) with their CameraInfo, a cloud (the LiDAR frame is the camera's turned 90
     degrees about y), optionally /tf_static, at 10 Hz. `stamp_at`: each cloud's stamp at its image's time
     (its points' times spanning 50 ms either side), or at the start or end of a 100 ms sweep that the image
     fires 53 ms into; `restamp`: frame -> header stamps (s after the first frame's) in place of its own,
     the messages staying where they are in the recording; `times_as`: point times in seconds, milliseconds
-    ("ms"), or seconds with every third one NaN ("nan_third")."""
+    ("ms"), or seconds with every third one NaN ("nan_third"); `lidar_clock_s`: the clouds stamped this much
+    later (another clock)."""
     m = RosMessages(fmt == "ros1")
     T = m.T
     conns: dict[str, object] = {}
@@ -99,8 +100,8 @@ def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...
                 cam_pts = pts[:, :3] @ np.linalg.inv(T_cam_lidar)[:3, :3].T + np.linalg.inv(T_cam_lidar)[:3, 3]
                 lidar = np.c_[cam_pts, pts[:, 3]].astype(np.float32)
                 into = {"image": 0.05, "sweep_start": 0.053, "sweep_end": 0.053}[stamp_at]
-                tc = t + {"image": 0, "sweep_start": -53_000_000, "sweep_end": 47_000_000}[stamp_at]
-                times = np.linspace(-into, 0.1 - into, len(pts)) + (t - tc) * 1e-9
+                tc = t + {"image": 0, "sweep_start": -53_000_000, "sweep_end": 47_000_000}[stamp_at] + round(lidar_clock_s * 1e9)
+                times = np.linspace(-into, 0.1 - into, len(pts)) + (t - tc) * 1e-9 + lidar_clock_s
                 if times_as == "ms":
                     times = times * 1e3
                 elif times_as == "nan_third":
@@ -373,3 +374,10 @@ def test_point_times_in_another_unit_or_partly_missing_are_read_against_the_scan
     f = seq[1]
     assert len(f.points) == len(_cloud(1)) and np.isfinite(f.point_times).all()
     assert np.abs(f.point_times[::3] - np.median(f.point_times[1::3].tolist() + f.point_times[2::3].tolist())).max() < 1e-3
+
+
+def test_scans_on_another_clock_are_named_not_paired(tmp_path):
+    with pytest.warns(UserWarning, match=r"4 of 4 images of /cam0/image_raw have no sweep of /points at their time; the "
+                                         r"scans' stamps lie a median \+2\.850 s from the images'"):
+        seq = RosbagSequence(_bag(tmp_path / "b", lidar_clock_s=3.0), TopicChoice())
+    assert seq.unpaired == 4

@@ -313,6 +313,14 @@ class RosbagSequence(Sequence):
             scan = pair_by_span(img_ns, lo, hi, cl_ns, np.maximum(period - (hi - lo), 0.0) / 2)
             paired = scan >= 0
             self._sweep_offsets = np.c_[img_ns[paired] - lo[scan[paired]], cl_ns[scan[paired]] - img_ns[paired]] * 1e-9
+            if (~paired).sum() * 2 > len(paired):
+                j = np.searchsorted(cl_ns, img_ns)
+                a, b = cl_ns[np.clip(j - 1, 0, len(cl_ns) - 1)], cl_ns[np.clip(j, 0, len(cl_ns) - 1)]
+                near = np.where(np.abs(a - img_ns) <= np.abs(b - img_ns), a, b)  # each image's nearest scan stamp
+                warnings.warn(f"{self.path}: {(~paired).sum()} of {len(paired)} images of {self.camera} have no sweep of "
+                              f"{self.lidar} at their time; the scans' stamps lie a median "
+                              f"{np.median(near - img_ns) * 1e-9:+.3f} s from the images' (another clock, or an offset "
+                              "the recorder did not correct?)", stacklevel=3)
         keep = scan >= 0 if (self.choice.drop_unpaired and self.lidar is not None) else np.ones(len(images), bool)
         if not keep.any():
             raise DataError(self.path, f"no image of {self.camera} has a scan of {self.lidar} within half a scan period")
