@@ -292,37 +292,54 @@ class WindowGraph:
     def _anchor_landmarks(self, index: int, failure: Exception, rel: float = 1.0) -> None:
         """gtsam found the window's system (nearly) indeterminate, which loose landmark priors (camera only)
         can make it: give every landmark of the window a depth prior of `rel` per metre at its current
-        estimate and update again (the failed update's factors and values are already in the smoother).
-        iSAM2 (Gauss-Newton, undamped) is left half-updated by a failed update (its Bayes tree lacks the new
-        variables, and the next update fails on them too): its window is rebuilt, a new smoother given the
-        old one's factors, linearisation point and time stamps, with the landmark priors."""
-        est = self.smoother.getLinearizationPoint() if self.incremental else self.smoother.calculateEstimate()
-        centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
-        graph = gtsam.NonlinearFactorGraph()
-        for k in self.landmarks:
-            if est.exists(L(k)):
-                P = est.atPoint3(L(k))
-                sigma = rel * max(1.0, float(np.linalg.norm(P - centre)))
-                graph.add(gtsam.PriorFactorPoint3(L(k), P, gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+        estimate and update again. Batch: in place first (the failed update's factors and values are already
+        in the smoother), then, if the system is still indeterminate (a landmark left without factors while
+        the window marginalised), rebuilt. iSAM2 (Gauss-Newton, undamped) is left half-updated by a failed
+        update (its Bayes tree lacks the new variables, and the next update fails on them too): its window is
+        always rebuilt, a new smoother given the old one's factors, linearisation point and time stamps, with
+        the landmark priors."""
         reason = "indeterminate" if "ndetermin" in str(failure) else "could not be updated"
         warnings.warn(f"frame {index}: the window's system was {reason}; every landmark got a depth prior of "
                       f"{rel} per metre" + (" and the window was rebuilt" if self.incremental else ""), stacklevel=3)
-        values, stamps = gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap()
-        if self.incremental:
-            old = self.smoother
-            factors = old.getFactors()
-            for n in range(factors.size()):
-                if factors.at(n) is not None:
-                    graph.add(factors.at(n))
-            values = est
-            for key, stamp in old.timestamps().items():
-                stamps.insert((key, stamp))
-            self.smoother = self._new_smoother()
+        if not self.incremental:
+            try:
+                self.smoother.update(self._landmark_priors(self.smoother.calculateEstimate(), rel),
+                                     gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+                return
+            except (RuntimeError, IndexError):
+                pass
         try:
-            self.smoother.update(graph, values, stamps)
+            self._rebuild(rel)
         except (RuntimeError, IndexError) as exc:  # not the landmarks: a pose or a depth field without support
             raise RuntimeError(f"frame {index}: the window's system stayed indeterminate after every landmark got a "
                                f"depth prior ({str(exc).strip().splitlines()[0]})") from exc
+
+    def _landmark_priors(self, est: gtsam.Values, rel: float) -> gtsam.NonlinearFactorGraph:
+        """A prior on every landmark of `est`, `rel` per metre of its distance from the newest pose."""
+        centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
+        graph = gtsam.NonlinearFactorGraph()
+        for key in est.keys():
+            if gtsam.Symbol(key).chr() == ord("l"):
+                P = est.atPoint3(key)
+                sigma = rel * max(1.0, float(np.linalg.norm(P - centre)))
+                graph.add(gtsam.PriorFactorPoint3(key, P, gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
+        return graph
+
+    def _rebuild(self, rel: float) -> None:
+        """A new smoother from the old one's factors, estimate (iSAM2: linearisation point) and time stamps,
+        with a prior on every landmark."""
+        old = self.smoother
+        est = old.getLinearizationPoint() if self.incremental else old.calculateEstimate()
+        graph = self._landmark_priors(est, rel)
+        factors = old.getFactors()
+        for n in range(factors.size()):
+            if factors.at(n) is not None:
+                graph.add(factors.at(n))
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        for key, stamp in old.timestamps().items():
+            stamps.insert((key, stamp))
+        self.smoother = self._new_smoother()
+        self.smoother.update(graph, est, stamps)
 
     def _condition_leaving(self, newest: int, graph: gtsam.NonlinearFactorGraph) -> list[int]:
         """Observations, by the frames about to leave the window, of landmarks that stay in it: returns their

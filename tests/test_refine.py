@@ -468,6 +468,43 @@ def test_an_incremental_window_that_fails_its_update_is_rebuilt_and_the_run_goes
 
 
 @needs_posed_drive
+def test_a_batch_window_anchors_every_landmark_it_holds_when_found_indeterminate(tmp_path, monkeypatch):
+    """A cone LiDAR's batch window given, at frame 5, a landmark that one ray alone fixes and that the graph does
+    not list among its landmarks (as a rendered lap's frame 79 once left one): every landmark the smoother holds
+    is anchored, and the run ends with every pose near the GPS/IMU poses."""
+    from odometry import window_graph as wg
+
+    frame_factors = wg.WindowGraph._frame_factors
+
+    class Stamping:  # the smoother, with the landmark stamped at frame 5 (marginalised when frame 5 leaves)
+        def __init__(self, smoother):
+            self.smoother = smoother
+
+        def __getattr__(self, name):
+            return getattr(self.smoother, name)
+
+        def update(self, graph, values, stamps, *rest):
+            if values.exists(wg.L(10**6)):
+                stamps.insert((wg.L(10**6), 5.0))
+            return self.smoother.update(graph, values, stamps, *rest)
+
+    def with_an_unlisted_landmark(self, f, graph, values):
+        frame_factors(self, f, graph, values)
+        if f.index == 5:
+            o = f.observations[0]
+            values.insert(wg.L(10**6), self.landmarks[o.landmark] * 1.5)
+            graph.add(wg.projection_factor(o.uv, wg.X(f.index), wg.L(10**6), self.cal, 1.0))
+            self.smoother = Stamping(self.smoother)
+
+    monkeypatch.setattr(wg.WindowGraph, "_frame_factors", with_an_unlisted_landmark)
+    seq = open_sequence(KITTI_RAW_POSES)
+    with pytest.warns(UserWarning, match="indeterminate; every landmark got a depth prior"):
+        m = run_refine(seq, RefineConfig(input="mid40", end=12), tmp_path / "o", progress=False)
+    assert m["trajectory"]["leovr"]["frames"] == 12
+    assert m["trajectory"]["leovr"]["ate_m"] < 0.2
+
+
+@needs_posed_drive
 def test_the_real_drives_own_scan_runs_past_the_window_iSAM2_once_found_indeterminate(tmp_path):
     """The real drive with poses, its own HDL-64 scan: at frame 68 iSAM2 once found the window indeterminate and
     the run stopped with gtsam's traceback; it now runs to the end with every pose near the GPS/IMU poses."""
