@@ -177,6 +177,34 @@ def test_icp_window_factors_make_the_graph_follow_the_lidar_motion():
     assert err < 0.1, err
 
 
+def test_a_kiss_icp_motion_that_slipped_from_the_images_rotation_is_left_out():
+    """KISS-ICP slips by 10 degrees at frame 5 (as a cone LiDAR's registration does in a rendered lap's fast turns)
+    while sure of itself: its motions across the slip disagree with the images' rotation and are left out, so the
+    poses stay with the images and the front end; the motions after the slip, among themselves right, stay in."""
+    from leovr.config import RefineConfig
+    from leovr.geometry import rotation_angle_deg
+    from odometry.window_graph import FrameInput, WindowGraph
+
+    cfg = RefineConfig(window=4, graph={"depth_factors": False})
+    graph = WindowGraph(cfg, K, SHAPE)
+    truth = [make_T(Rotation.from_rotvec([0, 0.01 * i, 0]).as_matrix(), [0.1 * i, 0, 1.0 * i]) for i in range(10)]
+    slip = make_T(Rotation.from_rotvec([0, np.radians(10.0), 0]).as_matrix())
+    cov = np.diag(np.r_[np.full(3, 1e-3), np.full(3, 0.02)] ** 2)
+    done = []
+    for i, T in enumerate(truth):
+        rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
+        icp = slip @ T if i >= 5 else T  # its map turned by the slip: later motions among themselves right
+        pairs = {i - 1: rel} if i else {}
+        f = FrameInput(i, T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel, None,
+                       (icp, np.zeros((6, 6)) if i == 0 else cov), pair_motions=pairs)
+        done += graph.add_frame(f)
+    done += graph.flush()
+    est = {r.index: r.T_world_cam for r in done}
+    assert graph.icp_rejected >= 3
+    assert max(rotation_angle_deg(est[i][:3, :3].T @ truth[i][:3, :3]) for i in range(10)) < 1.0
+    assert max(np.linalg.norm(est[i][:3, 3] - truth[i][:3, 3]) for i in range(10)) < 0.1
+
+
 def test_spinning_lidar_told_from_a_narrow_cone():
     from odometry.initial_pose import is_spinning
 
