@@ -32,3 +32,34 @@ def test_loop_truth_counts_a_loop_measured_too_far_off_as_false_and_says_by_how_
     assert not errs[39]["true"] and errs[39]["error_m"] > 1.0
     # without ground truth (the real clips) every accepted loop is false
     assert loop_truth(tmp_path, None, min_gap=30)["loops_false"] == 2
+
+
+def test_the_ideal_loops_close_a_drifted_lap_with_the_runs_own_pose_graph(tmp_path):
+    """A circular lap whose poses drifted in heading: given the true relative pose at the accepted loop's frame pair,
+    the run's pose graph brings the ATE well below the drifted lap's; no accepted loop, no figure."""
+    from scipy.spatial.transform import Rotation
+
+    from leovr.bench.loop import ideal_loop_ate
+    from leovr.eval.trajectory import trajectory_metrics
+
+    n = 40
+    gt = []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec([0, -a, 0]).as_matrix()
+        T[0, 3], T[2, 3] = 20 * (1 - np.cos(a)), 20 * np.sin(a)
+        gt.append(T)
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec([0, 0.002, 0]).as_matrix()  # each step turned 0.002 rad too far
+    drifted = [gt[0]]
+    for k in range(1, n):
+        drifted.append(drifted[-1] @ np.linalg.inv(gt[k - 1]) @ gt[k] @ turn)
+    (tmp_path / "progress.json").write_text(json.dumps({"poses_no_loop": {str(k): T.ravel().tolist() for k, T in enumerate(drifted)}}))
+    loops = [{"frame": 39, "candidate": 0, "accepted": True}, {"frame": 38, "candidate": 1, "accepted": False}]
+    (tmp_path / "loops.json").write_text(json.dumps({"loops": loops, "ms_per_query": 1.0}))
+    before = trajectory_metrics(np.stack(drifted), np.stack(gt))["ate_m"]
+    ideal = ideal_loop_ate(tmp_path, gt, odo_cauchy=1.0)
+    assert before > 0.4 and ideal < 0.1 * before, (before, ideal)
+    (tmp_path / "loops.json").write_text(json.dumps({"loops": loops[1:], "ms_per_query": 1.0}))
+    assert ideal_loop_ate(tmp_path, gt, odo_cauchy=1.0) is None
