@@ -460,11 +460,16 @@ def test_an_incremental_window_that_fails_its_update_is_rebuilt_and_the_run_goes
             graph.add(wg.projection_factor(o.uv, wg.X(f.index), wg.L(10**6), self.cal, 1.0))
 
     monkeypatch.setattr(wg.WindowGraph, "_frame_factors", with_a_loose_landmark)
-    seq = open_sequence(KITTI_RAW_POSES)
-    with pytest.warns(UserWarning, match="window was rebuilt"):
-        m = run_refine(seq, RefineConfig(input="vlp16", end=10), tmp_path / "o", progress=False)
-    assert m["trajectory"]["leovr"]["frames"] == 10
-    assert m["trajectory"]["leovr"]["ate_m"] < 0.1
+    assert _poses_scored_after(tmp_path, "vlp16", 10, "window was rebuilt")["ate_m"] < 0.1
+
+
+def _poses_scored_after(tmp_path, inp: str, end: int, warning: str) -> dict:
+    """The posed drive's first `end` frames refined with `inp`, warning `warning`: leovr's trajectory score, every
+    frame posed."""
+    with pytest.warns(UserWarning, match=warning):
+        m = run_refine(open_sequence(KITTI_RAW_POSES), RefineConfig(input=inp, end=end), tmp_path / "o", progress=False)
+    assert m["trajectory"]["leovr"]["frames"] == end
+    return m["trajectory"]["leovr"]
 
 
 @needs_posed_drive
@@ -497,11 +502,7 @@ def test_a_batch_window_anchors_every_landmark_it_holds_when_found_indeterminate
             self.smoother = Stamping(self.smoother)
 
     monkeypatch.setattr(wg.WindowGraph, "_frame_factors", with_an_unlisted_landmark)
-    seq = open_sequence(KITTI_RAW_POSES)
-    with pytest.warns(UserWarning, match="indeterminate; every landmark got a depth prior"):
-        m = run_refine(seq, RefineConfig(input="mid40", end=12), tmp_path / "o", progress=False)
-    assert m["trajectory"]["leovr"]["frames"] == 12
-    assert m["trajectory"]["leovr"]["ate_m"] < 0.2
+    assert _poses_scored_after(tmp_path, "mid40", 12, "indeterminate; every landmark got a depth prior")["ate_m"] < 0.2
 
 
 @needs_posed_drive
