@@ -23,8 +23,8 @@ out is named in a warning; a topic that would lose more than half its messages i
 Pairing: each image takes the sweep whose points' times span the image's stamp (clouds with per-point
 times: the stamp plus the offsets, whichever end of the sweep the driver stamps), else the sweep nearest in
 time within half the time between sweeps; clouds without per-point times pair by nearest header stamp
-within half a scan period. An image
-without a scan becomes a frame without returns, or is left out (`drop_unpaired`).
+within half a scan period. An image without a scan becomes a frame without returns, or is left out
+(`drop_unpaired`).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import numpy as np
 
 from leovr.data import ros_messages as rm
 from leovr.data.bag_salvage import SalvagedBag, storage_files
+from leovr.data.io import associate
 from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
 from leovr.errors import DataError, brief
@@ -314,9 +315,7 @@ class RosbagSequence(Sequence):
             paired = scan >= 0
             self._sweep_offsets = np.c_[img_ns[paired] - lo[scan[paired]], cl_ns[scan[paired]] - img_ns[paired]] * 1e-9
             if (~paired).sum() * 2 > len(paired):
-                j = np.searchsorted(cl_ns, img_ns)
-                a, b = cl_ns[np.clip(j - 1, 0, len(cl_ns) - 1)], cl_ns[np.clip(j, 0, len(cl_ns) - 1)]
-                near = np.where(np.abs(a - img_ns) <= np.abs(b - img_ns), a, b)  # each image's nearest scan stamp
+                near = cl_ns[associate(img_ns, cl_ns, np.inf)]  # each image's nearest scan stamp
                 warnings.warn(f"{self.path}: {(~paired).sum()} of {len(paired)} images of {self.camera} have no sweep of "
                               f"{self.lidar} at their time; the scans' stamps lie a median "
                               f"{np.median(near - img_ns) * 1e-9:+.3f} s from the images' (another clock, or an offset "
@@ -498,7 +497,8 @@ def _increasing(path: Path, topic: str, stamps: list[int]) -> list[int]:
     parts = np.split(np.arange(len(kept)), cuts)
     best = max(parts, key=len)
     kept = [kept[j] for j in best]
-    dropped = [k for k in range(len(stamps)) if k not in set(kept)]
+    kept_set = set(kept)
+    dropped = [k for k in range(len(stamps)) if k not in kept_set]
     if len(dropped) * 2 > len(stamps):
         raise DataError(path, f"{topic}: the stamps of {len(dropped)} of {len(stamps)} messages repeat, go back or "
                               f"jump against the recording order ({_glitch(stamps, dropped[0])}): not a recording "
