@@ -15,14 +15,20 @@ from leovr.cli_bench import ConfigOpt, bench_app
 from leovr.config import MapConfig, load_config, override
 from leovr.errors import LeovrError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="leovr: dense depth and drift-free poses from a camera and a cheap LiDAR.")
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="leovr: dense depth and drift-free poses from a camera and a cheap LiDAR.",
+)
 app.add_typer(bench_app, name="bench")
 
 
 @app.callback()
 def bag_topics(
-    camera_topic: Optional[str] = typer.Option(None, help="ROS bags: the camera's image topic (default: the only one)."),
+    camera_topic: Optional[str] = typer.Option(
+        None, help="ROS bags: the camera's image topic (default: the only one)."
+    ),
     camera_info_topic: Optional[str] = typer.Option(None, help="ROS bags: the camera's CameraInfo topic."),
     lidar_topic: Optional[str] = typer.Option(None, help="ROS bags: the PointCloud2 topic (default: the only one)."),
     pose_topic: Optional[str] = typer.Option(None, help="ROS bags: ground-truth poses (Odometry or PoseStamped)."),
@@ -32,13 +38,17 @@ def bag_topics(
     """Options before the command apply to every ROS bag it reads: `leovr --lidar-topic /points refine BAG ...`."""
     from leovr.data import rosbag
 
-    rosbag.CHOICE = rosbag.TopicChoice(camera_topic, camera_info_topic, lidar_topic, pose_topic, extrinsic, drop_unpaired)
+    rosbag.CHOICE = rosbag.TopicChoice(
+        camera_topic, camera_info_topic, lidar_topic, pose_topic, extrinsic, drop_unpaired
+    )
 
 
 @app.command()
 def info(
     path: Path = typer.Argument(..., help="Sequence folder or ROS bag."),
-    reader: Optional[str] = typer.Option(None, help="Force a reader: native, kitti_raw, kitti_odometry, tum_rgbd, rosbag."),
+    reader: Optional[str] = typer.Option(
+        None, help="Force a reader: native, kitti_raw, kitti_odometry, tum_rgbd, rosbag."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
     frames: bool = typer.Option(False, "--frames", help="Also read every frame and report frames per second."),
 ) -> None:
@@ -60,8 +70,10 @@ def info(
     if topics:
         w = [max(len(str(r[c])) for r in topics) for c in ("topic", "type", "messages")]
         for r in topics:
-            typer.echo(f"  {r['topic']:<{w[0]}}  {r['type']:<{w[1]}}  {r['messages']:>{w[2]}} msgs  "
-                       f"{r['rate_hz']:6.2f} Hz  {r['used_as']}")
+            typer.echo(
+                f"  {r['topic']:<{w[0]}}  {r['type']:<{w[1]}}  {r['messages']:>{w[2]}} msgs  "
+                f"{r['rate_hz']:6.2f} Hz  {r['used_as']}"
+            )
 
 
 @app.command()
@@ -82,21 +94,38 @@ def complete(
     from leovr.data import open_sequence
     from leovr.pipeline.completion import run_completion
 
-    cfg = override(load_config(config).complete, method=method, input=input, seed=seed, start=start, end=end, step=step,
-                   checkpoint=None if checkpoint is None else str(checkpoint))
+    cfg = override(
+        load_config(config).complete,
+        method=method,
+        input=input,
+        seed=seed,
+        start=start,
+        end=end,
+        step=step,
+        checkpoint=None if checkpoint is None else str(checkpoint),
+    )
     m = run_completion(open_sequence(seq), cfg, out, resume=resume)
     if not m.get("n"):
-        typer.echo(f"nothing scored: no held-out point fell inside the image ({m['frames']} frames) -> {out / 'metrics.json'}")
+        typer.echo(
+            f"nothing scored: no held-out point fell inside the image ({m['frames']} frames) -> {out / 'metrics.json'}"
+        )
         return
-    typer.echo(f"MAE {m['mae_m']:.3f} m  RMSE {m['rmse_m']:.3f} m  delta1 {m['delta1']:.3f}  "
-               f"({m['n']} points, {m['frames']} frames) -> {out / 'metrics.json'}")
+    typer.echo(
+        f"MAE {m['mae_m']:.3f} m  RMSE {m['rmse_m']:.3f} m  delta1 {m['delta1']:.3f}  "
+        f"({m['n']} points, {m['frames']} frames) -> {out / 'metrics.json'}"
+    )
 
 
 @app.command()
 def convert(
     seq: Path = typer.Argument(..., help="Sequence folder or ROS bag in any supported layout."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder in the native format, or a ROS bag: "
-                                                      "NAME.mcap or NAME.db3 (a ROS 2 bag folder NAME/), NAME.bag (ROS 1)."),
+    out: Path = typer.Option(
+        ...,
+        "--out",
+        "-o",
+        help="Output folder in the native format, or a ROS bag: "
+        "NAME.mcap or NAME.db3 (a ROS 2 bag folder NAME/), NAME.bag (ROS 1).",
+    ),
     overwrite: bool = typer.Option(False, help="Replace a sequence (finished or interrupted) already in --out."),
 ) -> None:
     """Copy a sequence into leovr's native format (docs/formats.md), or write it as a ROS bag."""
@@ -108,8 +137,10 @@ def convert(
     if bag_format(out) is not None:
         check_output_dir(out.parent)
         bag = write_bag(source, out)
-        typer.echo(f"wrote {bag}" + (f" (a ROS 2 bag: {', '.join(sorted(p.name for p in bag.iterdir()))})"
-                                     if bag.is_dir() else ""))
+        typer.echo(
+            f"wrote {bag}"
+            + (f" (a ROS 2 bag: {', '.join(sorted(p.name for p in bag.iterdir()))})" if bag.is_dir() else "")
+        )
         return
     typer.echo(f"wrote {write_native(source, check_output_dir(out), overwrite=overwrite)}")
 
@@ -131,8 +162,15 @@ def simulate(
     from leovr.sim.simulate import simulate as run_simulate
 
     check_output_dir(out)
-    cfg = override(load_config(config).simulate, scenario=scenario, lidar=lidar, frames=frames, seed=seed,
-                   light=light, speed_kmh=speed_kmh)
+    cfg = override(
+        load_config(config).simulate,
+        scenario=scenario,
+        lidar=lidar,
+        frames=frames,
+        seed=seed,
+        light=light,
+        speed_kmh=speed_kmh,
+    )
     r = run_simulate(cfg, out, preview=preview)
     typer.echo(f"{cfg.frames} frames at {r['frames_per_s']:.1f} frames/s -> {out}")
 
@@ -144,13 +182,16 @@ def demo(
     data: Optional[Path] = typer.Option(None, help="A recorded sequence instead of the generated default."),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
-    """The main job on the embedded default: a generated Mid-40 sequence refined end to end; report, plots, recording."""
+    """The main job on the embedded default: a generated Mid-40 drive refined end to end; report, plots, recording."""
     from leovr.pipeline.demo import run_demo
 
     cfg = override(load_config(config).demo, frames=frames, data=None if data is None else str(data))
     run_demo(out, cfg)
     typer.echo((out / "report.md").read_text())
-    typer.echo(f"outputs in {out.resolve()}: report.md, metrics.json, mae_by_distance.png, trajectory.png, map.png, demo.rrd, refine/ (map in refine/map/)")
+    typer.echo(
+        f"outputs in {out.resolve()}: report.md, metrics.json, mae_by_distance.png, trajectory.png, map.png, "
+        "demo.rrd, refine/ (map in refine/map/)"
+    )
 
 
 @app.command()
@@ -160,19 +201,36 @@ def refine(
     config: Optional[Path] = ConfigOpt,
     checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
     window: Optional[int] = typer.Option(None, help="Frames in the sliding window."),
-    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), vlp16 | mid40 | ratio:R simulated from it, or none (camera only; the scan becomes ground truth)."),
+    input: Optional[str] = typer.Option(
+        None,
+        "--input",
+        help="LiDAR input: full (the recording's own scan, default), vlp16 | mid40 | ratio:R simulated from it, or "
+        "none (camera only; the scan becomes ground truth).",
+    ),
     start: Optional[int] = typer.Option(None),
     end: Optional[int] = typer.Option(None),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also write a Rerun recording of the run (.rrd)."),
-    loop_closure: Optional[bool] = typer.Option(None, "--loop-closure/--no-loop-closure", help="Close loops afterwards."),
-    causal: Optional[bool] = typer.Option(None, "--causal/--no-causal", help="Live use: each frame's outputs from it and earlier frames only."),
+    loop_closure: Optional[bool] = typer.Option(
+        None, "--loop-closure/--no-loop-closure", help="Close loops afterwards."
+    ),
+    causal: Optional[bool] = typer.Option(
+        None, "--causal/--no-causal", help="Live use: each frame's outputs from it and earlier frames only."
+    ),
     fuse_map: bool = typer.Option(False, "--map", help="Then fuse the run into a 3D map in OUT/map (as `leovr map`)."),
 ) -> None:
     """Generator depth refined with poses and landmarks in the sliding-window factor graph."""
     loaded = load_config(config)
-    cfg = override(loaded.refine, checkpoint=None if checkpoint is None else str(checkpoint),
-                   window=window, input=input, start=start, end=end, loop={"enabled": loop_closure}, causal=causal)
+    cfg = override(
+        loaded.refine,
+        checkpoint=None if checkpoint is None else str(checkpoint),
+        window=window,
+        input=input,
+        start=start,
+        end=end,
+        loop={"enabled": loop_closure},
+        causal=causal,
+    )
     if fuse_map:
         from leovr.data.io import check_output_dir
 
@@ -189,8 +247,10 @@ def _fuse(run: Path, out: Path, cfg) -> dict:
 
 
 def _echo_map(r: dict) -> None:
-    typer.echo(f"map: {r['frames']} frames, {r['triangles']} triangles, {r['seconds_per_frame'] * 1000:.0f} ms a frame, "
-               f"peak memory {r['peak_memory_mb']:.0f} MB -> {Path(r['out'])}/map.ply, map_points.ply")
+    typer.echo(
+        f"map: {r['frames']} frames, {r['triangles']} triangles, {r['seconds_per_frame'] * 1000:.0f} ms a frame, "
+        f"peak memory {r['peak_memory_mb']:.0f} MB -> {Path(r['out'])}/map.ply, map_points.ply"
+    )
 
 
 @app.command("map")
@@ -198,8 +258,12 @@ def map_command(
     run: Path = typer.Argument(..., help="A finished `leovr refine` output folder."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder: map.ply (mesh), map_points.ply, map.json."),
     voxel: Optional[float] = typer.Option(None, help=f"Voxel edge in metres (default {MapConfig().voxel_m:g})."),
-    max_depth: Optional[float] = typer.Option(None, "--max-depth", help=f"Leave out depth beyond this (m, default {MapConfig().max_depth_m:g})."),
-    sigma_max: Optional[float] = typer.Option(None, "--sigma-max", help="Leave out pixels whose predicted uncertainty exceeds this fraction of their depth."),
+    max_depth: Optional[float] = typer.Option(
+        None, "--max-depth", help=f"Leave out depth beyond this (m, default {MapConfig().max_depth_m:g})."
+    ),
+    sigma_max: Optional[float] = typer.Option(
+        None, "--sigma-max", help="Leave out pixels whose predicted uncertainty exceeds this fraction of their depth."
+    ),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Fuse a refine run's depth, images and poses into a TSDF map: a coloured mesh and point cloud."""
@@ -215,9 +279,19 @@ def poses(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
     config: Optional[Path] = ConfigOpt,
     loop_closure: bool = typer.Option(True, "--loop-closure/--no-loop-closure", help="Close loops (default on)."),
-    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), vlp16 | mid40 | ratio:R simulated from it, or none (camera only)."),
+    input: Optional[str] = typer.Option(
+        None,
+        "--input",
+        help="LiDAR input: full (the recording's own scan, default), vlp16 | mid40 | ratio:R simulated from it, or "
+        "none (camera only).",
+    ),
     resume: bool = typer.Option(False, help="Continue an interrupted run in OUT."),
-    compare: bool = typer.Option(False, "--compare", help="Also run the textbook monocular VO (mono_vo) and, with LiDAR, KISS-ICP alone (kiss_icp), and score them beside leovr."),
+    compare: bool = typer.Option(
+        False,
+        "--compare",
+        help="Also run the textbook monocular VO (mono_vo) and, with LiDAR, KISS-ICP alone (kiss_icp), and score "
+        "them beside leovr.",
+    ),
 ) -> None:
     """The offline pose pass the self-supervised trainer uses: window odometry, then loop closure."""
     cfg = override(load_config(config).refine, loop={"enabled": loop_closure}, input=input, compare=compare or None)
@@ -241,22 +315,30 @@ def _run_refine(data: Path, out: Path, cfg, resume: bool, rerun: Optional[Path])
         if r.get("n"):
             typer.echo(f"{method:15s} MAE {r['mae_m']:.3f} m  RMSE {r['rmse_m']:.3f} m  ({r['n']} points)")
     if not any(r.get("n") for r in m["depth"].values()):
-        why = ("the whole scan is the input; --input vlp16|mid40|none holds points out" if m["input"] == "full"
-               else "the sequence has neither ground-truth depth nor LiDAR")
+        why = (
+            "the whole scan is the input; --input vlp16|mid40|none holds points out"
+            if m["input"] == "full"
+            else "the sequence has neither ground-truth depth nor LiDAR"
+        )
         typer.echo(f"depth not scored: no ground truth ({why})")
     for name, t in m.get("trajectory", {}).items():
         scale = f", scale {t['scale']:.3f}" if t["align"] == "sim3" else ""
-        drift = (f"  KITTI {t['kitti_t_err_pct']:.2f} % {t['kitti_r_err_deg_per_m']:.4f} deg/m"
-                 if t.get("kitti_t_err_pct") is not None else "")
+        drift = (
+            f"  KITTI {t['kitti_t_err_pct']:.2f} % {t['kitti_r_err_deg_per_m']:.4f} deg/m"
+            if t.get("kitti_t_err_pct") is not None
+            else ""
+        )
         typer.echo(f"{name:9s} ATE {t['ate_m']:.3f} m  RPE {t['rpe_m']:.3f} m{drift} ({t['align']} aligned{scale})")
     t = m["timing"]
     wall = t["stats"].get("wall_ms", {}).get("median")
     cpu = t["stats"].get("cpu_ms", {}).get("median")
-    typer.echo(f"per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
-               f"graph {t['graph_ms']:.0f} ms, output {t['output_ms']:.0f} ms"
-               + (f"; {wall:.0f} ms end to end (median; the generator runs beside the graph)" if wall else "")
-               + (f", {cpu:.0f} ms of CPU time (all threads)" if cpu else "")
-               + f" -> {out}")
+    typer.echo(
+        f"per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
+        f"graph {t['graph_ms']:.0f} ms, output {t['output_ms']:.0f} ms"
+        + (f"; {wall:.0f} ms end to end (median; the generator runs beside the graph)" if wall else "")
+        + (f", {cpu:.0f} ms of CPU time (all threads)" if cpu else "")
+        + f" -> {out}"
+    )
     if rerun is not None:
         from leovr.viz.recording import write_recording
 
@@ -281,15 +363,20 @@ def viz(
 def train(
     sequences: Optional[list[Path]] = typer.Argument(None, help="Raw sequence folders (--mode selfsup)."),
     out: Path = typer.Option(..., "--out", "-o", help="Run folder (checkpoints, log.jsonl / log.csv)."),
-    mode: str = typer.Option("supervised", help="supervised (simulator ground truth) | selfsup (raw sequences, no ground truth)."),
+    mode: str = typer.Option(
+        "supervised", help="supervised (simulator ground truth) | selfsup (raw sequences, no ground truth)."
+    ),
     config: Optional[Path] = ConfigOpt,
     dataset: Optional[Path] = typer.Option(None, help="Dataset folder with manifest.json (--mode supervised)."),
     epochs: Optional[int] = typer.Option(None),
     batch_size: Optional[int] = typer.Option(None, "--batch-size"),
-    max_frames: Optional[int] = typer.Option(None, "--max-frames", min=1,
-                                             help="Cap on training frames (selfsup: per sequence)."),
+    max_frames: Optional[int] = typer.Option(
+        None, "--max-frames", min=1, help="Cap on training frames (selfsup: per sequence)."
+    ),
     init_checkpoint: Optional[Path] = typer.Option(None, "--init-checkpoint", help="Start from these weights."),
-    rerun: Optional[Path] = typer.Option(None, help="selfsup: log flow masks, warped images and photometric error to this .rrd."),
+    rerun: Optional[Path] = typer.Option(
+        None, help="selfsup: log flow masks, warped images and photometric error to this .rrd."
+    ),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint_last.pt."),
 ) -> None:
     """Train the depth generator: supervised on simulator splits, or self-supervised (LeoVR Sec. IV) on
@@ -300,26 +387,40 @@ def train(
 
         if not sequences:
             raise typer.BadParameter("give at least one sequence folder", param_hint="SEQUENCES")
-        cfg = override(load_config(config).selfsup, epochs=epochs, batch_size=batch_size, max_frames=max_frames,
-                       init_checkpoint=init)
+        cfg = override(
+            load_config(config).selfsup,
+            epochs=epochs,
+            batch_size=batch_size,
+            max_frames=max_frames,
+            init_checkpoint=init,
+        )
         from leovr.pipeline.refine import run_refine
 
         r = train_selfsup(cfg, list(sequences), out, run_refine, resume=resume, rerun=rerun)
         if r:
-            typer.echo(f"epoch {r['epoch']} ({r['stage']}): loss {r['loss']:.4f}, photometric {r['photometric']:.4f}, "
-                       f"masks keep {100 * r['mask_kept']:.0f}% -> {out}/generator.pt")
+            typer.echo(
+                f"epoch {r['epoch']} ({r['stage']}): loss {r['loss']:.4f}, photometric {r['photometric']:.4f}, "
+                f"masks keep {100 * r['mask_kept']:.0f}% -> {out}/generator.pt"
+            )
         elif resume:
             typer.echo(f"nothing to train: {out} already holds {cfg.epochs} epoch(s); give more with --epochs")
         return
     if mode != "supervised":
         raise typer.BadParameter("--mode is supervised or selfsup", param_hint="--mode")
     if sequences:
-        raise typer.BadParameter("--mode supervised reads the simulator dataset (--dataset), not sequence folders",
-                                 param_hint="SEQUENCES")
+        raise typer.BadParameter(
+            "--mode supervised reads the simulator dataset (--dataset), not sequence folders", param_hint="SEQUENCES"
+        )
     from leovr.depth.train import train_supervised
 
-    cfg = override(load_config(config).train, dataset=None if dataset is None else str(dataset), epochs=epochs,
-                   batch_size=batch_size, max_frames=max_frames, init_checkpoint=init)
+    cfg = override(
+        load_config(config).train,
+        dataset=None if dataset is None else str(dataset),
+        epochs=epochs,
+        batch_size=batch_size,
+        max_frames=max_frames,
+        init_checkpoint=init,
+    )
     r = train_supervised(cfg, out, resume=resume)
     typer.echo(f"epoch {r.get('epoch')}: val MAE {r.get('val_mae_m', float('nan')):.3f} m -> {out}")
 
@@ -328,7 +429,12 @@ def train(
 def adapt(
     sequences: list[Path] = typer.Argument(..., help="Recorded sequence folders (camera + LiDAR)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (generator.pt, log.jsonl, run.json)."),
-    input: Optional[str] = typer.Option(None, "--input", help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it (evaluation)."),
+    input: Optional[str] = typer.Option(
+        None,
+        "--input",
+        help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it "
+        "(evaluation).",
+    ),
     init: Optional[Path] = typer.Option(None, "--init", help="Generator to start from (default: the shipped one)."),
     epochs: Optional[int] = typer.Option(None),
     start: Optional[int] = typer.Option(None, help="First frame of every sequence."),
@@ -345,17 +451,31 @@ def adapt(
     from selfsup.adapt import adapt as run_adapt
     from selfsup.distributed import distributed
 
-    cfg = override(load_config(config).adapt, input=input, epochs=epochs, start=start, end=end,
-                   init_checkpoint=None if init is None else str(init))
+    cfg = override(
+        load_config(config).adapt,
+        input=input,
+        epochs=epochs,
+        start=start,
+        end=end,
+        init_checkpoint=None if init is None else str(init),
+    )
     r = run_adapt([open_sequence(s) for s in sequences], cfg, out, resume=resume)
     if distributed()[0] == 0:  # one line from `torchrun --nproc-per-node N leovr adapt ...`
         val = r["best_val_mae_m"]
-        typer.echo(f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
-                   + (f"validation MAE {val:.3f} m at the hidden returns" if val is not None
-                      else "no validation frames (val_every: 0), the last epoch kept")
-                   + (f"; network weight against its prior {r['blend']:g} "
-                      f"({r['val_mae_m_by_blend'][str(r['blend'])]:.3f} m)" if "blend" in r else "")
-                   + f" -> {out / 'generator.pt'}")
+        typer.echo(
+            f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
+            + (
+                f"validation MAE {val:.3f} m at the hidden returns"
+                if val is not None
+                else "no validation frames (val_every: 0), the last epoch kept"
+            )
+            + (
+                f"; network weight against its prior {r['blend']:g} ({r['val_mae_m_by_blend'][str(r['blend'])]:.3f} m)"
+                if "blend" in r
+                else ""
+            )
+            + f" -> {out / 'generator.pt'}"
+        )
 
 
 @app.command()
@@ -363,9 +483,15 @@ def batch(
     source: Path = typer.Argument(..., help="A folder of sequences, or a manifest (.yaml / .csv) listing them."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder: <name>/ per sequence, summary.csv / .md."),
     job: Optional[str] = typer.Option(None, "--job", help="refine (default) | complete | adapt+refine"),
-    address: Optional[str] = typer.Option(None, "--address", help="Ray cluster to join (auto | HOST:PORT); default: a local instance."),
-    workers: Optional[int] = typer.Option(None, "--workers", help="Sequences in flight (default: CPUs / cpus_per_task)."),
-    fuse_map: Optional[bool] = typer.Option(None, "--map/--no-map", help="Refine jobs: also fuse each run into <name>/map."),
+    address: Optional[str] = typer.Option(
+        None, "--address", help="Ray cluster to join (auto | HOST:PORT); default: a local instance."
+    ),
+    workers: Optional[int] = typer.Option(
+        None, "--workers", help="Sequences in flight (default: CPUs / cpus_per_task)."
+    ),
+    fuse_map: Optional[bool] = typer.Option(
+        None, "--map/--no-map", help="Refine jobs: also fuse each run into <name>/map."
+    ),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Many sequences, one Ray task each: outputs as `leovr refine` writes them, a summary, and a re-run

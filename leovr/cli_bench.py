@@ -102,8 +102,14 @@ def bench_batch(
 def bench_real(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
     quick: bool = typer.Option(False, help="First 12 frames of each clip, one adaptation epoch."),
-    adapt: Optional[bool] = typer.Option(None, "--adapt/--no-adapt", help="Adapt the generator to each clip for every input / none (default: the config's adapt_inputs)."),
-    clips: Optional[str] = typer.Option(None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."),
+    adapt: Optional[bool] = typer.Option(
+        None,
+        "--adapt/--no-adapt",
+        help="Adapt the generator to each clip for every input / none (default: the config's adapt_inputs).",
+    ),
+    clips: Optional[str] = typer.Option(
+        None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."
+    ),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Real KITTI raw drives: nearest, IP-Basic, prior, shipped generator / refined (adapted / adapted + refined
@@ -121,7 +127,9 @@ def bench_real(
 def bench_map(
     out: Path = OutOpt,
     quick: bool = typer.Option(False, help="The first frames of each clip only."),
-    clips: Optional[str] = typer.Option(None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."),
+    clips: Optional[str] = typer.Option(
+        None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."
+    ),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Maps of each real drive from the refined depth, the nearest fill and the accumulated cheap returns, scored
@@ -137,7 +145,9 @@ def bench_map(
 def bench_selfsup(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
     quick: bool = typer.Option(False, help="One short sequence per scenario, two epochs."),
-    parts: Optional[str] = typer.Option(None, help="Comma-separated parts to run: synthetic,traffic,kitti (default: all)."),
+    parts: Optional[str] = typer.Option(
+        None, help="Comma-separated parts to run: synthetic,traffic,kitti (default: all)."
+    ),
     config: Optional[Path] = ConfigOpt,
 ) -> None:
     """Cold-start self-supervised training vs untrained, no-mask, no-L_f/L_r and supervised models."""

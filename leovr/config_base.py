@@ -21,11 +21,14 @@ class FrameSelection(_Model):
     """What depth jobs share: the generator, the cheap LiDAR input, the frames and how they are scored."""
 
     checkpoint: str | None = None  # generator weights (.pt); None = the shipped checkpoint
-    generator_focal_px: float | None = 260.0  # generator run at this focal length (px, its training camera); None = native
+    generator_focal_px: float | None = (
+        260.0  # generator run at this focal length (px, its training camera); None = native
+    )
     # onnxruntime_int8: the network in 8-bit integers from the checkpoint's calibration table (leovr.depth.quantize;
     # a checkpoint without one runs in floating point, with a warning); onnxruntime: floating point, torch's outputs
     generator_runtime: GeneratorRuntime = "onnxruntime_int8"
-    # the classical prior at depth edges (generator and `interp`): the side the image puts a pixel on, or the nearest return
+    # the classical prior at depth edges (generator and `interp`): the side the image puts a pixel on, or the nearest
+    # return
     prior_edges: Literal["image", "nearest"] = "image"
     input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
     seed: int = Field(0, ge=0)  # seeds the simulated input (ratio:R draws)

@@ -32,7 +32,9 @@ class CorrectionGrid:
         """Bilinear interpolation: node indices (N x 4) and weights (N x 4) for pixels (u, v)."""
         x0, fx = self._axis(u, self.cols, self.width)
         y0, fy = self._axis(v, self.rows, self.height)
-        idx = np.stack([y0 * self.cols + x0, y0 * self.cols + x0 + 1, (y0 + 1) * self.cols + x0, (y0 + 1) * self.cols + x0 + 1], 1)
+        idx = np.stack(
+            [y0 * self.cols + x0, y0 * self.cols + x0 + 1, (y0 + 1) * self.cols + x0, (y0 + 1) * self.cols + x0 + 1], 1
+        )
         w = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], 1)
         return idx, w
 

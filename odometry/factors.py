@@ -22,7 +22,11 @@ HUBER_K = 1.345
 
 
 def huber(sigma: float | np.ndarray, dim: int = 1, k: float = HUBER_K):
-    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)) if np.isscalar(sigma) else gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, float))
+    base = (
+        gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma))
+        if np.isscalar(sigma)
+        else gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, float))
+    )
     return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k), base)
 
 
@@ -30,7 +34,9 @@ def projection_factor(uv: np.ndarray, pose_key: int, point_key: int, cal: gtsam.
     return gtsam.GenericProjectionFactorCal3_S2(np.asarray(uv, float), huber(sigma_px, 2), pose_key, point_key, cal)
 
 
-def lidar_point_factor(p_cam: np.ndarray, pose_key: int, point_key: int, sigma_bearing_rad: float, sigma_range_m: float):
+def lidar_point_factor(
+    p_cam: np.ndarray, pose_key: int, point_key: int, sigma_bearing_rad: float, sigma_range_m: float
+):
     """The landmark seen from the camera at `p_cam` (camera frame, metres), i.e. theta_i P_k = L_k."""
     rng = float(np.linalg.norm(p_cam))
     noise = huber(np.array([sigma_bearing_rad, sigma_bearing_rad, sigma_range_m]))
@@ -116,8 +122,9 @@ class DepthConsistency:
         # d r / d Pj: log z_j minus log D_j at the pixel Pj projects to (pinhole Jacobian times gradient)
         fx, fy = self.K[0, 0], self.K[1, 1]
         w = np.where(ok, s / self.sigma, 0.0)
-        dr_dP = np.stack([-gu * fx / zs, -gv * fy / zs,
-                          1.0 / zs + (gu * fx * Pj[0] + gv * fy * Pj[1]) / zs**2]) * w  # 3 x M
+        dr_dP = (
+            np.stack([-gu * fx / zs, -gv * fy / zs, 1.0 / zs + (gu * fx * Pj[0] + gv * fy * Pj[1]) / zs**2]) * w
+        )  # 3 x M
         if self.B_i is None:
             self.B_i = self.di.grid.dense(self.idx_i, self.w_i)
         # d r / d log D_i: Pj moves along R ray * D

@@ -33,8 +33,9 @@ class Features:
 def detect(image: np.ndarray, n_features: int = 1000) -> Features:
     """ORB keypoints spread over the image (FAST threshold lowered where texture is weak)."""
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=SCALE_FACTOR, fastThreshold=12, edgeThreshold=15,
-                         patchSize=15)
+    orb = cv2.ORB_create(
+        nfeatures=n_features, scaleFactor=SCALE_FACTOR, fastThreshold=12, edgeThreshold=15, patchSize=15
+    )
     kps, desc = orb.detectAndCompute(gray, None)
     if desc is None or not kps:
         return Features(np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8), np.zeros(0, np.int32))

@@ -36,6 +36,7 @@ from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_h
 # whole-drive ATE 0.365 -> 0.345 m over seeds 0-2; docs/decisions/0001-icp-covariance-inflation.md)
 GENERATOR_LANDMARK_PRIOR_REL = 1.0
 
+
 @dataclass
 class _Prev:
     index: int
@@ -66,11 +67,22 @@ class FrontEnd:
 
     def __post_init__(self) -> None:
         cfg = self.cfg
-        self.icp = LidarOdometry(self.T_cam_lidar, cov_inflation=cfg.graph.icp_cov_inflation) if self.use_lidar else None
+        self.icp = (
+            LidarOdometry(self.T_cam_lidar, cov_inflation=cfg.graph.icp_cov_inflation) if self.use_lidar else None
+        )
         camera_only = cfg.camera_only
-        self.mono = None if self.use_lidar else MonoMotion(
-            self.K, camera_only.depth_sigma_log, camera_only.track_sigma_log, camera_only.speed_sigma_log,
-            camera_height=self.camera_height, ground_sigma_log=camera_only.ground_sigma_log)
+        self.mono = (
+            None
+            if self.use_lidar
+            else MonoMotion(
+                self.K,
+                camera_only.depth_sigma_log,
+                camera_only.track_sigma_log,
+                camera_only.speed_sigma_log,
+                camera_height=self.camera_height,
+                ground_sigma_log=camera_only.ground_sigma_log,
+            )
+        )
 
     @property
     def depth_scale(self) -> float:
@@ -115,16 +127,29 @@ class FrontEnd:
         if self.use_lidar and sparse is not None:
             lv, lu = np.nonzero(sparse > 0)
             front = self.cfg.frontend
-            lidar_z = associate(uv, np.stack([lu, lv], 1).astype(float), sparse[lv, lu], front.assoc_radius_px,
-                                front.assoc_max_rel_spread)
+            lidar_z = associate(
+                uv,
+                np.stack([lu, lv], 1).astype(float),
+                sparse[lv, lu],
+                front.assoc_radius_px,
+                front.assoc_max_rel_spread,
+            )
         z = np.where(np.isfinite(lidar_z), lidar_z, z)
         pts = back_project(uv, z, self.K)
         lidar_cam = [pts[k] if np.isfinite(lidar_z[k]) else None for k in range(len(uv))]
         return pts, lidar_cam
 
-    def process(self, index: int, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray,
-                sparse: np.ndarray | None, scan: np.ndarray | None, graph: WindowGraph,
-                icp_guess: np.ndarray | None = None) -> FrameInput:
+    def process(
+        self,
+        index: int,
+        image: np.ndarray,
+        depth: np.ndarray,
+        log_sigma: np.ndarray,
+        sparse: np.ndarray | None,
+        scan: np.ndarray | None,
+        graph: WindowGraph,
+        icp_guess: np.ndarray | None = None,
+    ) -> FrameInput:
         """Build the graph input of a new frame (`depth`: generator depth; `sparse`: the LiDAR input
         as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP; `icp_guess`: the camera's motion
         from the previous frame read from the images, KISS-ICP's prediction)."""
@@ -166,15 +191,33 @@ class FrontEnd:
                 inl &= parallax_agrees(T_rel, p.cam_pts[ia], p.feats.uv[ia], feats.uv[ib], self.K)
                 # where the road gave the step, its metric motion places landmarks from a smaller ray angle
                 road = step.scale_source.startswith("ground")
-                obj, triangulated = self._triangulated(obj, T_prev, T_rel, p.feats.uv[ia], feats.uv[ib],
-                                                       cfg.camera_only.ground_triangulation_min_deg if road else 1.0)
+                obj, triangulated = self._triangulated(
+                    obj,
+                    T_prev,
+                    T_rel,
+                    p.feats.uv[ia],
+                    feats.uv[ib],
+                    cfg.camera_only.ground_triangulation_min_deg if road else 1.0,
+                )
             else:
                 inl = reprojection_inliers(T_init, obj, img, self.K, cfg.frontend.pnp_reproj_px)
             if inl.sum() >= 6:
                 trusted = convex_hull_mask(img[inl], self.shape) & (depth > 0)
             road_placed = triangulated & (step is not None and step.scale_source.startswith("ground"))
-            self._observe(index, feats, lidar_cam, landmark, ia[inl], ib[inl], obj[inl], road_placed[inl], graph,
-                          observations, new_landmarks, prior_rel)
+            self._observe(
+                index,
+                feats,
+                lidar_cam,
+                landmark,
+                ia[inl],
+                ib[inl],
+                obj[inl],
+                road_placed[inl],
+                graph,
+                observations,
+                new_landmarks,
+                prior_rel,
+            )
             self.velocity = T_rel
         self.sources.append(source)
         lidar_uvz = None
@@ -188,12 +231,25 @@ class FrontEnd:
         icp_pose = None
         if T_icp is not None and self.icp.covariance is not None:
             icp_pose = (T_icp, self.icp.covariance)
-        return FrameInput(index, T_init, np.log(np.maximum(depth, 1e-3)), rel_sigma, observations, new_landmarks,
-                          trusted, lidar_uvz, T_rel, odo_cov, icp_pose, prior_rel,
-                          matches_prev=matches_prev)
+        return FrameInput(
+            index,
+            T_init,
+            np.log(np.maximum(depth, 1e-3)),
+            rel_sigma,
+            observations,
+            new_landmarks,
+            trusted,
+            lidar_uvz,
+            T_rel,
+            odo_cov,
+            icp_pose,
+            prior_rel,
+            matches_prev=matches_prev,
+        )
 
-    def _lidar_pose(self, T_prev: np.ndarray, T_icp: np.ndarray | None, obj: np.ndarray, img: np.ndarray
-                    ) -> tuple[np.ndarray, str]:
+    def _lidar_pose(
+        self, T_prev: np.ndarray, T_icp: np.ndarray | None, obj: np.ndarray, img: np.ndarray
+    ) -> tuple[np.ndarray, str]:
         """Initial pose with LiDAR and its source: KISS-ICP's step or PnP on the previous frame's points, whichever
         reprojects more matches; the last step again when neither holds (PnP on under 6 inliers, no ICP)."""
         p, px = self.prev, self.cfg.frontend.pnp_reproj_px
@@ -206,10 +262,21 @@ class FrontEnd:
             return T_prev @ self.velocity, "constant_velocity"
         return guess.T_world_cam, guess.source
 
-    def _observe(self, index: int, feats: Features, lidar_cam: np.ndarray, landmark: np.ndarray, ia: np.ndarray,
-                 ib: np.ndarray, obj: np.ndarray, road_placed: np.ndarray, graph: WindowGraph,
-                 observations: list[Observation], new_landmarks: dict[int, np.ndarray], prior_rel: dict[int, float]
-                 ) -> None:
+    def _observe(
+        self,
+        index: int,
+        feats: Features,
+        lidar_cam: np.ndarray,
+        landmark: np.ndarray,
+        ia: np.ndarray,
+        ib: np.ndarray,
+        obj: np.ndarray,
+        road_placed: np.ndarray,
+        graph: WindowGraph,
+        observations: list[Observation],
+        new_landmarks: dict[int, np.ndarray],
+        prior_rel: dict[int, float],
+    ) -> None:
         """The inlier matches (previous frame's feature ia[m], this frame's ib[m]) as observations: of the
         previous frame's landmark where the graph still holds it, else of a new one at `obj[m]` (world), observed
         from both frames; `road_placed`: placed by the road's metric motion, not the generator's depth, so given
@@ -227,13 +294,15 @@ class FrontEnd:
                     prior_rel[k] = self.cfg.camera_only.triangulated_prior_rel
                 elif self.use_lidar and p.lidar_cam[a] is None:
                     prior_rel[k] = GENERATOR_LANDMARK_PRIOR_REL
-                observations.append(Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a],
-                                                float(scale_prev[m])))
+                observations.append(
+                    Observation(k, p.index, p.feats.uv[a].astype(float), p.lidar_cam[a], float(scale_prev[m]))
+                )
             landmark[b] = k
             observations.append(Observation(k, index, feats.uv[b].astype(float), lidar_cam[b], float(scale_cur[m])))
 
-    def _camera_only_pose(self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray,
-                          uv1: np.ndarray) -> tuple[np.ndarray, str, np.ndarray | None]:
+    def _camera_only_pose(
+        self, step: MonoStep, T_prev: np.ndarray, obj: np.ndarray, img: np.ndarray, uv0: np.ndarray, uv1: np.ndarray
+    ) -> tuple[np.ndarray, str, np.ndarray | None]:
         """Initial pose without LiDAR, its source and its between-factor covariance: the epipolar motion with
         its filtered step length; where that failed, PnP on the landmarks if its motion passes the
         epipolar test of the matches; else constant velocity."""
@@ -249,8 +318,15 @@ class FrontEnd:
             return T_pnp, "pnp", None
         return T_prev @ self.velocity, "constant_velocity", None
 
-    def _triangulated(self, obj: np.ndarray, T_prev: np.ndarray, T_rel: np.ndarray, uv0: np.ndarray,
-                      uv1: np.ndarray, min_angle_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    def _triangulated(
+        self,
+        obj: np.ndarray,
+        T_prev: np.ndarray,
+        T_rel: np.ndarray,
+        uv0: np.ndarray,
+        uv1: np.ndarray,
+        min_angle_deg: float = 1.0,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """World points of matches triangulated from the two poses where the rays part by at least
         `min_angle_deg`, the depth-seeded point `obj` elsewhere; and which were triangulated."""
         if np.linalg.norm(T_rel[:3, 3]) < 1e-6:
@@ -265,8 +341,15 @@ class FrontEnd:
         return np.where(ok[:, None], world, obj), ok
 
 
-def parallax_agrees(T_rel: np.ndarray, X0: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray,
-                    max_ratio: float = 3.0, min_px: float = 3.0) -> np.ndarray:
+def parallax_agrees(
+    T_rel: np.ndarray,
+    X0: np.ndarray,
+    uv0: np.ndarray,
+    uv1: np.ndarray,
+    K: np.ndarray,
+    max_ratio: float = 3.0,
+    min_px: float = 3.0,
+) -> np.ndarray:
     """Per match: whether its parallax (the displacement left once the rotation is taken out) is
     within `max_ratio` of the parallax its depth-seeded point `X0` (first camera) predicts under the
     motion T_rel; matches whose predicted parallax is under `min_px` are not judged (the depth is
@@ -284,8 +367,9 @@ def parallax_agrees(T_rel: np.ndarray, X0: np.ndarray, uv0: np.ndarray, uv1: np.
     return ~judged | ((ratio >= 1.0 / max_ratio) & (ratio <= max_ratio))
 
 
-def epipolar_agrees(T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float = 2.0,
-                    min_fraction: float = 0.5) -> bool:
+def epipolar_agrees(
+    T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float = 2.0, min_fraction: float = 0.5
+) -> bool:
     """Whether most matches satisfy the epipolar geometry of a candidate motion (a PnP pose built on
     wrong depth does not); a motion too small to define an epipolar geometry is not refused."""
     if len(uv0) < 8:

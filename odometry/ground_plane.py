@@ -26,20 +26,29 @@ class GroundFit:
     inliers: int  # corners on the plane
 
 
-def road_corners(image: np.ndarray, K: np.ndarray, camera_height: float, max_corners: int = 600,
-                 corridor_m: float = 2.5, horizon_margin: float = 0.08) -> np.ndarray:
+def road_corners(
+    image: np.ndarray,
+    K: np.ndarray,
+    camera_height: float,
+    max_corners: int = 600,
+    corridor_m: float = 2.5,
+    horizon_margin: float = 0.08,
+) -> np.ndarray:
     """Corners of a gray image where a level camera sees the road in its own corridor: below the horizon
     (the principal point's row plus a margin) and within `corridor_m` of the camera's track sideways,
     a triangle from the vanishing point. Neighbouring lanes' vehicles stay mostly outside it. A low
     quality threshold: road texture is faint, and it is the only texture that gives the scale."""
-    mask = _corridor_mask(image.shape[:2], tuple(np.asarray(K, float).ravel()), camera_height, corridor_m, horizon_margin)
+    mask = _corridor_mask(
+        image.shape[:2], tuple(np.asarray(K, float).ravel()), camera_height, corridor_m, horizon_margin
+    )
     p = cv2.goodFeaturesToTrack(image, maxCorners=max_corners, qualityLevel=0.001, minDistance=5, mask=mask)
     return np.zeros((0, 2)) if p is None else p.reshape(-1, 2).astype(np.float64)
 
 
 @lru_cache(maxsize=8)
-def _corridor_mask(shape: tuple[int, int], K: tuple[float, ...], camera_height: float, corridor_m: float,
-                   horizon_margin: float) -> np.ndarray:
+def _corridor_mask(
+    shape: tuple[int, int], K: tuple[float, ...], camera_height: float, corridor_m: float, horizon_margin: float
+) -> np.ndarray:
     """The corridor of `road_corners` as an 8-bit mask; the same for every frame of a sequence, so built once."""
     h, w = shape
     v, u = np.mgrid[0:h, 0:w]
@@ -67,8 +76,9 @@ def height_mode(h: np.ndarray, rel_band: float, second_share: float = 0.5) -> fl
     return float(hs[best])
 
 
-def fit_ground(X: np.ndarray, rel_band: float = 0.05, near_share: float = 0.6, max_tilt_deg: float = 10.0,
-               min_inliers: int = 8) -> GroundFit | None:
+def fit_ground(
+    X: np.ndarray, rel_band: float = 0.05, near_share: float = 0.6, max_tilt_deg: float = 10.0, min_inliers: int = 8
+) -> GroundFit | None:
     """The road plane among unit-step triangulated points `X` (N x 3, first camera frame), or None
     when too few points lie on one. The camera is taken as level (image y pointing down to the road);
     the fitted normal may tilt from that by at most `max_tilt_deg` (the vehicle pitches and rolls a

@@ -28,8 +28,9 @@ class LidarOdometry:
     deskews each scan itself from its point times with its own last motion, as its pipeline does; its
     pose then refers to the end of the sweep."""
 
-    def __init__(self, T_cam_lidar: np.ndarray, max_range: float = 100.0, cov_inflation: float = 1.0,
-                 deskew: bool = False) -> None:
+    def __init__(
+        self, T_cam_lidar: np.ndarray, max_range: float = 100.0, cov_inflation: float = 1.0, deskew: bool = False
+    ) -> None:
         from kiss_icp.config import KISSConfig
         from kiss_icp.kiss_icp import KissICP
 
@@ -48,8 +49,9 @@ class LidarOdometry:
         self._fit: tuple | None = None  # the last registration's inputs, for `covariance` (computed on demand)
         self._covariance: np.ndarray | None = None
 
-    def register(self, points: np.ndarray | None, times: np.ndarray | None = None, guess: np.ndarray | None = None
-                 ) -> np.ndarray | None:
+    def register(
+        self, points: np.ndarray | None, times: np.ndarray | None = None, guess: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """Camera pose (camera to world) after registering this scan, or None when it has too few points or
         is None (the frame has no scan). `times` (one per point, any unit: KISS-ICP normalises them over the
         sweep) are used only with `deskew=True`. `guess`: the camera's motion since the previous scan (pose of
@@ -96,8 +98,12 @@ class LidarOdometry:
         source, frame_downsample = icp.voxelize(frame)
         sigma = icp.adaptive_threshold.get_threshold()
         new_pose = icp.registration.align_points_to_map(
-            points=source, voxel_map=icp.local_map, initial_guess=icp.last_pose @ delta,
-            max_correspondance_distance=3 * sigma, kernel=sigma)
+            points=source,
+            voxel_map=icp.local_map,
+            initial_guess=icp.last_pose @ delta,
+            max_correspondance_distance=3 * sigma,
+            kernel=sigma,
+        )
         icp.adaptive_threshold.update_model_deviation(invert_T(icp.last_pose @ icp.last_delta) @ new_pose)
         icp.local_map.update(frame_downsample, new_pose)
         icp.last_delta = invert_T(icp.last_pose) @ new_pose
@@ -142,7 +148,9 @@ def is_spinning(xyz: np.ndarray, sectors: int = 12) -> bool:
     return bool(np.mean(counts >= max(5, 0.002 * len(xyz))) >= 0.5)
 
 
-def registration_covariance(source: np.ndarray, target: np.ndarray, T: np.ndarray, max_dist: float) -> np.ndarray | None:
+def registration_covariance(
+    source: np.ndarray, target: np.ndarray, T: np.ndarray, max_dist: float
+) -> np.ndarray | None:
     """Covariance (6 x 6, body frame, rotation then translation) of the point-to-point alignment T of
     `source` onto `target`: the inverse Gauss-Newton Hessian of the matched residuals, scaled by their
     variance. A poor fit (large residuals), few matches or a narrow spread of points (a Mid-40 cone:
@@ -175,14 +183,23 @@ def registration_covariance(source: np.ndarray, target: np.ndarray, T: np.ndarra
         return None
 
 
-def pnp_pose(obj: np.ndarray, img: np.ndarray, K: np.ndarray, reproj_px: float = 2.0) -> tuple[np.ndarray | None, np.ndarray]:
+def pnp_pose(
+    obj: np.ndarray, img: np.ndarray, K: np.ndarray, reproj_px: float = 2.0
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Camera pose (camera to world) from world points and their pixels; also the inlier mask."""
     mask = np.zeros(len(obj), bool)
     if len(obj) < 8:
         return None, mask
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(obj.astype(np.float64), img.astype(np.float64), K, None,
-                                             iterationsCount=200, reprojectionError=reproj_px,
-                                             confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE)
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        obj.astype(np.float64),
+        img.astype(np.float64),
+        K,
+        None,
+        iterationsCount=200,
+        reprojectionError=reproj_px,
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_ITERATIVE,
+    )
     if not ok or inl is None or len(inl) < 6:
         return None, mask
     mask[inl.ravel()] = True
@@ -192,8 +209,9 @@ def pnp_pose(obj: np.ndarray, img: np.ndarray, K: np.ndarray, reproj_px: float =
     return invert_T(T_cw), mask
 
 
-def reprojection_inliers(T_world_cam: np.ndarray, obj: np.ndarray, img: np.ndarray, K: np.ndarray,
-                         reproj_px: float = 2.0) -> np.ndarray:
+def reprojection_inliers(
+    T_world_cam: np.ndarray, obj: np.ndarray, img: np.ndarray, K: np.ndarray, reproj_px: float = 2.0
+) -> np.ndarray:
     """Which world points project within `reproj_px` of their pixel from this pose."""
     if len(obj) == 0:
         return np.zeros(0, bool)
@@ -204,8 +222,9 @@ def reprojection_inliers(T_world_cam: np.ndarray, obj: np.ndarray, img: np.ndarr
     return (z > 0.1) & (np.linalg.norm(uv - img, axis=1) < reproj_px)
 
 
-def choose_pose(candidates: dict[str, np.ndarray | None], obj: np.ndarray, img: np.ndarray, K: np.ndarray,
-                reproj_px: float = 2.0) -> PoseGuess | None:
+def choose_pose(
+    candidates: dict[str, np.ndarray | None], obj: np.ndarray, img: np.ndarray, K: np.ndarray, reproj_px: float = 2.0
+) -> PoseGuess | None:
     """The candidate with the most reprojection inliers (ties: the order given)."""
     best = None
     for name, T in candidates.items():

@@ -8,8 +8,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def associate(uv: np.ndarray, lidar_uv: np.ndarray, lidar_depth: np.ndarray, radius_px: float = 5.0,
-              max_rel_spread: float = 0.1) -> np.ndarray:
+def associate(
+    uv: np.ndarray, lidar_uv: np.ndarray, lidar_depth: np.ndarray, radius_px: float = 5.0, max_rel_spread: float = 0.1
+) -> np.ndarray:
     """Depth (metres) per feature from its nearest projected LiDAR point, NaN where none is within
     `radius_px` or where the points within the radius spread by more than `max_rel_spread` of it."""
     out = np.full(len(uv), np.nan)

@@ -1,6 +1,7 @@
 """Camera motion without LiDAR: the geometry of the textbook VO (`odometry.mono_vo`) with a metric
 step length. Rotation and translation direction come from the essential matrix of Lucas-Kanade
-tracks (USAC with local optimisation rather than the textbook's RANSAC); the step length comes from two sources fused by a Kalman filter on its logarithm:
+tracks (USAC with local optimisation rather than the textbook's RANSAC); the step length comes from two sources fused by
+a Kalman filter on its logarithm:
 
 - relative scale: corners triangulated at the previous step, with metric depth, are tracked on;
   triangulating them again with a unit step gives the change of step length. With a vehicle's
@@ -145,8 +146,9 @@ class MonoMotion:
         spread = self.var + self.speed_sigma_log**2 + sigma**2
         return (log_meas - self.log_len) ** 2 > gate_sigmas**2 * spread
 
-    def _keep_heading(self, motion: np.ndarray, p0: np.ndarray, p1: np.ndarray,
-                      inl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _keep_heading(
+        self, motion: np.ndarray, p0: np.ndarray, p1: np.ndarray, inl: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The essential matrix's motion points against the direction of travel (the last moving step's,
         else the camera's axis). A vehicle cannot reverse between two frames without standing still in
         between; OpenCV's cheirality vote leaves far points out, so near movers can carry it (traffic
@@ -159,8 +161,7 @@ class MonoMotion:
         support = [(sampson_px(T, p0, p1, self.K) < 1.0) & in_front(T, p0, p1, self.K) for T in (motion, flipped)]
         return (flipped, support[1]) if support[1].sum() >= max(8, support[0].sum()) else (motion, inl)
 
-    def _road_reading(self, p0: np.ndarray, p1: np.ndarray,
-                      motion: np.ndarray) -> tuple[float, float] | None:
+    def _road_reading(self, p0: np.ndarray, p1: np.ndarray, motion: np.ndarray) -> tuple[float, float] | None:
         """From the road plane of the tracked road corners: the log step length and its sigma; None where
         there is no road reading."""
         if self.camera_height is None or len(p0) < 8:
@@ -170,7 +171,9 @@ class MonoMotion:
         fit = fit_ground(X[par > self.min_parallax_px])
         if fit is None:
             return None
-        return float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(max(1.0, 20.0 / fit.inliers))
+        return float(np.log(self.camera_height / fit.height)), self.ground_sigma_log * np.sqrt(
+            max(1.0, 20.0 / fit.inliers)
+        )
 
     def step(self, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
         """The motion from the previous frame to this one (None for the first frame); then this frame's depth
@@ -188,8 +191,11 @@ class MonoMotion:
         if prev is not None:
             n_old = len(self.carried_uv)
             p0 = np.r_[self.carried_uv, corners(prev, self.max_corners)]
-            road = (road_corners(prev, self.K, self.camera_height, self.max_road_corners) if self.camera_height
-                    else np.zeros((0, 2)))
+            road = (
+                road_corners(prev, self.K, self.camera_height, self.max_road_corners)
+                if self.camera_height
+                else np.zeros((0, 2))
+            )
             result = self._motion(prev, cur, p0, n_old, road)
         self.prev_gray = cur
         if result is not None:

@@ -30,8 +30,9 @@ def follow(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray) -> tuple[np.ndarra
     """Where pyramidal Lucas-Kanade finds the points `p0` of `prev` in `cur` (N x 2), and which it found."""
     if not len(p0):
         return np.zeros((0, 2)), np.zeros(0, bool)
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0.astype(np.float32).reshape(-1, 1, 2), None,
-                                         winSize=(21, 21), maxLevel=3)
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(
+        prev, cur, p0.astype(np.float32).reshape(-1, 1, 2), None, winSize=(21, 21), maxLevel=3
+    )
     return p1.reshape(-1, 2).astype(np.float64), st.ravel() == 1
 
 
@@ -44,8 +45,9 @@ def track(prev: np.ndarray, cur: np.ndarray, max_corners: int = 2000) -> tuple[n
     return p0[ok], p1[ok]
 
 
-def relative_motion(p0: np.ndarray, p1: np.ndarray, K: np.ndarray, threshold_px: float = 1.0,
-                    method: int = cv2.RANSAC) -> tuple[np.ndarray | None, np.ndarray]:
+def relative_motion(
+    p0: np.ndarray, p1: np.ndarray, K: np.ndarray, threshold_px: float = 1.0, method: int = cv2.RANSAC
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Pose of the camera of the second frame in the first (4 x 4, unit translation) from the
     essential matrix of the tracks, and the inliers of the pose it recovered; None when too few
     tracks or no essential matrix. `method`: plain RANSAC (the textbook) or an OpenCV USAC variant."""
@@ -67,8 +69,15 @@ def relative_motion(p0: np.ndarray, p1: np.ndarray, K: np.ndarray, threshold_px:
     return T_0_1, inl
 
 
-def recover_pose(E: np.ndarray, p1: np.ndarray, p0: np.ndarray, K: np.ndarray, inliers: np.ndarray,
-                 sample: int = 300, distance: float = 50.0) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+def recover_pose(
+    E: np.ndarray,
+    p1: np.ndarray,
+    p0: np.ndarray,
+    K: np.ndarray,
+    inliers: np.ndarray,
+    sample: int = 300,
+    distance: float = 50.0,
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """cv2.recoverPose with an inlier mask, faster: the pose among E's four whose triangulated points lie in front
     of both cameras (nearer than `distance` baselines), chosen on `sample` inliers spread over them (on all where
     none has half of them in front), then the inliers in front for that pose alone; OpenCV triangulates every match

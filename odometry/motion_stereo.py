@@ -56,8 +56,11 @@ class GrayImages:
 
 def track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray, s: MotionStereoConfig) -> tuple[np.ndarray, np.ndarray]:
     """Corners of g0 in g1 (pyramidal Lucas-Kanade) and which of them came back within s.track_check_px."""
-    lk = dict(winSize=(s.lk_window_px, s.lk_window_px), maxLevel=s.lk_levels,
-              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, s.lk_iterations, 0.01))
+    lk = dict(
+        winSize=(s.lk_window_px, s.lk_window_px),
+        maxLevel=s.lk_levels,
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, s.lk_iterations, 0.01),
+    )
     if not len(corners):
         return corners.copy(), np.zeros(0, bool)
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(g0, g1, corners, None, **lk)
@@ -88,8 +91,15 @@ def essential_motion(c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray
     return np.hstack([R, t / max(np.linalg.norm(t), 1e-12)])
 
 
-def scaled_motion(Rt: np.ndarray, c: np.ndarray, p: np.ndarray, ok: np.ndarray, K: np.ndarray, lidar: np.ndarray,
-                  s: MotionStereoConfig) -> np.ndarray | None:
+def scaled_motion(
+    Rt: np.ndarray,
+    c: np.ndarray,
+    p: np.ndarray,
+    ok: np.ndarray,
+    K: np.ndarray,
+    lidar: np.ndarray,
+    s: MotionStereoConfig,
+) -> np.ndarray | None:
     """Frame i -> j as [R | t] (3 x 4): the essential matrix's rotation and direction `Rt` (`essential_motion`),
     its length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
     with too few LiDAR-backed corners."""
@@ -107,8 +117,9 @@ def scaled_motion(Rt: np.ndarray, c: np.ndarray, p: np.ndarray, ok: np.ndarray, 
     return out
 
 
-def triangulate(c: np.ndarray, views: list[tuple[np.ndarray, np.ndarray, np.ndarray]], K: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def triangulate(
+    c: np.ndarray, views: list[tuple[np.ndarray, np.ndarray, np.ndarray]], K: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points (frame i) from corners c seen in frame i and in `views` ([R | t], pixels, tracked), by the
     linear multi-view method on normalised coordinates; with each point's reprojection RMS (px), largest
     parallax (px) and number of views."""
@@ -117,8 +128,9 @@ def triangulate(c: np.ndarray, views: list[tuple[np.ndarray, np.ndarray, np.ndar
     px = np.stack([c] + [v[1] for v in views], 1).astype(np.float64)  # n x V x 2
     ok = np.stack([np.ones(len(c), bool)] + [v[2] for v in views], 1)
     xn = np.concatenate([px, np.ones(px.shape[:2] + (1,))], 2) @ Ki.T
-    rows = np.concatenate([xn[:, :, 0:1] * Ps[None, :, 2] - Ps[None, :, 0],
-                           xn[:, :, 1:2] * Ps[None, :, 2] - Ps[None, :, 1]], 1)
+    rows = np.concatenate(
+        [xn[:, :, 0:1] * Ps[None, :, 2] - Ps[None, :, 0], xn[:, :, 1:2] * Ps[None, :, 2] - Ps[None, :, 1]], 1
+    )
     A = rows * np.concatenate([ok, ok], 1)[..., None]
     X = np.linalg.svd(A)[2][:, -1]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -195,8 +207,15 @@ class FrameTracks:
     rung on each side and the neighbours off the ladder (the pair motions' frames i - 1, i - 3) track every
     corner."""
 
-    def __init__(self, i: int, images: GrayImages, K: np.ndarray, own: np.ndarray | None,
-                 s: MotionStereoConfig = MotionStereoConfig(), ladder: list[int] | tuple[int, ...] = ()) -> None:
+    def __init__(
+        self,
+        i: int,
+        images: GrayImages,
+        K: np.ndarray,
+        own: np.ndarray | None,
+        s: MotionStereoConfig = MotionStereoConfig(),
+        ladder: list[int] | tuple[int, ...] = (),
+    ) -> None:
         self.i, self.images, self.K, self.s, self.ladder = i, images, K, s, tuple(ladder)
         g0 = images[i]
         self.g0 = g0
@@ -280,14 +299,22 @@ class FrameTracks:
         return self._pairs[j]
 
 
-def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                 s: MotionStereoConfig = MotionStereoConfig(), tracks: FrameTracks | None = None
-                 ) -> dict[int, np.ndarray]:
+def pair_motions(
+    i: int,
+    neighbours: list[int],
+    images: GrayImages,
+    K: np.ndarray,
+    own: np.ndarray,
+    s: MotionStereoConfig = MotionStereoConfig(),
+    tracks: FrameTracks | None = None,
+) -> dict[int, np.ndarray]:
     """Frame i's motion to each neighbour j as a 4 x 4 T_j_i (camera i's points into camera j): rotation and
     direction from the essential matrix of the tracked corners, length from the frame's own LiDAR returns
-    (`essential_motion`, `scaled_motion`). Neighbours where either fails are left out. For the window graph: on the simulator's
+    (`essential_motion`, `scaled_motion`). Neighbours where either fails are left out. For the window graph: on the
+    simulator's
     Mid-40 validation drives the essential matrix's rotation is 5x nearer the truth than the graph's own
-    (median 0.03 against 0.14-0.34 degrees; docs/decisions/0006-pair-factors-cone-only.md). `tracks`: frame i's, to share with motion
+    (median 0.03 against 0.14-0.34 degrees; docs/decisions/0006-pair-factors-cone-only.md). `tracks`: frame i's, to
+    share with motion
     stereo (built here when None)."""
     if not neighbours:
         return {}
@@ -300,9 +327,15 @@ def pair_motions(i: int, neighbours: list[int], images: GrayImages, K: np.ndarra
     return out
 
 
-def triangulated_corners(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                         s: MotionStereoConfig = MotionStereoConfig(), tracks: FrameTracks | None = None
-                         ) -> Corners:
+def triangulated_corners(
+    i: int,
+    neighbours: list[int],
+    images: GrayImages,
+    K: np.ndarray,
+    own: np.ndarray,
+    s: MotionStereoConfig = MotionStereoConfig(),
+    tracks: FrameTracks | None = None,
+) -> Corners:
     """Frame i's corners tracked into its neighbours and triangulated; all of them, before the tests."""
     none = Corners(*(np.zeros(0, t) for t in (int, int, float, float, float, int)))
     if not neighbours:
@@ -335,9 +368,16 @@ def agree_with_neighbours(c: Corners, radius_px: float, min_neighbours: int, max
     return (count >= min_neighbours) & (np.abs(lz[:-1] - med) < max_log_diff)
 
 
-def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np.ndarray, own: np.ndarray,
-                        seen: np.ndarray | None = None, s: MotionStereoConfig = MotionStereoConfig(),
-                        tracks: FrameTracks | None = None) -> np.ndarray:
+def motion_stereo_depth(
+    i: int,
+    neighbours: list[int],
+    images: GrayImages,
+    K: np.ndarray,
+    own: np.ndarray,
+    seen: np.ndarray | None = None,
+    s: MotionStereoConfig = MotionStereoConfig(),
+    tracks: FrameTracks | None = None,
+) -> np.ndarray:
     """Frame i's triangulated corners that pass the tests, as a sparse depth map (0 = none), only where no
     LiDAR return of `seen` (default: `own`, the frame's own returns, which set each pair's length) lies
     within s.lidar_gap_px. `tracks`: frame i's, to share with the pair motions."""
@@ -346,8 +386,13 @@ def motion_stereo_depth(i: int, neighbours: list[int], images: GrayImages, K: np
     if not len(c):
         return out
     with np.errstate(invalid="ignore"):
-        keep = ((c.views >= s.min_views) & (c.rms < s.max_rms_px) & (c.parallax > s.min_parallax_px)
-                & (c.z > s.min_depth_m) & (c.z < s.max_depth_m))
+        keep = (
+            (c.views >= s.min_views)
+            & (c.rms < s.max_rms_px)
+            & (c.parallax > s.min_parallax_px)
+            & (c.z > s.min_depth_m)
+            & (c.z < s.max_depth_m)
+        )
     c = c.take(keep)
     c = c.take(agree_with_neighbours(c, s.neighbour_radius * float(K[0, 0]), s.min_neighbours, s.max_log_diff))
     far = nearest_returns(own if seen is None else seen, np.column_stack([c.u, c.v]))[0] > s.lidar_gap_px
@@ -361,18 +406,21 @@ def neighbour_frames(i: int, selected: list[int], offsets: list[int], causal: bo
     return [j for o in offsets for j in ((i - o,) if causal else (i - o, i + o)) if j in have]
 
 
-def corner_reference(log_depth: np.ndarray, v: np.ndarray, u: np.ndarray, log_z: np.ndarray, radius_px: int) -> np.ndarray:
+def corner_reference(
+    log_depth: np.ndarray, v: np.ndarray, u: np.ndarray, log_z: np.ndarray, radius_px: int
+) -> np.ndarray:
     """The generator's log depth within radius_px of each corner that is closest to the corner's own: a
     corner found on an edge in the image belongs to the surface on its side of the edge, and the
     generator's edge may lie a pixel or two off the image's."""
     h, w = log_depth.shape
-    dy, dx = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1].reshape(2, -1)
+    dy, dx = np.mgrid[-radius_px : radius_px + 1, -radius_px : radius_px + 1].reshape(2, -1)
     cand = log_depth[np.clip(v[:, None] + dy, 0, h - 1), np.clip(u[:, None] + dx, 0, w - 1)]
     return cand[np.arange(len(v)), np.argmin(np.abs(cand - log_z[:, None]), axis=1)]
 
 
-def corrected_depth(depth: np.ndarray, corners: np.ndarray, sigma_px: float, support: float,
-                    range_log: float = np.inf, edge_px: int = 0) -> np.ndarray:
+def corrected_depth(
+    depth: np.ndarray, corners: np.ndarray, sigma_px: float, support: float, range_log: float = np.inf, edge_px: int = 0
+) -> np.ndarray:
     """`depth` scaled near the triangulated corners by their log ratio to it, spread by normalised Gaussian
     convolution (sigma_px) and only over pixels whose generator depth is within about range_log (log) of the
     corner's (a cross-bilateral weight: a corner's ratio stays on its own surface, never carried across a
@@ -392,7 +440,7 @@ def corrected_depth(depth: np.ndarray, corners: np.ndarray, sigma_px: float, sup
     ws = np.zeros(depth.shape, np.float32)
     for vc, uc, r, lref in zip(v, u, lz - ref, ref):  # one window per corner (tens to hundreds of them)
         y0, y1, x0, x1 = max(vc - rad, 0), min(vc + rad + 1, h), max(uc - rad, 0), min(uc + rad + 1, w)
-        wt = np.outer(g[y0 - vc + rad:y1 - vc + rad], g[x0 - uc + rad:x1 - uc + rad])
+        wt = np.outer(g[y0 - vc + rad : y1 - vc + rad], g[x0 - uc + rad : x1 - uc + rad])
         if np.isfinite(range_log):
             wt = wt * np.exp(-0.5 * ((ld[y0:y1, x0:x1] - lref) / range_log) ** 2)
         rs[y0:y1, x0:x1] += wt * r

@@ -47,18 +47,26 @@ class _Votes:
 _votes_cache: dict[CorrectionGrid, _Votes] = {}
 
 
-def _working_scale(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
-                   K: np.ndarray, s: PhotometricConfig
-                   ) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+def _working_scale(
+    depth: np.ndarray,
+    gray: np.ndarray,
+    neighbours: list[tuple[np.ndarray, np.ndarray]],
+    K: np.ndarray,
+    s: PhotometricConfig,
+) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
     """Depth, images and intrinsics at the sweep's working resolution (about `s.sweep_pixels` pixels, or
     `s.downsample`): the depth sampled at the pixel centres, the images area-averaged."""
     f = s.downsample or max(int(round(np.sqrt(depth.size / s.sweep_pixels))), 1)
     if f > 1:  # pixel centres: (x + 0.5) / f - 0.5
+
         def small(im: np.ndarray) -> np.ndarray:
             return cv2.resize(im, (im.shape[1] // f, im.shape[0] // f), interpolation=cv2.INTER_AREA)
-        depth = depth[f // 2::f, f // 2::f][: depth.shape[0] // f, : depth.shape[1] // f]
+
+        depth = depth[f // 2 :: f, f // 2 :: f][: depth.shape[0] // f, : depth.shape[1] // f]
         gray, neighbours = small(gray), [(small(im), T) for im, T in neighbours]
-        K = np.array([[K[0, 0] / f, 0, (K[0, 2] + 0.5) / f - 0.5], [0, K[1, 1] / f, (K[1, 2] + 0.5) / f - 0.5], [0, 0, 1]])
+        K = np.array(
+            [[K[0, 0] / f, 0, (K[0, 2] + 0.5) / f - 0.5], [0, K[1, 1] / f, (K[1, 2] + 0.5) / f - 0.5], [0, 0, 1]]
+        )
     return depth, gray, neighbours, K
 
 
@@ -76,8 +84,13 @@ def _reflected(x: np.ndarray, n: int) -> np.ndarray:
     return x
 
 
-def _sweep_costs(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
-                 K: np.ndarray, s: PhotometricConfig) -> tuple[CorrectionGrid, np.ndarray, np.ndarray, np.ndarray]:
+def _sweep_costs(
+    depth: np.ndarray,
+    gray: np.ndarray,
+    neighbours: list[tuple[np.ndarray, np.ndarray]],
+    K: np.ndarray,
+    s: PhotometricConfig,
+) -> tuple[CorrectionGrid, np.ndarray, np.ndarray, np.ndarray]:
     """The grid, the candidate log offsets (the far candidate last when `s.far_log`) and, per candidate and
     node, the summed patch cost (1 - ZNCC with each neighbour's image warped by the scaled depth) and the
     number of pixels that saw it."""
@@ -126,9 +139,15 @@ def _sweep_costs(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.
     return grid, cands, cost, weight
 
 
-def photometric_offsets(depth: np.ndarray, gray: np.ndarray, neighbours: list[tuple[np.ndarray, np.ndarray]],
-                        K: np.ndarray, free: np.ndarray, s: PhotometricConfig = PhotometricConfig(),
-                        stats: dict | None = None) -> np.ndarray:
+def photometric_offsets(
+    depth: np.ndarray,
+    gray: np.ndarray,
+    neighbours: list[tuple[np.ndarray, np.ndarray]],
+    K: np.ndarray,
+    free: np.ndarray,
+    s: PhotometricConfig = PhotometricConfig(),
+    stats: dict | None = None,
+) -> np.ndarray:
     """Per-node log offsets (grid `s.rows` x `s.cols`, flat) for a frame's depth (H x W, 0 = unknown).
     `gray`: the frame's image (H x W); `neighbours`: (image, T_j_i) pairs, T_j_i mapping this camera's
     coordinates into neighbour j's; `free`: per node, whether it may move (no LiDAR returns). Nodes
@@ -178,7 +197,9 @@ def free_nodes(sparse: np.ndarray, s: PhotometricConfig = PhotometricConfig()) -
     return ~(np.nan_to_num(counts) > 0)
 
 
-def photometric_correction(depth: np.ndarray, offsets: np.ndarray, s: PhotometricConfig = PhotometricConfig()) -> np.ndarray:
+def photometric_correction(
+    depth: np.ndarray, offsets: np.ndarray, s: PhotometricConfig = PhotometricConfig()
+) -> np.ndarray:
     """The depth times the upsampled offsets (0 stays 0)."""
     if not np.any(offsets):
         return depth

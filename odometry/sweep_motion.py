@@ -38,8 +38,9 @@ class SweepMotion:
         self.n_features = n_features
         self._feats: dict[int, Features] = {}
 
-    def __call__(self, index: int, image: np.ndarray, next_index: int, next_image: np.ndarray,
-                 K: np.ndarray) -> ImagesMotion:
+    def __call__(
+        self, index: int, image: np.ndarray, next_index: int, next_image: np.ndarray, K: np.ndarray
+    ) -> ImagesMotion:
         a = self._feats.pop(index, None) or detect(image, self.n_features)
         b = detect(next_image, self.n_features)
         self._feats = {next_index: b}
@@ -55,8 +56,9 @@ def images_motion(a: Features, b: Features, K: np.ndarray) -> ImagesMotion:
     return ImagesMotion(motion if motion is not None and inl.sum() >= 20 else None, uv0, uv1)
 
 
-def sweep_motion(seen: ImagesMotion, K: np.ndarray, velocity: np.ndarray | None,
-                 agree_px: float = 1.0, margin: float = 1.5) -> np.ndarray | None:
+def sweep_motion(
+    seen: ImagesMotion, K: np.ndarray, velocity: np.ndarray | None, agree_px: float = 1.0, margin: float = 1.5
+) -> np.ndarray | None:
     """Pose of the camera at the next image in the camera at this one (4 x 4), to deskew this frame's
     sweep: the images' motion `seen` (its length from `velocity`, the last estimated step in the same
     convention; rotation only when None) or `velocity` itself, whichever `margin` times more ORB matches

@@ -79,7 +79,9 @@ class FrameInput:
     trusted: np.ndarray | None  # H x W bool: where depth consistency may be sampled
     lidar_uvz: np.ndarray | None  # M x 3: the frame's own LiDAR returns (u, v, depth)
     T_prev_rel: np.ndarray | None = None  # front-end motion from the previous frame
-    odometry_cov: np.ndarray | None = None  # its 6 x 6 covariance (rotation rad, translation m); None: the config's weak sigmas
+    odometry_cov: np.ndarray | None = (
+        None  # its 6 x 6 covariance (rotation rad, translation m); None: the config's weak sigmas
+    )
     icp_pose: tuple[np.ndarray, np.ndarray] | None = None  # KISS-ICP's pose (camera to world) and its 6 x 6 covariance
     # landmark id -> its prior's sigma per metre of depth where it differs from `landmark_prior_rel`
     landmark_prior_rel: dict[int, float] = field(default_factory=dict)
@@ -166,8 +168,9 @@ class WindowGraph:
         if g.depth_factors == "auto":
             self.depth_factors = not spinning
         if self.last is None:
-            self.incremental = (spinning and not self.depth_factors and g.pair_factors is not True
-                                and self.condition_leaving)
+            self.incremental = (
+                spinning and not self.depth_factors and g.pair_factors is not True and self.condition_leaving
+            )
             self.smoother = self._new_smoother()
 
     # ----------------------------------------------------------------- factors of one new frame
@@ -175,13 +178,17 @@ class WindowGraph:
         g = self.cfg.graph
         values.insert(X(f.index), gtsam.Pose3(f.T_init))
         if self.last is None:
-            graph.add(gtsam.PriorFactorPose3(X(f.index), gtsam.Pose3(f.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
+            graph.add(
+                gtsam.PriorFactorPose3(X(f.index), gtsam.Pose3(f.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-4))
+            )
         else:
             rel = f.T_prev_rel if f.T_prev_rel is not None else invert_T(self.poses[self.last]) @ f.T_init
             if f.odometry_cov is not None:
                 noise = gtsam.noiseModel.Gaussian.Covariance(f.odometry_cov)
             else:
-                noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, g.odometry_sigma_rad), np.full(3, g.odometry_sigma_m)])
+                noise = gtsam.noiseModel.Diagonal.Sigmas(
+                    np.r_[np.full(3, g.odometry_sigma_rad), np.full(3, g.odometry_sigma_m)]
+                )
             graph.add(gtsam.BetweenFactorPose3(X(self.last), X(f.index), gtsam.Pose3(rel), noise))
         if f.icp_pose is not None:
             self._icp_factors(f, *f.icp_pose, graph)
@@ -200,14 +207,19 @@ class WindowGraph:
         for k, P in f.new_landmarks.items():
             values.insert(L(k), np.asarray(P, float))
             self.landmarks[k] = np.asarray(P, float)
-            # the depth it was initialised from (generator or LiDAR) keeps a landmark determined when the baseline is short
+            # the depth it was initialised from (generator or LiDAR) keeps a landmark determined when the baseline is
+            # short
             depth = max(1.0, float(np.linalg.norm(P - self.poses.get(self.last, f.T_init)[:3, 3])))
             rel = f.landmark_prior_rel.get(k, g.landmark_prior_rel)
-            graph.add(gtsam.PriorFactorPoint3(L(k), np.asarray(P, float), gtsam.noiseModel.Isotropic.Sigma(3, rel * depth)))
+            graph.add(
+                gtsam.PriorFactorPoint3(L(k), np.asarray(P, float), gtsam.noiseModel.Isotropic.Sigma(3, rel * depth))
+            )
         for o in f.observations:
             graph.add(projection_factor(o.uv, X(o.frame), L(o.landmark), self.cal, g.pixel_sigma * o.pixel_scale))
             if o.lidar_cam is not None:
-                graph.add(lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), g.bearing_sigma_rad, g.range_sigma_m))
+                graph.add(
+                    lidar_point_factor(o.lidar_cam, X(o.frame), L(o.landmark), g.bearing_sigma_rad, g.range_sigma_m)
+                )
         if self.depth_factors and f.trusted is not None and self.last is not None and f.trusted.any():
             v, u = np.nonzero(f.trusted)
             dc = DepthConsistency(fd, self.depths[self.last], self.K, g.consistency_sigma_log)
@@ -231,7 +243,9 @@ class WindowGraph:
             if g.pair_gate_deg > 0 and not self._pair_agrees(f, j, T, second):
                 continue
             length = float(np.linalg.norm(T[:3, 3]))
-            base = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, g.pair_sigma_rad), np.full(3, g.pair_sigma_rel * length + 0.01)])
+            base = gtsam.noiseModel.Diagonal.Sigmas(
+                np.r_[np.full(3, g.pair_sigma_rad), np.full(3, g.pair_sigma_rel * length + 0.01)]
+            )
             noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345), base)
             graph.add(gtsam.BetweenFactorPose3(X(j), X(f.index), gtsam.Pose3(T), noise))
 
@@ -266,13 +280,19 @@ class WindowGraph:
             motion = invert_T(Tj) @ T
             ref = f.pair_motions.get(j)
             if ref is None:  # the front end's motion from the window's newest frame, chained back to frame j
-                ref = (invert_T(self.poses[j]) @ self.poses[self.last] @ f.T_prev_rel if f.T_prev_rel is not None
-                       and self.last in self.poses else invert_T(self.poses[j]) @ f.T_init)
+                ref = (
+                    invert_T(self.poses[j]) @ self.poses[self.last] @ f.T_prev_rel
+                    if f.T_prev_rel is not None and self.last in self.poses
+                    else invert_T(self.poses[j]) @ f.T_init
+                )
             if rotation_angle_deg(ref[:3, :3].T @ motion[:3, :3]) > ICP_GATE_DEG:
                 self.icp_rejected += 1
                 continue
-            graph.add(gtsam.BetweenFactorPose3(X(j), X(i), gtsam.Pose3(motion),
-                                               gtsam.noiseModel.Gaussian.Covariance(cov + cov_j)))
+            graph.add(
+                gtsam.BetweenFactorPose3(
+                    X(j), X(i), gtsam.Pose3(motion), gtsam.noiseModel.Gaussian.Covariance(cov + cov_j)
+                )
+            )
         self.icp_poses[i] = (T, cov)
 
     def _resample(self, pair: _Pair) -> None:
@@ -316,20 +336,28 @@ class WindowGraph:
         always rebuilt, a new smoother given the old one's factors, linearisation point and time stamps, with
         the landmark priors."""
         reason = "indeterminate" if "ndetermin" in str(failure) else "could not be updated"
-        warnings.warn(f"frame {index}: the window's system was {reason}; every landmark got a depth prior of "
-                      f"{rel} per metre" + (" and the window was rebuilt" if self.incremental else ""), stacklevel=3)
+        warnings.warn(
+            f"frame {index}: the window's system was {reason}; every landmark got a depth prior of "
+            f"{rel} per metre" + (" and the window was rebuilt" if self.incremental else ""),
+            stacklevel=3,
+        )
         if not self.incremental:
             try:
-                self.smoother.update(self._landmark_priors(self.smoother.calculateEstimate(), rel),
-                                     gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+                self.smoother.update(
+                    self._landmark_priors(self.smoother.calculateEstimate(), rel),
+                    gtsam.Values(),
+                    gtsam.FixedLagSmootherKeyTimestampMap(),
+                )
                 return
             except (RuntimeError, IndexError):
                 pass
         try:
             self._rebuild(rel)
         except (RuntimeError, IndexError) as exc:  # not the landmarks: a pose or a depth field without support
-            raise RuntimeError(f"frame {index}: the window's system stayed indeterminate after every landmark got a "
-                               f"depth prior ({str(exc).strip().splitlines()[0]})") from exc
+            raise RuntimeError(
+                f"frame {index}: the window's system stayed indeterminate after every landmark got a "
+                f"depth prior ({str(exc).strip().splitlines()[0]})"
+            ) from exc
 
     def _landmark_priors(self, est: gtsam.Values, rel: float) -> gtsam.NonlinearFactorGraph:
         """A prior on every landmark of `est`, `rel` per metre of its distance from the newest pose."""
@@ -370,8 +398,12 @@ class WindowGraph:
             return []
         cutoff = newest - (self.cfg.window - 0.5)  # the smoother marginalises keys stamped before this
         leaving = [i for i in self.poses if i < cutoff]
-        staying = {L(k) for i in leaving for k in self.frame_landmarks.get(i, ())
-                   if self.landmark_frame.get(k, -1) >= cutoff and k in self.landmarks}
+        staying = {
+            L(k)
+            for i in leaving
+            for k in self.frame_landmarks.get(i, ())
+            if self.landmark_frame.get(k, -1) >= cutoff and k in self.landmarks
+        }
         if not staying:
             return []
         poses = {X(i): i for i in leaving}
@@ -390,8 +422,11 @@ class WindowGraph:
             A, b = fac.linearize(values).jacobian()  # whitened, columns [pose 6 | landmark 3]
             point = gtsam.Values()
             point.insert(keys[1], values.atPoint3(keys[1]))
-            graph.add(gtsam.LinearContainerFactor(gtsam.JacobianFactor(keys[1], A[:, 6:], b, gtsam.noiseModel.Unit.Create(len(b))),
-                                                  point))
+            graph.add(
+                gtsam.LinearContainerFactor(
+                    gtsam.JacobianFactor(keys[1], A[:, 6:], b, gtsam.noiseModel.Unit.Create(len(b))), point
+                )
+            )
             drop.append(n)
         return drop
 

@@ -23,7 +23,8 @@ hidden returns. Where the network does not beat its prior on the user's data, th
 
 The int8 runtime's calibration table (leovr.depth.quantize) is measured last, on every frame's whole input.
 
-Outputs in OUT: `generator.pt` (best validation, with its blend and int8 table; `leovr refine/complete --checkpoint` take it),
+Outputs in OUT: `generator.pt` (best validation, with its blend and int8 table; `leovr refine/complete --checkpoint`
+take it),
 `checkpoint_last.pt` (resume), `log.jsonl`, `run.json`. Only the cheap input is read: never held-out
 evaluation points, ground-truth depth or poses.
 """
@@ -71,8 +72,9 @@ BLENDS = (1.0, 0.75, 0.5, 0.25, 0.0)  # network weights tried by choose_blend (f
 
 
 @torch.no_grad()
-def choose_blend(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0,
-                 world: int = 1) -> tuple[float, dict[float, float]]:
+def choose_blend(
+    model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0, world: int = 1
+) -> tuple[float, dict[float, float]]:
     """The weight of the network's log depth against its prior's (GeneratorConfig.blend) with the lowest
     MAE at the validation frames' hidden returns, and the MAE of each weight in BLENDS. The masked
     task ranks them as the held-out beams do: on the KITTI clip's development frames it picks the prior
@@ -83,8 +85,12 @@ def choose_blend(model: DepthGenerator, frames: list[AdaptFrame], rank: int = 0,
     sums, n = [0.0] * len(BLENDS), 0
     try:
         for b in batches([(fr, s) for fr in frames[rank::world] for s in fr.splits], 4):
-            parts = forward_parts(model, torch.stack([fr.image for fr, _ in b]), torch.stack([s.sparse for _, s in b]),
-                             torch.stack([s.prior for _, s in b]))
+            parts = forward_parts(
+                model,
+                torch.stack([fr.image for fr, _ in b]),
+                torch.stack([s.sparse for _, s in b]),
+                torch.stack([s.prior for _, s in b]),
+            )
             for k, (_, s) in enumerate(b):
                 if len(s.target):
                     net = at_hidden(model, parts, k, s)[1]
@@ -136,19 +142,24 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
             log_path.unlink(missing_ok=True)
             save_best(model, out, cfg, init, seqs, 0, best)
             with open(log_path, "a") as fh:
-                fh.write(json.dumps({"epoch": 0, "val_mae_m": finite(best), "note": "before adaptation",
-                                     "processes": world}) + "\n")
+                fh.write(
+                    json.dumps({"epoch": 0, "val_mae_m": finite(best), "note": "before adaptation", "processes": world})
+                    + "\n"
+                )
     step = StepLoss(model, cfg)
     if world > 1:  # BatchNorm is frozen (below): no buffers to sync per step; without the NLL the sigma head is unused
-        step = torch.nn.parallel.DistributedDataParallel(step, forward_sync_buffers=False,
-                                                         find_unused_parameters=cfg.weight_nll == 0)
+        step = torch.nn.parallel.DistributedDataParallel(
+            step, forward_sync_buffers=False, find_unused_parameters=cfg.weight_nll == 0
+        )
     gen = torch.Generator().manual_seed(cfg.seed)
     record: dict = {"epoch": start, "best_val_mae_m": finite(best)}
     for epoch in range(start, cfg.epochs):
         if since_best >= cfg.patience or (cfg.max_minutes and minutes >= cfg.max_minutes):
             break
         t0 = time.time()
-        loss_sum, n_loss, err, cnt = train_epoch(model, step, opt, train, cfg, epoch, gen, rank, world, progress and lead)
+        loss_sum, n_loss, err, cnt = train_epoch(
+            model, step, opt, train, cfg, epoch, gen, rank, world, progress and lead
+        )
         val_mae = validate(model, val, rank, world) if val else float("nan")
         minutes = all_max(minutes + (time.time() - t0) / 60.0, world)
         improved = not val or val_mae < best
@@ -157,23 +168,40 @@ def adapt(seqs: list[Sequence], cfg: AdaptConfig, out: Path, resume: bool = Fals
             best = val_mae if val else best
             if lead:
                 save_best(model, out, cfg, init, seqs, epoch + 1, val_mae)
-        record = {"epoch": epoch + 1, "train_loss": loss_sum / max(n_loss, 1), "train_mae_m": err / max(cnt, 1),
-                  "val_mae_m": finite(val_mae), "best_val_mae_m": finite(best), "minutes": round(minutes, 2),
-                  "processes": world}
+        record = {
+            "epoch": epoch + 1,
+            "train_loss": loss_sum / max(n_loss, 1),
+            "train_mae_m": err / max(cnt, 1),
+            "val_mae_m": finite(val_mae),
+            "best_val_mae_m": finite(best),
+            "minutes": round(minutes, 2),
+            "processes": world,
+        }
         if lead:
             with open(log_path, "a") as fh:
                 fh.write(json.dumps(record) + "\n")
-            save_checkpoint(last, {"model": model.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
-                                   "best_val_mae_m": best, "since_best": since_best, "minutes": minutes,
-                                   "settings": settings, "sequences": [str(s.path) for s in seqs],
-                                   "network": model.cfg.__dict__})
+            save_checkpoint(
+                last,
+                {
+                    "model": model.state_dict(),
+                    "optimizer": opt.state_dict(),
+                    "epoch": epoch,
+                    "best_val_mae_m": best,
+                    "since_best": since_best,
+                    "minutes": minutes,
+                    "settings": settings,
+                    "sequences": [str(s.path) for s in seqs],
+                    "network": model.cfg.__dict__,
+                },
+            )
     record.update({"frames_train": len(train), "frames_val": len(val), "minutes": round(minutes, 2)})
     finish(model, frames, val, record, out, cfg, init, seqs, rank, world)
     return record
 
 
-def start_adapt_run(out: Path, cfg: AdaptConfig, seqs: list[Sequence], init: Path, resume: bool, settings: dict,
-                    rank: int, world: int) -> None:
+def start_adapt_run(
+    out: Path, cfg: AdaptConfig, seqs: list[Sequence], init: Path, resume: bool, settings: dict, rank: int, world: int
+) -> None:
     """Process 0 checks the output folder, then the selection, then records the run (run.json); an error stops
     every process, not only process 0, and nothing is written before the checks pass."""
     error = None
@@ -182,13 +210,17 @@ def start_adapt_run(out: Path, cfg: AdaptConfig, seqs: list[Sequence], init: Pat
             check_output_dir(out)
             check_selection(seqs, cfg)
             identity = run_identity("adapt", settings, [s.path for s in seqs], init)
-            start_run(out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init))
+            start_run(
+                out, "adapt", identity, resume, input=cfg.input, sequences=[str(s.path) for s in seqs], init=str(init)
+            )
         except Exception as exc:  # noqa: BLE001 (re-raised on every process just below)
             error = exc
     raise_shared(error, world)
 
 
-def restored(state: dict, model: DepthGenerator, opt: torch.optim.Optimizer, last: Path) -> tuple[int, float, int, float]:
+def restored(
+    state: dict, model: DepthGenerator, opt: torch.optim.Optimizer, last: Path
+) -> tuple[int, float, int, float]:
     """Model and optimiser from a resume state; the epoch to go on from, the best validation MAE, the epochs since
     it and the minutes spent."""
     try:
@@ -205,27 +237,41 @@ def check_selection(seqs: list[Sequence], cfg: AdaptConfig) -> None:
     twice = sorted({str(s.path) for s in seqs if sum(t.path == s.path for t in seqs) > 1})
     if twice:
         raise DataError(twice[0], "given more than once: each sequence adapts the generator once")
-    n = sum(len(range(len(s))[cfg.start:cfg.end]) for s in seqs)
+    n = sum(len(range(len(s))[cfg.start : cfg.end]) for s in seqs)
     if cfg.val_every and n <= cfg.val_every // 2:
-        raise DataError(seqs[0].path, f"{n} frame(s) selected; adaptation holds every {cfg.val_every}th frame out "
-                                      f"for validation and needs at least {cfg.val_every // 2 + 1} (or set "
-                                      "adapt.val_every: 0 to adapt without validation or early stopping)")
+        raise DataError(
+            seqs[0].path,
+            f"{n} frame(s) selected; adaptation holds every {cfg.val_every}th frame out "
+            f"for validation and needs at least {cfg.val_every // 2 + 1} (or set "
+            "adapt.val_every: 0 to adapt without validation or early stopping)",
+        )
 
 
-def train_epoch(model: DepthGenerator, step: torch.nn.Module, opt: torch.optim.Optimizer, train: list[AdaptFrame],
-                cfg: AdaptConfig, epoch: int, gen: torch.Generator, rank: int, world: int, progress: bool
-                ) -> list[float]:
+def train_epoch(
+    model: DepthGenerator,
+    step: torch.nn.Module,
+    opt: torch.optim.Optimizer,
+    train: list[AdaptFrame],
+    cfg: AdaptConfig,
+    epoch: int,
+    gen: torch.Generator,
+    rank: int,
+    world: int,
+    progress: bool,
+) -> list[float]:
     """One epoch over the training frames (each with one of its splits, the same on every process); returns the
     loss sum, the number of batches, the hidden-return error sum and its count, summed over the processes."""
     # BatchNorm stays in inference mode: a few frames of one clip per batch would give it noisy
     # statistics (the usual practice when fine-tuning with small batches); every weight still trains
     model.eval()
     order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
-    items = [(train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))])
-             for j in order]  # the same on every process
+    items = [
+        (train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))]) for j in order
+    ]  # the same on every process
     losses, err, cnt = [], 0.0, 0
-    bar = tqdm(batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch",
-               disable=not progress)
+    bar = tqdm(
+        batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress
+    )
     for b in bar:  # the batches of one process; with several, each takes its share of every batch
         part, weight = share(b, rank, world)
         opt.zero_grad()
@@ -239,8 +285,18 @@ def train_epoch(model: DepthGenerator, step: torch.nn.Module, opt: torch.optim.O
     return all_sum([sum(losses), len(losses), err, cnt], world)
 
 
-def finish(model: DepthGenerator, frames: list[AdaptFrame], val: list[AdaptFrame], record: dict, out: Path,
-           cfg: AdaptConfig, init: Path, seqs: list[Sequence], rank: int, world: int) -> None:
+def finish(
+    model: DepthGenerator,
+    frames: list[AdaptFrame],
+    val: list[AdaptFrame],
+    record: dict,
+    out: Path,
+    cfg: AdaptConfig,
+    init: Path,
+    seqs: list[Sequence],
+    rank: int,
+    world: int,
+) -> None:
     """The best epoch's weights, how far to trust them over their prior (GeneratorConfig.blend, chosen on the
     validation frames), and the int8 runtime's calibration table measured on the user's own frames."""
     lead = rank == 0
@@ -252,8 +308,7 @@ def finish(model: DepthGenerator, frames: list[AdaptFrame], val: list[AdaptFrame
         model.cfg = replace(model.cfg, blend=blend)
         record.update({"blend": blend, "val_mae_m_by_blend": {str(w): e for w, e in by_blend.items()}})
         if lead:
-            save_best(model, out, cfg, init, seqs, kept["epoch"], kept["val_mae_m"],
-                      blend_val_mae_m=by_blend[blend])
+            save_best(model, out, cfg, init, seqs, kept["epoch"], kept["val_mae_m"], blend_val_mae_m=by_blend[blend])
     if lead:
         kept = torch.load(out / "generator.pt", map_location="cpu", weights_only=False)
         model.load_state_dict(kept["model"])
@@ -268,10 +323,27 @@ def finite(x: float) -> float | None:
     return float(x) if x is not None and np.isfinite(x) else None
 
 
-def save_best(model: DepthGenerator, out: Path, cfg: AdaptConfig, init: Path, seqs: list[Sequence], epoch: int,
-              val_mae: float, **extra: float) -> None:
+def save_best(
+    model: DepthGenerator,
+    out: Path,
+    cfg: AdaptConfig,
+    init: Path,
+    seqs: list[Sequence],
+    epoch: int,
+    val_mae: float,
+    **extra: float,
+) -> None:
     """The adapted generator in the trainer's checkpoint format (load_generator reads it)."""
-    save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": model.cfg.__dict__,
-                                           "config": cfg.model_dump(), "epoch": epoch, "val_mae_m": finite(val_mae),
-                                           "adapted_from": str(init), "sequences": [str(s.path) for s in seqs],
-                                           **extra})
+    save_checkpoint(
+        out / "generator.pt",
+        {
+            "model": model.state_dict(),
+            "network": model.cfg.__dict__,
+            "config": cfg.model_dump(),
+            "epoch": epoch,
+            "val_mae_m": finite(val_mae),
+            "adapted_from": str(init),
+            "sequences": [str(s.path) for s in seqs],
+            **extra,
+        },
+    )

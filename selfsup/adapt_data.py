@@ -40,9 +40,17 @@ class AdaptFrame:
     teacher: torch.Tensor | None = None  # 1 x hs x ws, the starting network's log depth on the whole input
 
 
-def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray,
-                 shape: tuple[int, int], scale: float, n: int, rng: np.random.Generator,
-                 span_rings: bool = False) -> AdaptFrame:
+def frame_splits(
+    image: np.ndarray,
+    points: np.ndarray,
+    K: np.ndarray,
+    T_cam_lidar: np.ndarray,
+    shape: tuple[int, int],
+    scale: float,
+    n: int,
+    rng: np.random.Generator,
+    span_rings: bool = False,
+) -> AdaptFrame:
     """`n` masked splits of one frame's input scan (`points`) with the resampled image."""
     h, w = shape
     hs, ws = (max(8, int(round(h * scale))), max(8, int(round(w * scale)))) if scale != 1.0 else shape
@@ -56,8 +64,9 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
         (leovr.depth.inference.network_priors; the side of depth edges taken from the image)."""
         same = (hs, ws) == shape
         small = sparse if same else rescale_sparse(sparse, scale, (hs, ws))
-        small_prior, full_prior = network_priors(torch.from_numpy(sparse)[None, None], image_full, small,
-                                                 1.0 if same else scale)
+        small_prior, full_prior = network_priors(
+            torch.from_numpy(sparse)[None, None], image_full, small, 1.0 if same else scale
+        )
         return torch.from_numpy(small)[None], small_prior[0], full_prior[0, 0].numpy()
 
     whole_small, whole_prior, _ = priors(whole)
@@ -67,10 +76,16 @@ def frame_splits(image: np.ndarray, points: np.ndarray, K: np.ndarray, T_cam_lid
         rows, cols = np.nonzero(sp.target > 0)
         s, small_prior, full_prior = priors(sp.sparse.astype(np.float32))
         grid = np.stack([(cols + 0.5) / w * 2 - 1, (rows + 0.5) / h * 2 - 1], 1).astype(np.float32)
-        splits.append(SplitSample(s, small_prior, torch.from_numpy(grid),
-                                  torch.from_numpy(sp.target[rows, cols]),
-                                  torch.from_numpy(np.ascontiguousarray(full_prior[rows, cols])),
-                                  torch.from_numpy(sp.sparse[rows, cols])))
+        splits.append(
+            SplitSample(
+                s,
+                small_prior,
+                torch.from_numpy(grid),
+                torch.from_numpy(sp.target[rows, cols]),
+                torch.from_numpy(np.ascontiguousarray(full_prior[rows, cols])),
+                torch.from_numpy(sp.sparse[rows, cols]),
+            )
+        )
     return AdaptFrame(img, splits, whole_small, whole_prior)
 
 
@@ -78,7 +93,7 @@ def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) 
     """Every selected frame of every sequence with its masked splits (seeded by sequence and frame)."""
     sensor = parse_input(cfg.input)
     out = []
-    jobs = [(k, seq, i) for k, seq in enumerate(seqs) for i in range(len(seq))[cfg.start:cfg.end]]
+    jobs = [(k, seq, i) for k, seq in enumerate(seqs) for i in range(len(seq))[cfg.start : cfg.end]]
     if not jobs:
         raise DataError("frames", f"no frame selected (start={cfg.start}, end={cfg.end})")
     for k, seq, i in tqdm(jobs, desc="adapt: prepare frames", unit="frame", disable=not progress):
@@ -90,8 +105,9 @@ def input_frames(seqs: list[Sequence], cfg: AdaptConfig, progress: bool = True) 
         scale = 1.0 if cfg.generator_focal_px is None else cfg.generator_focal_px / float(f.K[0, 0])
         scale = 1.0 if abs(scale - 1.0) < 0.05 else scale
         rng = np.random.default_rng([cfg.seed, k, f.index])
-        out.append(frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng,
-                                cfg.span_rings))
+        out.append(
+            frame_splits(image, kept, f.K, f.T_cam_lidar, f.shape, scale, cfg.splits_per_frame, rng, cfg.span_rings)
+        )
     return out
 
 

@@ -47,15 +47,25 @@ def set_teachers(model: DepthGenerator, frames: list[AdaptFrame]) -> None:
         fr.teacher = whole_log_depth(model, [fr])[0]
 
 
-def at_hidden(model: DepthGenerator, parts: dict[str, torch.Tensor], b: int,
-               s: SplitSample) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+def at_hidden(
+    model: DepthGenerator, parts: dict[str, torch.Tensor], b: int, s: SplitSample
+) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """Batch item b's network outputs (1 x 1 x 1 x N each) and final depth (N) at split s's hidden returns."""
-    at = {k: F.grid_sample(v[b:b + 1], s.grid[None, None], mode="bilinear", align_corners=False) for k, v in parts.items()}
+    at = {
+        k: F.grid_sample(v[b : b + 1], s.grid[None, None], mode="bilinear", align_corners=False)
+        for k, v in parts.items()
+    }
     return at, model.combine(at, s.prior_at.view(1, 1, 1, -1), s.measured_at.view(1, 1, 1, -1)).view(-1)
 
 
-def batch_loss(model: DepthGenerator, batch: list[tuple[AdaptFrame, SplitSample]], weight_smooth: float,
-               weight_nll: float, weight_anchor: float = 0.0, log_loss: bool = False) -> tuple[torch.Tensor, float, int]:
+def batch_loss(
+    model: DepthGenerator,
+    batch: list[tuple[AdaptFrame, SplitSample]],
+    weight_smooth: float,
+    weight_nll: float,
+    weight_anchor: float = 0.0,
+    log_loss: bool = False,
+) -> tuple[torch.Tensor, float, int]:
     """Mean loss of a batch of (frame, split) of one size; also the summed absolute error (metres)
     at the hidden returns and their count."""
     image = torch.stack([fr.image for fr, _ in batch])

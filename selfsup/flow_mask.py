@@ -44,8 +44,9 @@ def flow_inside(flow: np.ndarray) -> np.ndarray:
     return (uj >= 0) & (uj <= w - 1) & (vj >= 0) & (vj <= h - 1)
 
 
-def epipolar_keep(flow: np.ndarray, T_j_i: np.ndarray, K: np.ndarray, lam_px: float = 1.0,
-                  min_baseline_m: float = 1e-3) -> np.ndarray:
+def epipolar_keep(
+    flow: np.ndarray, T_j_i: np.ndarray, K: np.ndarray, lam_px: float = 1.0, min_baseline_m: float = 1e-3
+) -> np.ndarray:
     """H x W: the flow end point lies within `lam_px` of its epipolar line (eq. 19); everything is kept
     without translation, where the epipolar geometry is undefined."""
     if np.linalg.norm(T_j_i[:3, 3]) < min_baseline_m:
@@ -53,8 +54,15 @@ def epipolar_keep(flow: np.ndarray, T_j_i: np.ndarray, K: np.ndarray, lam_px: fl
     return epipolar_distance(flow, fundamental(T_j_i, K)) < lam_px
 
 
-def motion_flow_mask(image_i: np.ndarray, image_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray,
-                     lam_px: float = 1.0, method: str = "dis", min_baseline_m: float = 1e-3) -> np.ndarray:
+def motion_flow_mask(
+    image_i: np.ndarray,
+    image_j: np.ndarray,
+    T_j_i: np.ndarray,
+    K: np.ndarray,
+    lam_px: float = 1.0,
+    method: str = "dis",
+    min_baseline_m: float = 1e-3,
+) -> np.ndarray:
     """H x W bool confidence mask mu of eq. 19 for the pair (i, j). Without translation the epipolar
     geometry is undefined, so only the inside-the-image test applies."""
     flow = dense_flow(image_i, image_j, method)

@@ -32,7 +32,9 @@ def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (x * m).sum() / m.sum().clamp(min=1.0)
 
 
-def photometric_loss(errors: list[torch.Tensor], masks: list[torch.Tensor], per_pixel_min: bool = False) -> torch.Tensor:
+def photometric_loss(
+    errors: list[torch.Tensor], masks: list[torch.Tensor], per_pixel_min: bool = False
+) -> torch.Tensor:
     """Eq. 16: the masked photometric errors (`photometric_error` against each warped neighbour)
     summed over the neighbours; with `per_pixel_min` (monodepth2), the per-pixel minimum over the
     neighbours that keep the pixel, times their number so the weights of eq. 22 keep their balance."""
@@ -67,7 +69,9 @@ def sparse_depth_loss(depth: torch.Tensor, sparse: torch.Tensor, kind: str = "lo
     return masked_mean(depth_target_error(depth, sparse, kind), sparse > 0)
 
 
-def refined_depth_loss(depth: torch.Tensor, refined: torch.Tensor, use: torch.Tensor, kind: str = "log_l1") -> torch.Tensor:
+def refined_depth_loss(
+    depth: torch.Tensor, refined: torch.Tensor, use: torch.Tensor, kind: str = "log_l1"
+) -> torch.Tensor:
     """Eq. 21: error to the graph's refined depth, only on frames whose refined depth agreed
     with the landmarks (`use`, B bools)."""
     return masked_mean(depth_target_error(depth, refined, kind), (refined > 0) & use.view(-1, 1, 1, 1))

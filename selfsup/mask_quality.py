@@ -41,11 +41,22 @@ from selfsup.supervision import (
 )
 from selfsup.warp import warp_image
 
-VARIANTS = ("eq19", "rigid", "depth", "movers", "auto", "eq19_rigid", "eq19_movers", "full")  # full: what the config switches on
+VARIANTS = (
+    "eq19",
+    "rigid",
+    "depth",
+    "movers",
+    "auto",
+    "eq19_rigid",
+    "eq19_movers",
+    "full",
+)  # full: what the config switches on
 
 
 @torch.no_grad()
-def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth: np.ndarray, alpha: float) -> np.ndarray:
+def auto_keep(
+    frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth: np.ndarray, alpha: float
+) -> np.ndarray:
     """monodepth2's auto-mask of one pair: True where the neighbour warped with `depth` matches the
     frame better than the unwarped neighbour."""
     img, nb = image_tensor(frame.image)[None], image_tensor(neighbour.image)[None]
@@ -54,8 +65,15 @@ def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth
     return (photometric_error(img, warped, alpha) < photometric_error(img, nb, alpha))[0, 0].numpy()
 
 
-def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, pose_pass: PosePass, model: torch.nn.Module | None = None,
-                progress: bool = False, checkpoint: Path | None = None) -> dict:
+def score_masks(
+    seq: Sequence,
+    cfg: SelfSupConfig,
+    work: Path,
+    pose_pass: PosePass,
+    model: torch.nn.Module | None = None,
+    progress: bool = False,
+    checkpoint: Path | None = None,
+) -> dict:
     """{"variants": {variant: precision, recall, dropped_share}, "moving_share", "pixels",
     "moving_with_depth"} over the sequence ("dropped" vs "moving" on the scored pixels);
     `moving_with_depth` is the share of moving pixels with depth in frame i: an upper bound on what the
@@ -82,20 +100,39 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, pose_pass: PosePa
         if model is not None:
             model.eval()
             with torch.no_grad():
-                net_depth = forward_padded(model, image_tensor(f.image)[None], torch.from_numpy(f.sparse)[None, None])[0][0, 0].numpy()
+                net_depth = forward_padded(model, image_tensor(f.image)[None], torch.from_numpy(f.sparse)[None, None])[
+                    0
+                ][0, 0].numpy()
         for j in (k - 1, k + 1):
             if not 0 <= j < len(frames):
                 continue
             plain = pair_tests(frames, graph.poses, depth, eq19_cfg, k, j)  # eq. 19 alone: the plain flow
-            t = pair_tests(frames, graph.poses, depth, rigid_cfg, k, j)  # with the depth-based tests: the initialised flow
+            t = pair_tests(
+                frames, graph.poses, depth, rigid_cfg, k, j
+            )  # with the depth-based tests: the initialised flow
             auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth, cfg.alpha)
             region = t.inside & has_depth
             both = mover_keep(t, True, True)
-            # the tests as the trainer runs them: the rigid test's flow, else the plain flow (and then its own depth test)
-            own = t if cfg.rigid_mask else plain if not cfg.depth_mask else pair_tests(frames, graph.poses, depth, cfg, k, j)
+            # the tests as the trainer runs them: the rigid test's flow, else the plain flow (and then its own depth
+            # test)
+            own = (
+                t
+                if cfg.rigid_mask
+                else plain
+                if not cfg.depth_mask
+                else pair_tests(frames, graph.poses, depth, cfg, k, j)
+            )
             full = keep_mask(own, cfg) & (auto if cfg.auto_mask else True)
-            dropped = {"eq19": ~plain.epipolar, "rigid": ~t.rigid, "depth": ~t.depth, "movers": ~both, "auto": ~auto,
-                       "eq19_rigid": ~(t.epipolar & t.rigid), "eq19_movers": ~(t.epipolar & both), "full": ~full}
+            dropped = {
+                "eq19": ~plain.epipolar,
+                "rigid": ~t.rigid,
+                "depth": ~t.depth,
+                "movers": ~both,
+                "auto": ~auto,
+                "eq19_rigid": ~(t.epipolar & t.rigid),
+                "eq19_movers": ~(t.epipolar & both),
+                "full": ~full,
+            }
             mv = moving & region
             for v, d in dropped.items():
                 d = d & region
@@ -103,7 +140,17 @@ def score_masks(seq: Sequence, cfg: SelfSupConfig, work: Path, pose_pass: PosePa
             scored += int(region.sum())
             moving_total += int(mv.sum())
             moving_tested += int((mv & (depth[k] > 0)).sum())
-    variants = {v: {"precision": float(tp / max(dr, 1)), "recall": float(tp / max(mv, 1)),
-                    "dropped_share": float(dr / max(scored, 1))} for v, (tp, dr, mv) in counts.items()}
-    return {"variants": variants, "moving_share": moving_total / max(scored, 1), "pixels": scored,
-            "moving_with_depth": moving_tested / max(moving_total, 1)}  # the depth-based tests' reach
+    variants = {
+        v: {
+            "precision": float(tp / max(dr, 1)),
+            "recall": float(tp / max(mv, 1)),
+            "dropped_share": float(dr / max(scored, 1)),
+        }
+        for v, (tp, dr, mv) in counts.items()
+    }
+    return {
+        "variants": variants,
+        "moving_share": moving_total / max(scored, 1),
+        "pixels": scored,
+        "moving_with_depth": moving_tested / max(moving_total, 1),
+    }  # the depth-based tests' reach

@@ -71,9 +71,17 @@ def ring_gap_px(depth: np.ndarray) -> int:
     return int(np.median(gaps)) if len(gaps) else 0
 
 
-def masked_split(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int],
-                 rng: np.random.Generator, window: int = 7, rel: float = 0.15, span_rings: bool = False,
-                 every: np.ndarray | None = None) -> MaskedSplit:
+def masked_split(
+    points: np.ndarray,
+    K: np.ndarray,
+    T_cam_lidar: np.ndarray,
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    window: int = 7,
+    rel: float = 0.15,
+    span_rings: bool = False,
+    every: np.ndarray | None = None,
+) -> MaskedSplit:
     """Split the input scan `points` (N x >=3, LiDAR frame) into a thinner input and hidden targets.
 
     Hidden returns the camera may not see are dropped by the evaluation's parallax filter (a return

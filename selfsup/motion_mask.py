@@ -43,7 +43,9 @@ class PairKeep:
     depth: np.ndarray  # frame i's depth moved into frame j meets frame j's depth (True where either is unknown)
 
 
-def move_pixels(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def move_pixels(
+    depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frame i's pixels at `depth` (H x W metres, 0 = unknown), moved as static points by T_j_i into
     frame j: (H x W x 2 pixel in frame j, H x W depth in frame j, H x W x 2 pixel of the rotation alone,
     H x W valid). Invalid pixels hold their own position and depth 0."""
@@ -84,8 +86,18 @@ def _rigid_init(depth: np.ndarray, T_j_i: np.ndarray, K: np.ndarray) -> tuple[np
     return np.where(valid[..., None], full, rot_only), full - rot_only, valid
 
 
-def rigid_tests(image_i: np.ndarray, image_j: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, T_j_i: np.ndarray,
-                K: np.ndarray, abs_px: float, rel: float, fb_px: float = 2.0, open_px: int = 3) -> tuple[np.ndarray, np.ndarray]:
+def rigid_tests(
+    image_i: np.ndarray,
+    image_j: np.ndarray,
+    depth_i: np.ndarray,
+    depth_j: np.ndarray,
+    T_j_i: np.ndarray,
+    K: np.ndarray,
+    abs_px: float,
+    rel: float,
+    fb_px: float = 2.0,
+    open_px: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
     """(dense flow i -> j, H x W rigid agreement). The flow starts from the rigid flow (DIS then only
     has to find what departs from it: a far better flow on the large, weakly textured motion of
     the near road, where an uninitialised flow fails). A pixel disagrees when its flow departs from
@@ -111,8 +123,9 @@ def _open(mask: np.ndarray, open_px: int) -> np.ndarray:
     return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((open_px, open_px), np.uint8)) > 0
 
 
-def depth_disagreement(depth_i: np.ndarray, depth_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray, rel: float,
-                       open_px: int = 3) -> np.ndarray:
+def depth_disagreement(
+    depth_i: np.ndarray, depth_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray, rel: float, open_px: int = 3
+) -> np.ndarray:
     """H x W bools of frame i: a static point at frame i's depth, moved by T_j_i, lands in frame j at
     depth z, and frame j's depth there (within its 3 x 3 neighbourhood, so that a depth edge is no
     evidence) is nearer than z / (1 + rel) or further than z / (1 - rel). Further: the static scene
@@ -144,10 +157,21 @@ def movers(drop_a: np.ndarray, drop_b: np.ndarray) -> np.ndarray:
     return hit[labels]
 
 
-def pair_keep(image_i: np.ndarray, image_j: np.ndarray, T_j_i: np.ndarray, K: np.ndarray,
-              depth: tuple[np.ndarray, np.ndarray] | None = None, lam_px: float = 1.0, abs_px: float = 0.5,
-              rel: float = 0.3, method: str = "dis", min_baseline_m: float = 1e-3, depth_rel: float = 0.05,
-              rigid: bool = True, depth_test: bool = True) -> PairKeep:
+def pair_keep(
+    image_i: np.ndarray,
+    image_j: np.ndarray,
+    T_j_i: np.ndarray,
+    K: np.ndarray,
+    depth: tuple[np.ndarray, np.ndarray] | None = None,
+    lam_px: float = 1.0,
+    abs_px: float = 0.5,
+    rel: float = 0.3,
+    method: str = "dis",
+    min_baseline_m: float = 1e-3,
+    depth_rel: float = 0.05,
+    rigid: bool = True,
+    depth_test: bool = True,
+) -> PairKeep:
     """Every test of the pair (i, j) that is asked for. `depth`: (depth_i, depth_j) for the rigid test
     (`rigid`; its rigid-initialised flow then serves eq. 19 too) and the depth test (`depth_test`); a
     test not run, or run without depth, keeps everything. Without the rigid test eq. 19 runs on the

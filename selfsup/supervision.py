@@ -34,8 +34,9 @@ class PosePass(Protocol):
     """The window graph over a sequence (the application's `leovr.pipeline.refine.run_refine`): writes
     `poses_kitti.txt`, `landmarks*.npy` and `depth/` into `out`, resuming from its `progress.json`."""
 
-    def __call__(self, seq: Sequence, cfg: RefineConfig, out: Path, *, resume: bool, progress: bool,
-                 score: bool) -> object: ...
+    def __call__(
+        self, seq: Sequence, cfg: RefineConfig, out: Path, *, resume: bool, progress: bool, score: bool
+    ) -> object: ...
 
 
 @dataclass
@@ -87,7 +88,9 @@ def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
         f = seq[i]
         if f.points is None:
             raise DataError(seq.path, f"frame {i} has no LiDAR scan; the trainer needs the LiDAR input")
-        kept = simulate_cheap_sensor(f.points, parse_input(cfg.input), f.index, cfg.seed, f.K, f.T_cam_lidar, f.shape).kept
+        kept = simulate_cheap_sensor(
+            f.points, parse_input(cfg.input), f.index, cfg.seed, f.K, f.T_cam_lidar, f.shape
+        ).kept
         sparse = sparse_depth(kept, f.K, f.T_cam_lidar, f.shape)
         image = f.image if f.image.ndim == 3 else np.repeat(f.image[..., None], 3, axis=2)
         K = f.K.astype(np.float64).copy()
@@ -101,8 +104,15 @@ def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
     return out
 
 
-def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | None, n_frames: int,
-               pose_pass: PosePass, progress: bool = True) -> GraphResult:
+def graph_pass(
+    seq: Sequence,
+    cfg: SelfSupConfig,
+    out: Path,
+    checkpoint: Path | None,
+    n_frames: int,
+    pose_pass: PosePass,
+    progress: bool = True,
+) -> GraphResult:
     """`leovr poses` (`pose_pass`) on the (blind) sequence into `out`; reused when `out/done.json` exists and
     was made with the same checkpoint file (path, size and time), resumed when a previous pass was interrupted.
     `checkpoint=None`: IP-Basic depth, point factors only."""
@@ -115,26 +125,36 @@ def graph_pass(seq: Sequence, cfg: SelfSupConfig, out: Path, checkpoint: Path | 
         if not same or left.get("checkpoint_stamp", stamp) != stamp:  # a pass over other weights: run it again
             shutil.rmtree(out)
     if not done.is_file():
-        rcfg = RefineConfig(input=cfg.input, end=n_frames, seed=cfg.seed,
-                            loop=LoopConfig(enabled=cfg.loop_closure, min_gap=cfg.loop_min_gap),
-                            generator_focal_px=cfg.train_focal_px,
-                            depth_source="ipbasic" if checkpoint is None else "generator",
-                            # forced on with a generator (not `auto`): L_r needs a correction field that can move
-                            graph=GraphConfig(depth_factors=checkpoint is not None),
-                            checkpoint=None if checkpoint is None else str(checkpoint),
-                            # the trainer's own checkpoints carry no int8 calibration table: floating point
-                            generator_runtime="onnxruntime",
-                            # the trainer's graph passes as measured by `bench selfsup`: each frame's own scan only
-                            # (the earlier scans of a cone LiDAR in the depth input are not measured in training yet)
-                            accumulation=AccumulationConfig(frames=0))
+        rcfg = RefineConfig(
+            input=cfg.input,
+            end=n_frames,
+            seed=cfg.seed,
+            loop=LoopConfig(enabled=cfg.loop_closure, min_gap=cfg.loop_min_gap),
+            generator_focal_px=cfg.train_focal_px,
+            depth_source="ipbasic" if checkpoint is None else "generator",
+            # forced on with a generator (not `auto`): L_r needs a correction field that can move
+            graph=GraphConfig(depth_factors=checkpoint is not None),
+            checkpoint=None if checkpoint is None else str(checkpoint),
+            # the trainer's own checkpoints carry no int8 calibration table: floating point
+            generator_runtime="onnxruntime",
+            # the trainer's graph passes as measured by `bench selfsup`: each frame's own scan only
+            # (the earlier scans of a cone LiDAR in the depth input are not measured in training yet)
+            accumulation=AccumulationConfig(frames=0),
+        )
         pose_pass(seq, rcfg, out, resume=(out / "progress.json").is_file(), progress=progress, score=False)
-        write_text(done, json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint), "checkpoint_stamp": stamp}) + "\n")
+        write_text(
+            done,
+            json.dumps({"checkpoint": None if checkpoint is None else str(checkpoint), "checkpoint_stamp": stamp})
+            + "\n",
+        )
     indices = list(range(n_frames))
     poses = read_kitti_poses(require_file(out / "poses_kitti.txt", "graph-pass poses"))
     if len(poses) != n_frames:
         raise DataError(out / "poses_kitti.txt", f"graph pass has {len(poses)} poses for {n_frames} frames")
-    arrays = [np.load(require_file(out / name, "graph-pass landmarks"))
-              for name in ("landmarks.npy", "landmarks_frame.npy", "landmarks_lidar.npy")]
+    arrays = [
+        np.load(require_file(out / name, "graph-pass landmarks"))
+        for name in ("landmarks.npy", "landmarks_frame.npy", "landmarks_lidar.npy")
+    ]
     return GraphResult(poses, indices, *arrays, out / "depth")
 
 
@@ -144,8 +164,9 @@ def _file_stamp(path: Path) -> list[int]:
     return [st.st_size, st.st_mtime_ns]
 
 
-def landmark_depth(frame: TrainFrame, T_world_cam: np.ndarray, landmarks: np.ndarray, landmark_frame: np.ndarray,
-                   near_frames: int) -> np.ndarray:
+def landmark_depth(
+    frame: TrainFrame, T_world_cam: np.ndarray, landmarks: np.ndarray, landmark_frame: np.ndarray, near_frames: int
+) -> np.ndarray:
     """D^f: landmarks last observed within `near_frames` of this frame, projected (nearest wins)."""
     h, w = frame.sparse.shape
     out = np.full((h, w), np.inf, np.float32)
@@ -186,14 +207,26 @@ def rigid_support(depth: np.ndarray | None, sparse: np.ndarray, radius_px: float
     return np.where(far, 0.0, depth)
 
 
-def pair_tests(frames: list[TrainFrame], poses: np.ndarray, depth: list[np.ndarray | None], cfg: SelfSupConfig,
-               k: int, j: int) -> PairKeep:
+def pair_tests(
+    frames: list[TrainFrame], poses: np.ndarray, depth: list[np.ndarray | None], cfg: SelfSupConfig, k: int, j: int
+) -> PairKeep:
     """The flow tests of frame k against its neighbour j, with the graph's poses and depth."""
     T_j_i = invert_T(poses[j]) @ poses[k]
     with_depth = cfg.rigid_mask or cfg.depth_mask
-    return pair_keep(frames[k].image, frames[j].image, T_j_i, frames[k].K, (depth[k], depth[j]) if with_depth else None,
-                     cfg.flow_lambda_px, cfg.rigid_abs_px, cfg.rigid_rel, cfg.flow_method, depth_rel=cfg.depth_mask_rel,
-                     rigid=cfg.rigid_mask, depth_test=cfg.depth_mask)
+    return pair_keep(
+        frames[k].image,
+        frames[j].image,
+        T_j_i,
+        frames[k].K,
+        (depth[k], depth[j]) if with_depth else None,
+        cfg.flow_lambda_px,
+        cfg.rigid_abs_px,
+        cfg.rigid_rel,
+        cfg.flow_method,
+        depth_rel=cfg.depth_mask_rel,
+        rigid=cfg.rigid_mask,
+        depth_test=cfg.depth_mask,
+    )
 
 
 def mover_keep(t: PairKeep, rigid: bool, depth: bool) -> np.ndarray:
@@ -215,20 +248,34 @@ def keep_mask(t: PairKeep, cfg: SelfSupConfig) -> np.ndarray:
     return keep
 
 
-def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSupConfig, with_refined: bool,
-                      mask_dir: Path | None = None, moving: list[np.ndarray] | None = None) -> Supervision:
+def build_supervision(
+    frames: list[TrainFrame],
+    graph: GraphResult,
+    cfg: SelfSupConfig,
+    with_refined: bool,
+    mask_dir: Path | None = None,
+    moving: list[np.ndarray] | None = None,
+) -> Supervision:
     """Per-frame targets from a graph pass; masks are written as PNGs to `mask_dir` for inspection.
 
     `moving` (a bound for benchmarks, never a method): each frame's true moving mask at the training
     resolution; the photometric mask is then exactly its complement, in place of every configured test."""
     n = len(frames)
     keep = graph.landmark_lidar if cfg.landmarks_lidar_only else np.ones(len(graph.landmarks), bool)
-    fdepth = [landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
-              for k, f in enumerate(frames)]
-    graph_depth = [graph_depth_at(graph, f) for f in frames] if with_refined or cfg.rigid_mask or cfg.depth_mask else [None] * n
-    # initialisation stage: the graph's depth is a classical fill, trusted by the rigid and depth tests only near returns
-    rigid_depth = graph_depth if with_refined else [rigid_support(d, f.sparse, cfg.rigid_support_px)
-                                                    for d, f in zip(graph_depth, frames)]
+    fdepth = [
+        landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
+        for k, f in enumerate(frames)
+    ]
+    graph_depth = (
+        [graph_depth_at(graph, f) for f in frames] if with_refined or cfg.rigid_mask or cfg.depth_mask else [None] * n
+    )
+    # initialisation stage: the graph's depth is a classical fill, trusted by the rigid and depth tests only near
+    # returns
+    rigid_depth = (
+        graph_depth
+        if with_refined
+        else [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(graph_depth, frames)]
+    )
     refined: list[np.ndarray | None] = [None] * n
     use = np.zeros(n, bool)
     if with_refined:
@@ -243,8 +290,11 @@ def build_supervision(frames: list[TrainFrame], graph: GraphResult, cfg: SelfSup
         for k in range(n):
             for j, store, tag in ((k - 1, prev, "prev"), (k + 1, nxt, "next")):
                 if 0 <= j < n:
-                    store[k] = (~moving[k] if moving is not None
-                                else keep_mask(pair_tests(frames, graph.poses, rigid_depth, cfg, k, j), cfg))
+                    store[k] = (
+                        ~moving[k]
+                        if moving is not None
+                        else keep_mask(pair_tests(frames, graph.poses, rigid_depth, cfg, k, j), cfg)
+                    )
                     if mask_dir is not None:
                         cv2.imwrite(str(mask_dir / f"{frames[k].index:06d}_{tag}.png"), store[k].astype(np.uint8) * 255)
     return Supervision(graph.poses, fdepth, refined, use, prev, nxt)

@@ -71,8 +71,9 @@ def pass_tag(epoch: int, cfg: SelfSupConfig) -> str:
     return f"refine_e{n + cfg.refresh_every * ((epoch - n) // cfg.refresh_every) + 1}"
 
 
-def photometric_term(img: torch.Tensor, depth: torch.Tensor, b: dict, cfg: SelfSupConfig
-                     ) -> tuple[torch.Tensor, list[torch.Tensor], list[torch.Tensor]]:
+def photometric_term(
+    img: torch.Tensor, depth: torch.Tensor, b: dict, cfg: SelfSupConfig
+) -> tuple[torch.Tensor, list[torch.Tensor], list[torch.Tensor]]:
     """L_p (eq. 16) with the masks of the batch: (loss, warped neighbours, kept pixels per neighbour).
     With `auto_mask` (monodepth2), a pixel also drops out against a neighbour it matches better
     unwarped (a mover at the ego's speed, a standing camera), and the loss takes the per-pixel
@@ -90,14 +91,19 @@ def photometric_term(img: torch.Tensor, depth: torch.Tensor, b: dict, cfg: SelfS
     return photometric_loss(errors, masks, per_pixel_min=cfg.auto_mask), warped, masks
 
 
-def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: bool, log_sigma: torch.Tensor | None = None
-                ) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor]]:
+def batch_terms(
+    depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: bool, log_sigma: torch.Tensor | None = None
+) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor]]:
     """Eq. 22 on one batch, plus the uncertainty head's Gaussian NLL at the LiDAR-backed landmarks
     (on detached depth, and the head sees detached features: it trains the head only): (total loss,
     detached terms, images)."""
     img = b["image"]
     lp, warped, masks = photometric_term(img, depth, b, cfg)
-    lf = feature_point_loss(depth, b["feature_depth"], cfg.target_loss) if cfg.weight_feature > 0 else depth.new_zeros(())
+    lf = (
+        feature_point_loss(depth, b["feature_depth"], cfg.target_loss)
+        if cfg.weight_feature > 0
+        else depth.new_zeros(())
+    )
     use_r = refine_stage and cfg.weight_refined > 0 and bool(b["use_refined"].any())
     lr = refined_depth_loss(depth, b["refined"], b["use_refined"], cfg.target_loss) if use_r else depth.new_zeros(())
     ls = second_order_smoothness(depth, img) if cfg.weight_smooth > 0 else depth.new_zeros(())
@@ -105,11 +111,25 @@ def batch_terms(depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: 
     nll = depth.new_zeros(())
     if cfg.weight_nll > 0 and log_sigma is not None:
         nll = gaussian_nll(depth.detach(), log_sigma, b["feature_depth"], (b["feature_depth"] > 0).to(depth.dtype))
-    loss = (lp + cfg.weight_feature * lf + cfg.weight_refined * lr + cfg.weight_smooth * ls + cfg.weight_nll * nll
-            + cfg.weight_sparse * lz)
-    terms = {"loss": loss.item(), "photometric": lp.item(), "feature": lf.item(), "refined": lr.item(),
-             "smooth": ls.item(), "nll": nll.item(), "sparse": lz.item(), "mask_kept": float(torch.cat(masks).float().mean()),
-             "refined_used": float(b["use_refined"].float().mean()) if refine_stage else 0.0}
+    loss = (
+        lp
+        + cfg.weight_feature * lf
+        + cfg.weight_refined * lr
+        + cfg.weight_smooth * ls
+        + cfg.weight_nll * nll
+        + cfg.weight_sparse * lz
+    )
+    terms = {
+        "loss": loss.item(),
+        "photometric": lp.item(),
+        "feature": lf.item(),
+        "refined": lr.item(),
+        "smooth": ls.item(),
+        "nll": nll.item(),
+        "sparse": lz.item(),
+        "mask_kept": float(torch.cat(masks).float().mean()),
+        "refined_used": float(b["use_refined"].float().mean()) if refine_stage else 0.0,
+    }
     return loss, terms, {"warped_prev": warped[0], "mask_prev": masks[0]}
 
 
@@ -127,7 +147,9 @@ class _Rerun:
         self.picks = sorted({int(round(x)) for x in np.linspace(0, n - 1, min(cfg.rerun_frames, n))})
 
     @torch.no_grad()
-    def log(self, epoch: int, model: torch.nn.Module, dataset: SelfSupSamples, cfg: SelfSupConfig, refine: bool) -> None:
+    def log(
+        self, epoch: int, model: torch.nn.Module, dataset: SelfSupSamples, cfg: SelfSupConfig, refine: bool
+    ) -> None:
         rr = self.rr
         self.rec.set_time("epoch", sequence=epoch)
         model.eval()
@@ -159,8 +181,16 @@ def _append_logs(out: Path, record: dict) -> None:
 
 
 @single_threaded_blas
-def train_selfsup(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePass, resume: bool = False,
-                  progress: bool = True, rerun: Path | None = None, oracle_masks: bool = False) -> dict:
+def train_selfsup(
+    cfg: SelfSupConfig,
+    sequences: list[Path],
+    out: Path,
+    pose_pass: PosePass,
+    resume: bool = False,
+    progress: bool = True,
+    rerun: Path | None = None,
+    oracle_masks: bool = False,
+) -> dict:
     """Train on raw sequences; returns the last epoch's log record (empty on ranks other than 0). `pose_pass`:
     the window graph that gives the poses, landmarks and refined depth (`leovr.pipeline.refine.run_refine`).
 
@@ -180,21 +210,33 @@ def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarr
     return out
 
 
-def resumed_epoch(last: Path, model: DepthGenerator, opt: torch.optim.Optimizer,
-                  sched: torch.optim.lr_scheduler.LRScheduler, cfg: SelfSupConfig, inputs: dict[str, str]) -> int:
+def resumed_epoch(
+    last: Path,
+    model: DepthGenerator,
+    opt: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LRScheduler,
+    cfg: SelfSupConfig,
+    inputs: dict[str, str],
+) -> int:
     """The epoch to go on from, the model, optimiser and schedule restored from `last`; a checkpoint trained
     with other settings (other than the number of epochs) or on other recordings (`inputs`: path -> content
     fingerprint) is refused."""
     state = load_resume(last, model, opt, sched)
     changed = [k for k in config_changes(state.get("config", {}), cfg) if k != "epochs"]
     if changed:
-        raise DataError(last, f"was trained with other settings ({', '.join(changed)}); resume with the same "
-                              "config (only epochs may change) or start a new --out folder")
+        raise DataError(
+            last,
+            f"was trained with other settings ({', '.join(changed)}); resume with the same "
+            "config (only epochs may change) or start a new --out folder",
+        )
     before = state.get("sequences")
     if before is not None and before != inputs:
         other = sorted(set(before.items()) ^ set(inputs.items()))
-        raise DataError(last, f"was trained on other recordings or other contents ({', '.join(p for p, _ in other)}); "
-                              "resume with the same sequences or start a new --out folder")
+        raise DataError(
+            last,
+            f"was trained on other recordings or other contents ({', '.join(p for p, _ in other)}); "
+            "resume with the same sequences or start a new --out folder",
+        )
     return state["epoch"] + 1
 
 
@@ -207,8 +249,15 @@ def epoch_sampler(dataset: SelfSupSamples, cfg: SelfSupConfig, epoch: int, rank:
     return RandomSampler(dataset, generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
 
 
-def train_epoch(net: torch.nn.Module, loader: DataLoader, opt: torch.optim.Optimizer, cfg: SelfSupConfig,
-                refine: bool, desc: str, show: bool) -> dict[str, float]:
+def train_epoch(
+    net: torch.nn.Module,
+    loader: DataLoader,
+    opt: torch.optim.Optimizer,
+    cfg: SelfSupConfig,
+    refine: bool,
+    desc: str,
+    show: bool,
+) -> dict[str, float]:
     """One pass over the loader, a step per batch; the mean of each loss term."""
     net.train()
     sums, count = dict.fromkeys(TERMS, 0.0), 0
@@ -226,21 +275,46 @@ def train_epoch(net: torch.nn.Module, loader: DataLoader, opt: torch.optim.Optim
     return {k: sums[k] / max(count, 1) for k in TERMS}
 
 
-def save_epoch(out: Path, model: DepthGenerator, opt: torch.optim.Optimizer,
-               sched: torch.optim.lr_scheduler.LRScheduler, epoch: int, cfg: SelfSupConfig, inputs: dict[str, str]
-               ) -> None:
+def save_epoch(
+    out: Path,
+    model: DepthGenerator,
+    opt: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LRScheduler,
+    epoch: int,
+    cfg: SelfSupConfig,
+    inputs: dict[str, str],
+) -> None:
     """The state to resume from (`checkpoint_last.pt`, with the recordings' fingerprints `inputs`) and the
     generator as trained so far (`generator.pt`)."""
     network, config = generator_config(cfg).__dict__, cfg.model_dump()
-    save_checkpoint(out / "checkpoint_last.pt", {"model": model.state_dict(), "optimizer": opt.state_dict(),
-                                                 "scheduler": sched.state_dict(), "epoch": epoch, "config": config,
-                                                 "network": network, "sequences": inputs})
-    save_checkpoint(out / "generator.pt", {"model": model.state_dict(), "network": network, "config": config,
-                                           "epoch": epoch + 1, "mode": "selfsup"})
+    save_checkpoint(
+        out / "checkpoint_last.pt",
+        {
+            "model": model.state_dict(),
+            "optimizer": opt.state_dict(),
+            "scheduler": sched.state_dict(),
+            "epoch": epoch,
+            "config": config,
+            "network": network,
+            "sequences": inputs,
+        },
+    )
+    save_checkpoint(
+        out / "generator.pt",
+        {"model": model.state_dict(), "network": network, "config": config, "epoch": epoch + 1, "mode": "selfsup"},
+    )
 
 
-def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePass, resume: bool = False,
-        progress: bool = True, rerun: Path | None = None, oracle_masks: bool = False) -> tuple[dict, DepthGenerator]:
+def fit(
+    cfg: SelfSupConfig,
+    sequences: list[Path],
+    out: Path,
+    pose_pass: PosePass,
+    resume: bool = False,
+    progress: bool = True,
+    rerun: Path | None = None,
+    oracle_masks: bool = False,
+) -> tuple[dict, DepthGenerator]:
     """`train_selfsup`, also returning this process's model."""
     if not sequences:
         raise DataError("sequences", "self-supervised training needs at least one sequence folder")
@@ -274,15 +348,23 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePas
         if tag != "init":
             checkpoint = folder / "generator.pt"
             if rank == 0 and not checkpoint.is_file():
-                save_checkpoint(checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()})
+                save_checkpoint(
+                    checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()}
+                )
         if rank != 0:
             barrier(world)
-        graphs = [graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), pose_pass, progress and rank == 0)
-                  for k, s in enumerate(seqs)]
+        graphs = [
+            graph_pass(s, cfg, folder / f"seq{k}", checkpoint, len(frames[k]), pose_pass, progress and rank == 0)
+            for k, s in enumerate(seqs)
+        ]
         if rank == 0:
             barrier(world)
-        sup = [build_supervision(frames[k], g, cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None,
-                                 moving[k]) for k, g in enumerate(graphs)]
+        sup = [
+            build_supervision(
+                frames[k], g, cfg, tag != "init", folder / f"seq{k}" / "masks" if rank == 0 else None, moving[k]
+            )
+            for k, g in enumerate(graphs)
+        ]
         if dataset is None:
             return SelfSupSamples(frames, sup)
         dataset.set_supervision(sup)
@@ -301,17 +383,31 @@ def fit(cfg: SelfSupConfig, sequences: list[Path], out: Path, pose_pass: PosePas
             viewer = _Rerun(Path(rerun), cfg, dataset)
         loader = DataLoader(dataset, cfg.batch_size, sampler=epoch_sampler(dataset, cfg, epoch, rank, world))
         t0 = time.time()
-        means = train_epoch(net, loader, opt, cfg, refine,
-                            f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})",
-                            progress and rank == 0)
+        means = train_epoch(
+            net,
+            loader,
+            opt,
+            cfg,
+            refine,
+            f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})",
+            progress and rank == 0,
+        )
         sched.step()
-        if world > 1:  # gradients are averaged every step; BatchNorm statistics only at the next forward, so sync them now
+        if (
+            world > 1
+        ):  # gradients are averaged every step; BatchNorm statistics only at the next forward, so sync them now
             for buf in model.buffers():
                 dist.broadcast(buf, 0)
         if rank == 0:
-            record = {"epoch": epoch + 1, "stage": "refinement" if refine else "initialisation", "graph_pass": tag,
-                      **means, "lr": opt.param_groups[0]["lr"],
-                      "seconds": round(time.time() - t0, 1), "processes": world}
+            record = {
+                "epoch": epoch + 1,
+                "stage": "refinement" if refine else "initialisation",
+                "graph_pass": tag,
+                **means,
+                "lr": opt.param_groups[0]["lr"],
+                "seconds": round(time.time() - t0, 1),
+                "processes": world,
+            }
             _append_logs(out, record)
             save_epoch(out, model, opt, sched, epoch, cfg, inputs)
             if viewer is not None:

@@ -9,8 +9,9 @@ import torch.nn.functional as F
 
 def pixel_rays(K: torch.Tensor, h: int, w: int) -> torch.Tensor:
     """B x 3 x (h w) rays K^-1 [u v 1]^T of every pixel centre (pixel (0, 0) is at u = v = 0)."""
-    v, u = torch.meshgrid(torch.arange(h, dtype=K.dtype, device=K.device),
-                          torch.arange(w, dtype=K.dtype, device=K.device), indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(h, dtype=K.dtype, device=K.device), torch.arange(w, dtype=K.dtype, device=K.device), indexing="ij"
+    )
     pix = torch.stack([u.reshape(-1), v.reshape(-1), torch.ones(h * w, dtype=K.dtype, device=K.device)])
     return torch.linalg.inv(K) @ pix
 
@@ -26,8 +27,9 @@ def project_to(depth: torch.Tensor, T_j_i: torch.Tensor, K: torch.Tensor) -> tup
     return uv.permute(0, 2, 1).reshape(b, h, w, 2), (z > 1e-3).reshape(b, 1, h, w)
 
 
-def warp_image(image_j: torch.Tensor, depth_i: torch.Tensor, T_j_i: torch.Tensor, K: torch.Tensor
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+def warp_image(
+    image_j: torch.Tensor, depth_i: torch.Tensor, T_j_i: torch.Tensor, K: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """I_{j->i}: frame j sampled at the projections of frame i's pixels (B x C x H x W), and the valid
     mask (projection inside frame j and in front of its camera)."""
     _, _, h, w = image_j.shape

@@ -24,7 +24,8 @@ needs_shared = pytest.mark.skipif(
 
 needs_posed_drive = pytest.mark.skipif(
     not KITTI_RAW_POSES.is_dir(),
-    reason=f"the KITTI raw drive with OXTS poses not found at {KITTI_RAW_POSES} (set LEOVR_SHARED_DATA or place ../shared/data)",
+    reason=f"the KITTI raw drive with OXTS poses not found at {KITTI_RAW_POSES} (set LEOVR_SHARED_DATA or place "
+    "../shared/data)",
 )
 
 # KITTI-like axes: LiDAR x forward, y left, z up; camera x right, y down, z forward.
@@ -52,8 +53,7 @@ def write_kitti_raw(root: Path, frames: int = 3) -> Path:
     (drive / "velodyne_points" / "data").mkdir(parents=True)
     P = f"{FX} 0 {CX} 0 0 {FX} {CY} 0 0 0 1 0"
     (date / "calib_cam_to_cam.txt").write_text(
-        "calib_time: 09-Jan-2012 13:57:47\n"
-        f"P_rect_02: {P}\nR_rect_00: 1 0 0 0 1 0 0 0 1\n"
+        f"calib_time: 09-Jan-2012 13:57:47\nP_rect_02: {P}\nR_rect_00: 1 0 0 0 1 0 0 0 1\n"
     )
     R = " ".join(f"{v:g}" for v in R_CAM_LIDAR.ravel())
     (date / "calib_velo_to_cam.txt").write_text(f"calib_time: 15-Mar-2012 11:37:16\nR: {R}\nT: 0 0 0\n")

@@ -58,6 +58,7 @@ def small_generator(path):
     return path
 
 
+@pytest.mark.slow
 def test_adapt_reads_only_the_cheap_input(tmp_path):
     """Adapting with --input vlp16 on a drive gives the very same weights as adapting with --input full
     on a copy that holds only the VLP-16 rings: the 48 held-out rings (the evaluation beams) are never read."""
@@ -76,8 +77,23 @@ def test_adapt_reads_only_the_cheap_input(tmp_path):
     outs = {}
     for name, data, inp in (("raw", drive, "vlp16"), ("cheap", cheap, "full")):
         outs[name] = tmp_path / f"out_{name}"
-        r = runner.invoke(app, ["adapt", str(data), "--out", str(outs[name]), "--input", inp, "--init", str(init),
-                                "--epochs", "1", "-c", str(cfg)])
+        r = runner.invoke(
+            app,
+            [
+                "adapt",
+                str(data),
+                "--out",
+                str(outs[name]),
+                "--input",
+                inp,
+                "--init",
+                str(init),
+                "--epochs",
+                "1",
+                "-c",
+                str(cfg),
+            ],
+        )
         assert r.exit_code == 0, r.output
     start = torch.load(init, weights_only=False)["model"]
     for name in ("generator.pt", "checkpoint_last.pt"):  # best-validation and last weights
@@ -93,21 +109,72 @@ def test_adapt_reads_only_the_cheap_input(tmp_path):
     log = [json.loads(line) for line in (outs["raw"] / "log.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in log] == [0, 1]
     # resume continues to a second epoch; other settings are refused
-    r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "vlp16", "--init", str(init),
-                            "--epochs", "2", "-c", str(cfg), "--resume"])
+    r = runner.invoke(
+        app,
+        [
+            "adapt",
+            str(drive),
+            "--out",
+            str(outs["raw"]),
+            "--input",
+            "vlp16",
+            "--init",
+            str(init),
+            "--epochs",
+            "2",
+            "-c",
+            str(cfg),
+            "--resume",
+        ],
+    )
     assert r.exit_code == 0, r.output
     assert json.loads((outs["raw"] / "log.jsonl").read_text().splitlines()[-1])["epoch"] == 2
-    r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "mid40", "--init", str(init),
-                            "--epochs", "4", "-c", str(cfg), "--resume"])
-    assert isinstance(r.exception, DataError) and "settings.input (folder: \"vlp16\", now: \"mid40\")" in str(r.exception)
+    r = runner.invoke(
+        app,
+        [
+            "adapt",
+            str(drive),
+            "--out",
+            str(outs["raw"]),
+            "--input",
+            "mid40",
+            "--init",
+            str(init),
+            "--epochs",
+            "4",
+            "-c",
+            str(cfg),
+            "--resume",
+        ],
+    )
+    assert isinstance(r.exception, DataError) and 'settings.input (folder: "vlp16", now: "mid40")' in str(r.exception)
     # a truncated resume checkpoint (an interrupted copy) is one clear error, not torch's
     last = outs["raw"] / "checkpoint_last.pt"
     last.write_bytes(last.read_bytes()[:1000])
-    r = runner.invoke(app, ["adapt", str(drive), "--out", str(outs["raw"]), "--input", "vlp16", "--init", str(init),
-                            "--epochs", "3", "-c", str(cfg), "--resume"])
-    assert isinstance(r.exception, DataError) and "checkpoint_last.pt: unreadable checkpoint (truncated" in str(r.exception)
+    r = runner.invoke(
+        app,
+        [
+            "adapt",
+            str(drive),
+            "--out",
+            str(outs["raw"]),
+            "--input",
+            "vlp16",
+            "--init",
+            str(init),
+            "--epochs",
+            "3",
+            "-c",
+            str(cfg),
+            "--resume",
+        ],
+    )
+    assert isinstance(r.exception, DataError) and "checkpoint_last.pt: unreadable checkpoint (truncated" in str(
+        r.exception
+    )
 
 
+@pytest.mark.slow
 def test_adapt_on_two_processes_matches_one(tmp_path):
     """`torchrun --nproc-per-node 2 leovr adapt ...` (DistributedDataParallel over gloo, each process a
     share of the batch and of the validation frames) takes the same steps as one process: same
@@ -128,8 +195,25 @@ def test_adapt_on_two_processes_matches_one(tmp_path):
     assert r.exit_code == 0, r.output
     two = tmp_path / "two"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    p = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-                        "-m", "leovr.cli", *args, "--out", str(two)], capture_output=True, text=True, env=env, timeout=300)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc-per-node",
+            "2",
+            "-m",
+            "leovr.cli",
+            *args,
+            "--out",
+            str(two),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     log1 = [json.loads(line) for line in (one / "log.jsonl").read_text().splitlines()]
     log2 = [json.loads(line) for line in (two / "log.jsonl").read_text().splitlines()]
@@ -146,6 +230,7 @@ def test_adapt_on_two_processes_matches_one(tmp_path):
         assert torch.allclose(a[k].float(), b[k].float(), rtol=1e-3, atol=1e-5 * max(moved, 1.0)), k
 
 
+@pytest.mark.slow
 def test_adapt_on_two_processes_stops_together_on_a_bad_output_folder(tmp_path):
     """Process 0 alone checks and records the output folder; when it cannot be written, every process
     stops with the error instead of waiting for process 0 in the next collective."""
@@ -157,10 +242,32 @@ def test_adapt_on_two_processes_stops_together_on_a_bad_output_folder(tmp_path):
     init = small_generator(tmp_path / "init.pt")
     blocker = tmp_path / "not_a_folder"
     blocker.write_text("a file where the output folder should be\n")
-    p = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-                        "-m", "leovr.cli", "adapt", str(drive), "--input", "vlp16", "--init", str(init),
-                        "--epochs", "1", "--out", str(blocker)],
-                       capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=120)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc-per-node",
+            "2",
+            "-m",
+            "leovr.cli",
+            "adapt",
+            str(drive),
+            "--input",
+            "vlp16",
+            "--init",
+            str(init),
+            "--epochs",
+            "1",
+            "--out",
+            str(blocker),
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        timeout=120,
+    )
     assert p.returncode != 0
     # each process prints the one-line error (torchrun then adds its own launcher report)
     assert (p.stdout + p.stderr).count(f"error: {blocker}: output path is a file") == 2
@@ -177,8 +284,9 @@ def test_adapt_blend_falls_back_to_the_prior_where_the_network_is_worse(tmp_path
     from leovr.depth.prior import interpolated_fill
 
     drive = write_kitti_raw(tmp_path / "raw", frames=2)
-    frames = input_frames([open_sequence(drive)], AdaptConfig(input="vlp16", generator_focal_px=None, splits_per_frame=2),
-                          progress=False)
+    frames = input_frames(
+        [open_sequence(drive)], AdaptConfig(input="vlp16", generator_focal_px=None, splits_per_frame=2), progress=False
+    )
     torch.manual_seed(0)
     net = DepthGenerator(GeneratorConfig(output="residual", channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))).eval()
     w, mae = choose_blend(net, frames)
@@ -190,11 +298,14 @@ def test_adapt_blend_falls_back_to_the_prior_where_the_network_is_worse(tmp_path
     f = open_sequence(drive)[0]
     sparse = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
     net.cfg = replace(net.cfg, blend=0.0)
-    np.testing.assert_allclose(predict(net, f.image, sparse, image_edges=False)[0], interpolated_fill(sparse), rtol=1e-4)
+    np.testing.assert_allclose(
+        predict(net, f.image, sparse, image_edges=False)[0], interpolated_fill(sparse), rtol=1e-4
+    )
     with pytest.raises(ValueError, match="blend"):
         GeneratorConfig(blend=1.5)
 
 
+@pytest.mark.slow
 @needs_shared
 def test_adaptation_learns_the_masked_task_on_real_frames(tmp_path):
     """Real KITTI frames, Mid-40-like input: four epochs from the shipped generator lower the error at the

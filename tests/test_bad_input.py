@@ -71,7 +71,11 @@ def test_frames_are_paired_by_number_not_by_position(tmp_path):
     text = str(w[0].message)
     assert "frame 3 without a scan" in text and "frame 1 without an image" in text
     assert seq.frame_numbers() == [0, 2, 4] and len(seq) == 3
-    assert [p.stem for p in seq.image_files] == [p.stem for p in seq.scan_files] == ["0000000000", "0000000002", "0000000004"]
+    assert (
+        [p.stem for p in seq.image_files]
+        == [p.stem for p in seq.scan_files]
+        == ["0000000000", "0000000002", "0000000004"]
+    )
     assert np.allclose(seq.timestamps(), [0.0, 0.2, 0.4])
     assert seq[1:].frame_numbers() == [2, 4]
 
@@ -106,10 +110,12 @@ def test_calibration_of_the_wrong_size_or_singular_names_key_and_file(kitti_raw_
     calib = kitti_raw_tiny.parent / "calib_cam_to_cam.txt"
     good = calib.read_text()
     eye = "1 0 0 0 1 0 0 0 1"
-    for text, msg in [(f"P_rect_02: {eye}\nR_rect_00: {eye}\n", r"'P_rect_02': needs 12 numbers, 9 numbers"),
-                      (f"P_rect_02: 100 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {eye} 0 0 0\n", r"'R_rect_00': needs 9 numbers, 12"),
-                      (f"P_rect_02: 0 0 0 0 0 0 0 0 0 0 0 0\nR_rect_00: {eye}\n", "singular"),
-                      (f"P_rect_02: nan 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {eye}\n", "NaN")]:
+    for text, msg in [
+        (f"P_rect_02: {eye}\nR_rect_00: {eye}\n", r"'P_rect_02': needs 12 numbers, 9 numbers"),
+        (f"P_rect_02: 100 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {eye} 0 0 0\n", r"'R_rect_00': needs 9 numbers, 12"),
+        (f"P_rect_02: 0 0 0 0 0 0 0 0 0 0 0 0\nR_rect_00: {eye}\n", "singular"),
+        (f"P_rect_02: nan 0 40 0 0 100 30 0 0 0 1 0\nR_rect_00: {eye}\n", "NaN"),
+    ]:
         calib.write_text(text)
         with pytest.raises(DataError, match=r"calib_cam_to_cam\.txt: .*" + msg):
             open_sequence(kitti_raw_tiny)
@@ -222,7 +228,9 @@ def test_simulate_replaces_an_earlier_rendering_and_convert_refuses_to_mix(tmp_p
         write_native(open_sequence(tmp_path / "s"), tmp_path / "s")
     # an interrupted convert (frames on disk, no sequence.yaml) is named as such; overwrite replaces it whole
     (tmp_path / "s" / "sequence.yaml").unlink()
-    src = simulate(SimulateConfig(lidar="vlp16", frames=1, seed=6), tmp_path / "one", progress=False) and tmp_path / "one"
+    src = (
+        simulate(SimulateConfig(lidar="vlp16", frames=1, seed=6), tmp_path / "one", progress=False) and tmp_path / "one"
+    )
     with pytest.raises(DataError, match="unfinished sequence"):
         write_native(open_sequence(src), tmp_path / "s")
     write_native(open_sequence(src), tmp_path / "s", overwrite=True)

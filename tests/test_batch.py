@@ -31,8 +31,11 @@ pytest.importorskip("ray")
 
 def _render(root: Path, frames: int) -> Path:
     for n in range(3):
-        simulate(SimulateConfig(scenario="city_loop", lidar="mid40", frames=frames, seed=3310 + n),
-                 root / f"drive{n}", progress=False)
+        simulate(
+            SimulateConfig(scenario="city_loop", lidar="mid40", frames=frames, seed=3310 + n),
+            root / f"drive{n}",
+            progress=False,
+        )
     return root
 
 
@@ -64,13 +67,18 @@ def _same_run(a: Path, b: Path) -> None:
         assert diff.max() <= 1.5 / 256 and (diff > 0).mean() < 1e-3
 
 
+@pytest.mark.slow
 def test_batch_of_three_and_a_corrupt_sequence_on_two_workers(drives, tmp_path):
     out = tmp_path / "out"
     cfg = LeovrConfig()
     cfg.batch.workers = 2
     rows = run_batch(read_batch(drives), cfg, out, progress=False)
-    assert {r["name"]: r["status"] for r in rows} == {"drive0": "done", "drive1": "done", "drive2": "done",
-                                                      "drive_corrupt": "failed"}
+    assert {r["name"]: r["status"] for r in rows} == {
+        "drive0": "done",
+        "drive1": "done",
+        "drive2": "done",
+        "drive_corrupt": "failed",
+    }
     summary = _rows(out)
     assert "000003.png" in summary["drive_corrupt"]["error"] and "decode" in summary["drive_corrupt"]["error"]
     for name in ("drive0", "drive1", "drive2"):
@@ -89,6 +97,7 @@ def test_batch_of_three_and_a_corrupt_sequence_on_two_workers(drives, tmp_path):
     assert [r["status"] for r in rows] == ["skipped", "skipped", "skipped", "failed"]
 
 
+@pytest.mark.slow
 def test_a_killed_worker_loses_nothing_and_a_rerun_does_no_work(tmp_path):
     drives = _render(tmp_path / "drives", 14)
     out = tmp_path / "out"
@@ -127,8 +136,10 @@ def test_a_killed_worker_loses_nothing_and_a_rerun_does_no_work(tmp_path):
 
 def test_manifests_yaml_csv_and_bad_entries(tmp_path, drives):
     y = tmp_path / "m.yaml"
-    y.write_text(f"sequences:\n  - {drives / 'drive0'}\n  - path: {drives / 'drive1'}\n    name: second\n    end: 3\n"
-                 f"  - path: {drives / 'drive0'}\n")
+    y.write_text(
+        f"sequences:\n  - {drives / 'drive0'}\n  - path: {drives / 'drive1'}\n    name: second\n    end: 3\n"
+        f"  - path: {drives / 'drive0'}\n"
+    )
     items = read_batch(y)
     assert [it.name for it in items] == ["drive0", "second", "drive0_2"]
     assert items[1].options == {"end": 3}
@@ -149,6 +160,7 @@ def test_manifests_yaml_csv_and_bad_entries(tmp_path, drives):
     assert not (tmp_path / "out" / "drive1").exists()
 
 
+@pytest.mark.slow
 def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
     """adapt+refine: one adaptation over the batch's sequences (no ground truth), then each sequence
     refined with the adapted weights; a re-run redoes neither."""
@@ -156,8 +168,12 @@ def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
 
     y = tmp_path / "m.yaml"
     y.write_text("".join(f"- {drives / f'drive{n}'}\n" for n in range(2)))
-    cfg = LeovrConfig.model_validate({"adapt": {"epochs": 1, "batch_size": 3, "splits_per_frame": 1, "val_every": 3},
-                                      "batch": {"job": "adapt+refine", "workers": 2, "adapt_processes": 2}})
+    cfg = LeovrConfig.model_validate(
+        {
+            "adapt": {"epochs": 1, "batch_size": 3, "splits_per_frame": 1, "val_every": 3},
+            "batch": {"job": "adapt+refine", "workers": 2, "adapt_processes": 2},
+        }
+    )
     out = tmp_path / "out"
     rows = run_batch(read_batch(y), cfg, out, progress=False)
     assert [r["status"] for r in rows] == ["done", "done"]
@@ -179,6 +195,7 @@ def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
         run_batch(read_batch(y), cfg, out, progress=False)
 
 
+@pytest.mark.slow
 def test_bench_batch_contract(tmp_path):
     from leovr.bench.batch import run_batch_bench
 
@@ -217,16 +234,23 @@ def test_a_rerun_with_other_settings_is_refused_before_any_work(drives, tmp_path
     from leovr.pipeline.batch_manifest import BatchItem
 
     item = BatchItem("drive0", drives / "drive0")
-    section = {end: job_section(LeovrConfig.model_validate({"complete": {"end": end}}), "complete", item) for end in (3, 2)}
+    section = {
+        end: job_section(LeovrConfig.model_validate({"complete": {"end": end}}), "complete", item) for end in (3, 2)
+    }
     with process_threads():
         assert run_sequence(item, "complete", section[3], tmp_path / "drive0")["status"] == "done"
     stamps = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if p.is_file()}
-    check_no_other_results(tmp_path, [item], {"drive0": task_settings("complete", section[3], item.path)})  # same: passes
-    with pytest.raises(DataError, match=r"results of other settings or input files for drive0: config.end \(folder: 3, now: 2\)"):
+    check_no_other_results(
+        tmp_path, [item], {"drive0": task_settings("complete", section[3], item.path)}
+    )  # same: passes
+    with pytest.raises(
+        DataError, match=r"results of other settings or input files for drive0: config.end \(folder: 3, now: 2\)"
+    ):
         check_no_other_results(tmp_path, [item], {"drive0": task_settings("complete", section[2], item.path)})
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
 
 
+@pytest.mark.slow
 def test_a_refine_task_fuses_its_map_when_asked(drives, tmp_path):
     """`batch.map`: each refined sequence also gets its map (OUT/NAME/map), and the map's settings are part of
     what a re-run compares."""
@@ -240,4 +264,6 @@ def test_a_refine_task_fuses_its_map_when_asked(drives, tmp_path):
         state = run_sequence(item, "refine", section, tmp_path / "drive0", map_section=MapConfig().model_dump())
     assert state["status"] == "done", state
     assert json.loads((tmp_path / "drive0" / "map" / "map.json").read_text())["frames"] == 4
-    assert task_settings("refine", section, item.path, MapConfig().model_dump()) != task_settings("refine", section, item.path)
+    assert task_settings("refine", section, item.path, MapConfig().model_dump()) != task_settings(
+        "refine", section, item.path
+    )

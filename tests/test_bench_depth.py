@@ -3,6 +3,7 @@ and the focal-length resampling the generator runs behind."""
 
 from __future__ import annotations
 
+import pytest
 import json
 
 import numpy as np
@@ -38,6 +39,7 @@ def test_predict_at_focal_returns_frame_size_and_matches_native_at_same_focal():
     assert np.array_equal(same, native) and not np.allclose(d, native)
 
 
+@pytest.mark.slow
 def test_bench_depth_quick_synthetic(tmp_path):
     cfg = BenchDepthConfig(dataset=str(tmp_path / "data"), synthetic_lidars=["mid40"], kitti_inputs=[])
     doc = run_depth_bench(tmp_path / "b.json", cfg, quick=True, progress=False)

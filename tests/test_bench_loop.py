@@ -21,9 +21,11 @@ def test_loop_truth_counts_a_loop_measured_too_far_off_as_false_and_says_by_how_
     good = np.linalg.inv(gt[0]) @ gt[40]
     off = good.copy()
     off[0, 3] += 1.33  # the right place, measured 1.33 m off
-    loops = [{"frame": 40, "candidate": 0, "accepted": True, "T_j_i": good.tolist()},
-             {"frame": 39, "candidate": 1, "accepted": True, "T_j_i": off.tolist()},
-             {"frame": 38, "candidate": 2, "accepted": False, "T_j_i": good.tolist()}]
+    loops = [
+        {"frame": 40, "candidate": 0, "accepted": True, "T_j_i": good.tolist()},
+        {"frame": 39, "candidate": 1, "accepted": True, "T_j_i": off.tolist()},
+        {"frame": 38, "candidate": 2, "accepted": False, "T_j_i": good.tolist()},
+    ]
     (tmp_path / "loops.json").write_text(json.dumps({"loops": loops, "ms_per_query": 1.0}))
     r = loop_truth(tmp_path, gt, min_gap=30)
     assert (r["loops_accepted"], r["loops_true"], r["loops_false"]) == (2, 1, 1)
@@ -55,7 +57,9 @@ def test_the_ideal_loops_close_a_drifted_lap_with_the_runs_own_pose_graph(tmp_pa
     drifted = [gt[0]]
     for k in range(1, n):
         drifted.append(drifted[-1] @ np.linalg.inv(gt[k - 1]) @ gt[k] @ turn)
-    (tmp_path / "progress.json").write_text(json.dumps({"poses_no_loop": {str(k): T.ravel().tolist() for k, T in enumerate(drifted)}}))
+    (tmp_path / "progress.json").write_text(
+        json.dumps({"poses_no_loop": {str(k): T.ravel().tolist() for k, T in enumerate(drifted)}})
+    )
     loops = [{"frame": 39, "candidate": 0, "accepted": True}, {"frame": 38, "candidate": 1, "accepted": False}]
     (tmp_path / "loops.json").write_text(json.dumps({"loops": loops, "ms_per_query": 1.0}))
     before = trajectory_metrics(np.stack(drifted), np.stack(gt))["ate_m"]

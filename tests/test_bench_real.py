@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import json
 
 from leovr.bench.real import METHODS, run_real_bench
@@ -9,10 +10,17 @@ from leovr.config import BenchRealConfig
 from tests.conftest import KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_shared
 
 
+@pytest.mark.slow
 @needs_shared
 def test_bench_real_contract(tmp_path):
-    cfg = BenchRealConfig(clips=[str(KITTI_RAW)], inputs=["vlp16"], adapt_inputs=["vlp16"], quick_frames=5,
-                          quick_train_frames=3, causal=False)
+    cfg = BenchRealConfig(
+        clips=[str(KITTI_RAW)],
+        inputs=["vlp16"],
+        adapt_inputs=["vlp16"],
+        quick_frames=5,
+        quick_train_frames=3,
+        causal=False,
+    )
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     assert json.loads((tmp_path / "real.json").read_text())["benchmark"] == "real"
     clip = doc["clips"]["kitti_raw"]
@@ -20,8 +28,11 @@ def test_bench_real_contract(tmp_path):
     assert set(clip["results"]) == {"inductive_vlp16", "transductive_vlp16"}
     ind, trans = clip["results"]["inductive_vlp16"], clip["results"]["transductive_vlp16"]
     # VLP-16-like input spins: no earlier scans join the generator's, so no single-frame or accumulated rows
-    assert set(ind) == set(METHODS) - {"generator_frame", "nearest_accumulated", "ipbasic_accumulated"} == {"nearest", "ipbasic", "interp", "generator", "refined",
-                                                              "adapted", "adapted_refined"}
+    assert (
+        set(ind)
+        == set(METHODS) - {"generator_frame", "nearest_accumulated", "ipbasic_accumulated"}
+        == {"nearest", "ipbasic", "interp", "generator", "refined", "adapted", "adapted_refined"}
+    )
     for r in (ind, trans):
         ns = {m: v["n"] for m, v in r.items()}
         assert len(set(ns.values())) == 1 and min(ns.values()) > 1000  # every method on the same pixels
@@ -35,14 +46,19 @@ def test_bench_real_contract(tmp_path):
     assert "held-out LiDAR points" in doc["ground_truth"]
 
 
+@pytest.mark.slow
 @needs_shared
 @needs_posed_drive
 def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_path):
-    cfg = BenchRealConfig(clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], adapt_inputs=[], quick_frames=5)
+    cfg = BenchRealConfig(
+        clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], adapt_inputs=[], quick_frames=5
+    )
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     one, two = doc["clips"]["kitti_raw"], doc["clips"]["kitti_raw_0013"]
     # every input also runs causal (live use), scored on its own held-out pixels
-    assert set(one["results"]) == set(two["results"]) == {"shipped_vlp16", "causal_vlp16"} and "adapt_minutes" not in one
+    assert (
+        set(one["results"]) == set(two["results"]) == {"shipped_vlp16", "causal_vlp16"} and "adapt_minutes" not in one
+    )
     for clip in (one, two):
         for r in clip["results"].values():
             assert r["refined"]["mae_m"] < 0.85 * r["nearest"]["mae_m"], r
@@ -53,7 +69,9 @@ def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_pa
     best = min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"])
     assert abs(t["leovr_vs_kiss_icp"] - t["leovr"]["ate_m"] / best) < 1e-9
     assert doc["pooled"]["trajectory_vs_kiss_icp"]["vlp16"] == t["leovr_vs_kiss_icp"]  # the one clip with poses
-    assert set(two["trajectory"]) == {"vlp16", "causal_vlp16"} and two["trajectory"]["causal_vlp16"]["leovr"]["ate_m"] > 0
+    assert (
+        set(two["trajectory"]) == {"vlp16", "causal_vlp16"} and two["trajectory"]["causal_vlp16"]["leovr"]["ate_m"] > 0
+    )
 
 
 def test_adapted_scores_join_on_the_pixels_both_runs_hold():
@@ -77,5 +95,8 @@ def test_adapted_scores_join_on_the_pixels_both_runs_hold():
     adapted.add("refined", 2 * np.arange(30.0).reshape(5, 6))
     add_adapted(shipped, adapted)
     np.testing.assert_array_equal(shipped.gt, [5.0, 7.0])  # the shipped run's truth on the common pixels
-    assert {m: list(p) for m, p in shipped.pred.items()} == {"nearest": [1.0, 1.0], "adapted": [8.0, 22.0],
-                                                             "adapted_refined": [16.0, 44.0]}
+    assert {m: list(p) for m, p in shipped.pred.items()} == {
+        "nearest": [1.0, 1.0],
+        "adapted": [8.0, 22.0],
+        "adapted_refined": [16.0, 44.0],
+    }

@@ -15,23 +15,35 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _method(mae: float, rmse: float, absrel: float, delta1: float) -> dict:
     bins = {"0-20": {"mae_m": mae / 2, "n": 10}, "20-40": {"mae_m": mae * 2, "n": 5}}
-    return {"mae_m": mae, "rmse_m": rmse, "absrel": absrel, "delta1": delta1, "n": 15, "ms_per_frame": 12.5,
-            "bins": bins}
+    return {
+        "mae_m": mae,
+        "rmse_m": rmse,
+        "absrel": absrel,
+        "delta1": delta1,
+        "n": 15,
+        "ms_per_frame": 12.5,
+        "bins": bins,
+    }
 
 
 def _depth_doc() -> dict:
     return {
-        "benchmark": "depth", "leovr_version": "0.1.0",
+        "benchmark": "depth",
+        "leovr_version": "0.1.0",
         "command": ".venv/bin/leovr bench depth --out runs/bench_depth_old.json",
         "machine": {"platform": "TestOS-1", "python": "3.11.7", "processor": ""},
-        "date_utc": "2030-01-02T03:04:05Z", "duration_s": 12.34, "commit": "abc1234-dirty",
-        "results": {"kitti_mid40": {
-            "nearest": _method(2.0, 4.0, 0.25, 0.5),
-            "ipbasic": _method(2.5, 4.5, 0.3, 0.45),
-            "generator": _method(1.23456, 3.0, 0.125, 0.875),
-            "brand_new_method": _method(0.5, 1.0, 0.05, 0.99),
-            "not_a_method": {"note": "ignored"},
-        }},
+        "date_utc": "2030-01-02T03:04:05Z",
+        "duration_s": 12.34,
+        "commit": "abc1234-dirty",
+        "results": {
+            "kitti_mid40": {
+                "nearest": _method(2.0, 4.0, 0.25, 0.5),
+                "ipbasic": _method(2.5, 4.5, 0.3, 0.45),
+                "generator": _method(1.23456, 3.0, 0.125, 0.875),
+                "brand_new_method": _method(0.5, 1.0, 0.05, 0.99),
+                "not_a_method": {"note": "ignored"},
+            }
+        },
         "summary": {"kitti_mid40": {"generator_mae_vs_ipbasic": 0.49}},
     }
 
@@ -46,7 +58,7 @@ def test_render_depth_result_and_missing_benches(tmp_path: Path):
     (tmp_path / "depth.json").write_text(json.dumps(_depth_doc()))
     text = render(tmp_path)
     assert text.startswith("# Benchmarks\n") and "do not edit by hand" in text
-    section = text[text.index("## depth"):text.index("## refine")]
+    section = text[text.index("## depth") : text.index("## refine")]
     assert "`leovr bench depth --out docs/results/depth.json`" in section and "runs/" not in section
     assert "2030-01-02T03:04:05Z" in section and "12.3 s" in section and "abc1234-dirty" in section
     assert "TestOS-1" in section

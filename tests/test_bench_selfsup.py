@@ -3,6 +3,7 @@ and writes the contract's keys, including the traffic runs and the mask scores."
 
 from __future__ import annotations
 
+import pytest
 import json
 
 import torch
@@ -11,16 +12,28 @@ from leovr.bench.selfsup import run_selfsup_bench, untrained_generator
 from leovr.config import BenchSelfSupConfig, SelfSupConfig
 
 
+@pytest.mark.slow
 def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
     monkeypatch.setenv("LEOVR_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "selfsup.json"
-    run_selfsup_bench(out, BenchSelfSupConfig(parts=["synthetic", "traffic"], quick_frames=6, quick_epochs=1), quick=True,
-                      progress=False)
+    run_selfsup_bench(
+        out,
+        BenchSelfSupConfig(parts=["synthetic", "traffic"], quick_frames=6, quick_epochs=1),
+        quick=True,
+        progress=False,
+    )
     doc = json.loads(out.read_text())
     r = doc["results"]
     assert doc["quick"] and doc["parts"] == ["synthetic", "traffic"] and "kitti_raw" not in r
     assert all(r[f"{k}_mae_m"] > 0 for k in ("untrained", "selfsup", "selfsup_nomask", "supervised"))
-    assert {"selfsup", "selfsup_nomask", "selfsup_eq19_only", "selfsup_oracle_mask", "mask_gain", "oracle_mask_gain"} <= set(r["traffic_only"])
+    assert {
+        "selfsup",
+        "selfsup_nomask",
+        "selfsup_eq19_only",
+        "selfsup_oracle_mask",
+        "mask_gain",
+        "oracle_mask_gain",
+    } <= set(r["traffic_only"])
     assert doc["traffic_test_sequences"] and all("traffic" in p for p in doc["traffic_test_sequences"])
     for stage in ("mask_quality", "mask_quality_refine"):
         q = r[stage]

@@ -43,8 +43,10 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
 
 def test_a_nested_table_in_yaml_changes_only_the_keys_it_names(tmp_path):
     path = tmp_path / "c.yaml"
-    path.write_text("refine:\n  window: 6\n  graph:\n    pixel_sigma: 2.0\n  camera_only:\n    graph:\n"
-                    "      landmark_prior_rel: 5.0\n")
+    path.write_text(
+        "refine:\n  window: 6\n  graph:\n    pixel_sigma: 2.0\n  camera_only:\n    graph:\n"
+        "      landmark_prior_rel: 5.0\n"
+    )
     cfg = load_config(path).refine
     assert cfg.window == 6 and cfg.graph.pixel_sigma == 2.0 and cfg.camera_only.graph.landmark_prior_rel == 5.0
     default = RefineConfig()
@@ -71,8 +73,24 @@ def test_refine_flags_set_the_nested_settings(tmp_path, monkeypatch):
     monkeypatch.setattr(cli, "_run_refine", lambda data, out, cfg, resume, rerun: seen.append(cfg))
     path = tmp_path / "c.yaml"
     path.write_text("refine:\n  loop:\n    min_gap: 50\n  graph:\n    pixel_sigma: 2.0\n")
-    r = runner.invoke(app, ["refine", str(tmp_path), "-o", str(tmp_path / "o"), "-c", str(path), "--loop-closure",
-                            "--window", "6", "--input", "vlp16", "--end", "9"])
+    r = runner.invoke(
+        app,
+        [
+            "refine",
+            str(tmp_path),
+            "-o",
+            str(tmp_path / "o"),
+            "-c",
+            str(path),
+            "--loop-closure",
+            "--window",
+            "6",
+            "--input",
+            "vlp16",
+            "--end",
+            "9",
+        ],
+    )
     assert r.exit_code == 0, r.output
     cfg = seen[-1]
     assert cfg.loop.enabled and cfg.loop.min_gap == 50 and cfg.graph.pixel_sigma == 2.0
@@ -106,17 +124,22 @@ def test_complete_writes_uint16_png_metrics_and_resumes(kitti_raw_tiny, tmp_path
     assert png.min() > 9.1 * 256 and png.max() <= 10.05 * 256 and m["mae_m"] < 0.1
     assert json.loads((out / "run.json").read_text())["depth_png"]["scale"] == 256
     # option on the command line beats the config file
-    r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "-o", str(out / "b"), "-c", str(cfg), "--method", "ipbasic"])
+    r = runner.invoke(
+        app, ["complete", str(kitti_raw_tiny), "-o", str(out / "b"), "-c", str(cfg), "--method", "ipbasic"]
+    )
     assert json.loads((out / "b" / "metrics.json").read_text())["method"] == "ipbasic"
     # resume: a frame already written is read back, not recomputed
     marker = np.full_like(png, 12_345)  # 48.2 m
     cv2.imwrite(str(out / "depth" / "000001.png"), marker)
-    r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "--out", str(out), "-c", str(cfg), "--end", "2", "--resume"])
+    r = runner.invoke(
+        app, ["complete", str(kitti_raw_tiny), "--out", str(out), "-c", str(cfg), "--end", "2", "--resume"]
+    )
     assert r.exit_code == 0, r.output
     assert json.loads((out / "metrics.json").read_text())["mae_m"] > 1.0
     assert (cv2.imread(str(out / "depth" / "000001.png"), cv2.IMREAD_UNCHANGED) == 12_345).all()
 
 
+@pytest.mark.slow
 def test_resume_refuses_a_folder_another_run_wrote(kitti_raw_tiny, tmp_path):
     """--resume continues only the run that wrote the folder: another method, input, sequence or a
     folder without run.json is refused with the difference named, and nothing in it is touched."""
@@ -126,11 +149,15 @@ def test_resume_refuses_a_folder_another_run_wrote(kitti_raw_tiny, tmp_path):
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     other = tmp_path / "other"
     write_kitti_raw(other, frames=3)
-    for args, named in [(["--method", "ipbasic"], 'settings.method (folder: "nearest", now: "ipbasic")'),
-                        (["--input", "mid40"], 'settings.input (folder: "vlp16", now: "mid40")'),
-                        (["--end", "3"], "settings.end (folder: 2, now: 3)")]:
+    for args, named in [
+        (["--method", "ipbasic"], 'settings.method (folder: "nearest", now: "ipbasic")'),
+        (["--input", "mid40"], 'settings.input (folder: "vlp16", now: "mid40")'),
+        (["--end", "3"], "settings.end (folder: 2, now: 3)"),
+    ]:
         cmd = base + args + ["--resume"]
-        r = subprocess.run([sys.executable, "-c", "from leovr.cli import main; main()", *cmd], capture_output=True, text=True)
+        r = subprocess.run(
+            [sys.executable, "-c", "from leovr.cli import main; main()", *cmd], capture_output=True, text=True
+        )
         assert r.returncode == 2 and named in r.stderr and "Traceback" not in r.stderr, r.stderr
     r = runner.invoke(app, ["complete", str(other), *base[2:], "--resume"])
     assert r.exit_code != 0 and "sequences[0].path" in str(r.exception)
@@ -157,7 +184,8 @@ def test_convert_then_info(kitti_raw_tiny, tmp_path):
 def test_user_errors_are_one_line_with_exit_code_2(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-c", "from leovr.cli import main; main()", "info", str(tmp_path / "missing")],
-        capture_output=True, text=True,
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"error: {tmp_path / 'missing'}: no such file or folder"
@@ -171,8 +199,17 @@ def test_complete_refuses_sequence_without_lidar(tmp_path):
     w.write(Frame(0, 0.0, np.zeros((8, 8, 3), np.uint8), np.eye(3)))
     w.close()
     proc = subprocess.run(
-        [sys.executable, "-c", "from leovr.cli import main; main()", "complete", str(tmp_path / "s"), "-o", str(tmp_path / "o")],
-        capture_output=True, text=True,
+        [
+            sys.executable,
+            "-c",
+            "from leovr.cli import main; main()",
+            "complete",
+            str(tmp_path / "s"),
+            "-o",
+            str(tmp_path / "o"),
+        ],
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 2 and "has no LiDAR" in proc.stderr
 
@@ -193,9 +230,13 @@ def test_bench_baseline_quick_contract(tmp_path):
     # the denser VLP-16 input must beat Mid-40 (a narrow cone) for the same method
     assert doc["results"]["kitti_vlp16"]["nearest"]["mae_m"] < doc["results"]["kitti_mid40"]["nearest"]["mae_m"]
     # the command prints the tables docs/benchmarks.md shows for this bench
-    assert "## baseline" in run.output and f"| kitti_vlp16 | nearest | {doc['results']['kitti_vlp16']['nearest']['mae_m']:.3f} |" in run.output
+    assert (
+        "## baseline" in run.output
+        and f"| kitti_vlp16 | nearest | {doc['results']['kitti_vlp16']['nearest']['mae_m']:.3f} |" in run.output
+    )
 
 
+@pytest.mark.slow
 @needs_shared
 def test_demo_writes_report(tmp_path):
     r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "3", "--data", str(KITTI_RAW)])
@@ -205,16 +246,40 @@ def test_demo_writes_report(tmp_path):
     assert len(list((tmp_path / "refine" / "depth").glob("*.png"))) == 3
 
 
+@pytest.mark.slow
 def test_simulate_command_and_bad_option(tmp_path):
-    r = runner.invoke(app, ["simulate", "--out", str(tmp_path / "s"), "--frames", "2", "--lidar", "vlp16",
-                            "--scenario", "straight", "--preview"])
+    r = runner.invoke(
+        app,
+        [
+            "simulate",
+            "--out",
+            str(tmp_path / "s"),
+            "--frames",
+            "2",
+            "--lidar",
+            "vlp16",
+            "--scenario",
+            "straight",
+            "--preview",
+        ],
+    )
     assert r.exit_code == 0, r.output
     info = json.loads(runner.invoke(app, ["info", str(tmp_path / "s"), "--json"]).output)
     assert info["frames"] == 2 and info["has_depth"] and info["has_poses"] and info["has_point_times"]
     assert (info["width"], info["height"]) == (448, 256) and (tmp_path / "s" / "preview.png").is_file()
     proc = subprocess.run(
-        [sys.executable, "-c", "from leovr.cli import main; main()", "simulate", "-o", str(tmp_path / "x"), "--light", "noon"],
-        capture_output=True, text=True,
+        [
+            sys.executable,
+            "-c",
+            "from leovr.cli import main; main()",
+            "simulate",
+            "-o",
+            str(tmp_path / "x"),
+            "--light",
+            "noon",
+        ],
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 2 and proc.stderr.startswith("error: invalid option: light:")
 
@@ -228,22 +293,43 @@ def test_bench_simulate_contract(tmp_path):
     assert doc["lidar"] == "mid40" and (doc["width"], doc["height"]) == (448, 256) and doc["frames_per_s"] > 0
 
 
+@pytest.mark.slow
 def test_demo_on_generated_default(tmp_path):
     r = runner.invoke(app, ["demo", "--out", str(tmp_path), "--frames", "3"])
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["ground_truth"].startswith("dense") and m["frames"] == 3
-    assert list(m["depth"]) == ["raw", "nearest", "ipbasic", "nearest_accumulated", "ipbasic_accumulated", "generator",
-                                "generator_frame", "refined"]
+    assert list(m["depth"]) == [
+        "raw",
+        "nearest",
+        "ipbasic",
+        "nearest_accumulated",
+        "ipbasic_accumulated",
+        "generator",
+        "generator_frame",
+        "refined",
+    ]
     assert m["depth"]["refined"]["n"] > 150_000  # dense ground truth: most of 3 x 448 x 256 pixels
     # city loop: loop closure on; the rendered scans carry point times, so KISS-ICP runs with and without its deskew
     assert set(m["trajectory"]) == {"leovr", "leovr_no_loop", "kiss_icp", "kiss_icp_no_deskew"}
-    for f in ("sequence/preview.png", "mae_by_distance.png", "trajectory.png", "map.png", "refine/map/map.ply",
-              "demo.rrd", "report.md"):
+    for f in (
+        "sequence/preview.png",
+        "mae_by_distance.png",
+        "trajectory.png",
+        "map.png",
+        "refine/map/map.ply",
+        "demo.rrd",
+        "report.md",
+    ):
         assert (tmp_path / f).is_file(), f
-    assert m["map"]["frames"] == 3 and m["map"]["triangles"] > 1000 and "`refine/map/map.ply`" in (tmp_path / "report.md").read_text()
+    assert (
+        m["map"]["frames"] == 3
+        and m["map"]["triangles"] > 1000
+        and "`refine/map/map.ply`" in (tmp_path / "report.md").read_text()
+    )
 
 
+@pytest.mark.slow
 def test_complete_with_generator_checkpoint_and_missing_checkpoint(kitti_raw_tiny, tmp_path):
     import torch
 
@@ -253,24 +339,64 @@ def test_complete_with_generator_checkpoint_and_missing_checkpoint(kitti_raw_tin
     cfg = GeneratorConfig(channels=(8, 8, 16, 16, 16), blocks=(1, 1, 1, 1))
     ckpt = tmp_path / "g.pt"
     torch.save({"model": DepthGenerator(cfg).state_dict(), "network": cfg.__dict__}, ckpt)
-    r = runner.invoke(app, ["complete", str(kitti_raw_tiny), "-o", str(tmp_path / "o"), "--method", "generator",
-                            "--checkpoint", str(ckpt), "--input", "vlp16", "--end", "1"])
+    r = runner.invoke(
+        app,
+        [
+            "complete",
+            str(kitti_raw_tiny),
+            "-o",
+            str(tmp_path / "o"),
+            "--method",
+            "generator",
+            "--checkpoint",
+            str(ckpt),
+            "--input",
+            "vlp16",
+            "--end",
+            "1",
+        ],
+    )
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert m["method"] == "generator" and m["n"] > 0 and m["mae_m"] > 0
     png = cv2.imread(str(tmp_path / "o" / "depth" / "000000.png"), cv2.IMREAD_UNCHANGED)
     assert png.shape == (80, 160) and (png > 0).all()
     proc = subprocess.run(
-        [sys.executable, "-c", "from leovr.cli import main; main()", "complete", str(kitti_raw_tiny), "-o",
-         str(tmp_path / "p"), "--method", "generator", "--checkpoint", str(tmp_path / "none.pt")],
-        capture_output=True, text=True,
+        [
+            sys.executable,
+            "-c",
+            "from leovr.cli import main; main()",
+            "complete",
+            str(kitti_raw_tiny),
+            "-o",
+            str(tmp_path / "p"),
+            "--method",
+            "generator",
+            "--checkpoint",
+            str(tmp_path / "none.pt"),
+        ],
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 2 and "depth-generator checkpoint not found" in proc.stderr
 
 
 def test_a_causal_run_with_loop_closure_is_refused_in_one_line(tmp_path):
     """A check across settings names what is wrong, without pydantic's prefixes or an empty location."""
-    r = subprocess.run([sys.executable, "-c", "from leovr.cli import main; main()", "refine", str(tmp_path / "seq"),
-                        "-o", str(tmp_path / "o"), "--causal", "--loop-closure"], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "from leovr.cli import main; main()",
+            "refine",
+            str(tmp_path / "seq"),
+            "-o",
+            str(tmp_path / "o"),
+            "--causal",
+            "--loop-closure",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.startswith("error: invalid option: loop.enabled corrects the whole recording afterwards"), r.stderr

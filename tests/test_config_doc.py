@@ -62,8 +62,15 @@ def test_every_nested_setting_has_its_own_table_under_its_dotted_key():
     doc = render()
     nested = _nested(RefineConfig, "refine", 2)
     assert [key for key, _, _ in nested] == [
-        "refine.frontend", "refine.graph", "refine.accumulation", "refine.motion_stereo", "refine.photometric",
-        "refine.loop", "refine.camera_only", "refine.camera_only.graph"]
+        "refine.frontend",
+        "refine.graph",
+        "refine.accumulation",
+        "refine.motion_stereo",
+        "refine.photometric",
+        "refine.loop",
+        "refine.camera_only",
+        "refine.camera_only.graph",
+    ]
     for key, model, level in nested:
         rows = _rows(doc, key, level)
         assert list(rows) == list(model.model_fields), key

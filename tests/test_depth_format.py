@@ -53,6 +53,8 @@ def test_a_frames_equal_maps_are_encoded_once_and_written_alike(tmp_path, monkey
     assert len(encoded) == 2
     for folder, m in maps.items():
         write_depth_png(tmp_path / "alone" / folder / "000007.png", m)
-        assert (tmp_path / "run" / folder / "000007.png").read_bytes() == (tmp_path / "alone" / folder / "000007.png").read_bytes()
+        assert (tmp_path / "run" / folder / "000007.png").read_bytes() == (
+            tmp_path / "alone" / folder / "000007.png"
+        ).read_bytes()
     np.testing.assert_allclose(read_depth_png(tmp_path / "run" / "sigma" / "000007.png"), depth * 0.1, atol=0.5 / 256)
     assert (tmp_path / "run" / "progress.json").read_text() == "{}\n"

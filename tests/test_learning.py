@@ -45,6 +45,7 @@ def mae(model, tests) -> float:
     return score(model, tests, "full", None, [0.0, 1000.0])["mae_m"]
 
 
+@pytest.mark.slow
 def test_supervised_training_learns(rendered, tmp_path):
     root, tests = rendered
     cfg = TrainConfig(dataset=str(root), epochs=15, sigma_epochs=0, batch_size=4, lr=3e-3, output="absolute", **SMALL)
@@ -56,11 +57,20 @@ def test_supervised_training_learns(rendered, tmp_path):
     assert trained < median_guess_mae(root, tests), trained
 
 
+@pytest.mark.slow
 def test_selfsup_training_learns(rendered, tmp_path):
     root, tests = rendered
     # 120 steps: the landmarks' depth (L_f) weighs more than in a full run, so that so few steps show learning
-    cfg = SelfSupConfig(epochs=20, init_fraction=1.0, batch_size=2, lr=3e-3, weight_feature=1.0, train_focal_px=None,
-                        loop_closure=False, **SMALL)
+    cfg = SelfSupConfig(
+        epochs=20,
+        init_fraction=1.0,
+        batch_size=2,
+        lr=3e-3,
+        weight_feature=1.0,
+        train_focal_px=None,
+        loop_closure=False,
+        **SMALL,
+    )
     torch.manual_seed(0)
     start = DepthGenerator(generator_config(cfg))  # the trainer's initial weights (same seed)
     untrained = mae(start, tests)

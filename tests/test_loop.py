@@ -148,7 +148,9 @@ def test_consistent_loops_rejects_the_odd_one_out():
     """A run of loops measured from true poses agrees through the odometry; one measurement off by
     1.5 m is dropped, and so is a loop with no neighbour to confirm it."""
     rng = np.random.default_rng(3)
-    poses = np.stack([make_T(Rotation.from_rotvec([0, 0.02 * k, 0]).as_matrix(), [0.1 * k, 0, 1.0 * k]) for k in range(60)])
+    poses = np.stack(
+        [make_T(Rotation.from_rotvec([0, 0.02 * k, 0]).as_matrix(), [0.1 * k, 0, 1.0 * k]) for k in range(60)]
+    )
     true = lambda i, j: np.linalg.solve(poses[j], poses[i])  # noqa: E731  camera i in camera j
     loops = [(i, i - 40, true(i, i - 40)) for i in (50, 51, 52, 53)]
     bad = true(54, 14)

@@ -28,7 +28,7 @@ def _truth_points(seq, run_poses: np.ndarray, max_depth: float) -> np.ndarray:
     out = []
     for i in range(len(seq)):
         f = seq[i]
-        v, u = np.mgrid[0:f.height:8, 0:f.width:8]
+        v, u = np.mgrid[0 : f.height : 8, 0 : f.width : 8]
         z = f.depth[v, u]
         keep = (z > 0) & (z <= max_depth)
         cam = back_project(np.stack([u[keep], v[keep]], 1).astype(float), z[keep].astype(float), f.K)
@@ -36,15 +36,31 @@ def _truth_points(seq, run_poses: np.ndarray, max_depth: float) -> np.ndarray:
     return np.concatenate(out)
 
 
+@pytest.mark.slow
 def test_a_refined_run_maps_the_rendered_drive_better_than_the_nearest_fill(tmp_path):
-    """`leovr refine --map` on 6 frames of a rendered Mid-40 drive: a coloured mesh close to the true surfaces, more accurate
+    """`leovr refine --map` on 6 frames of a rendered Mid-40 drive: a coloured mesh close to the true surfaces, more
+    accurate
     and more complete than the map fused from the nearest fill of the same scans with the same poses."""
     import open3d as o3d
 
     simulate(SimulateConfig(scenario="city_loop", lidar="mid40", frames=6, seed=3), tmp_path / "sim", progress=False)
     run = tmp_path / "run"
-    r = subprocess.run([sys.executable, "-c", "from leovr.cli import main; main()", "refine", str(tmp_path / "sim"),
-                        "--out", str(run), "--map"], capture_output=True, text=True, cwd=REPO_ROOT, timeout=600)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "from leovr.cli import main; main()",
+            "refine",
+            str(tmp_path / "sim"),
+            "--out",
+            str(run),
+            "--map",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO_ROOT,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     assert "map: 6 frames" in r.stdout and "WARNING" not in r.stdout  # nothing of Open3D's on stdout
     summary = json.loads((run / "map" / "map.json").read_text())
@@ -62,11 +78,15 @@ def test_a_refined_run_maps_the_rendered_drive_better_than_the_nearest_fill(tmp_
         nearest.add(f.image, map_depth(fill, None, MapConfig(), f.K[0, 0]), f.K, poses[i])
     near = map_scores(distances_to_mesh(nearest.mesh(), truth))
     assert refined["accuracy_m"] < 0.3 and refined["completeness"] > 0.45, refined
-    assert refined["accuracy_m"] < 0.8 * near["accuracy_m"] and refined["completeness"] > 1.3 * near["completeness"], (refined, near)
+    assert refined["accuracy_m"] < 0.8 * near["accuracy_m"] and refined["completeness"] > 1.3 * near["completeness"], (
+        refined,
+        near,
+    )
 
 
 def test_a_surface_needs_more_views_than_min_weight():
-    """`min_weight` 1 (the default): a wall seen by one frame is not in the map, seen by two it is; 0 keeps it at one."""
+    """`min_weight` 1 (the default): a wall seen by one frame is not in the map, seen by two it is; 0 keeps it at
+    one."""
     K = np.array([[200.0, 0, 100], [0, 200, 60], [0, 0, 1]])
     image, wall = np.zeros((120, 200, 3), np.uint8), np.full((120, 200), 5.0, np.float32)
     triangles = {}
@@ -86,7 +106,9 @@ def test_the_map_keeps_depth_in_reach_certain_enough_and_off_depth_edges():
     assert map_depth(depth, sigma, cfg.model_copy(update={"sigma_max": None})).tolist() == [[5.0, 0.0, 10.0, 0.0]]
     wall = np.full((4, 6), 10.0, np.float32)  # a car 10 m away in front of a wall at 20 m: the edge's columns go
     wall[:, 3:] = 20.0
-    assert (map_depth(wall, None, MapConfig(edge_jump=0.05)) > 0).tolist() == [[True, True, False, False, True, True]] * 4
+    assert (map_depth(wall, None, MapConfig(edge_jump=0.05)) > 0).tolist() == [
+        [True, True, False, False, True, True]
+    ] * 4
     ramp = np.tile(10.0 * 1.02 ** np.arange(6, dtype=np.float32), (4, 1))  # a steep smooth surface: 2 % a pixel
     assert (map_depth(ramp, None, MapConfig(edge_jump=0.05)) > 0).all()
 
@@ -118,12 +140,22 @@ def test_held_out_returns_are_placed_with_the_ground_truth_moved_onto_the_runs_t
     from scipy.spatial.transform import Rotation
 
     K = np.array([[500.0, 0, 160], [0, 500, 120], [0, 0, 1]])
-    truth = np.stack([make_T(Rotation.from_euler("y", 2 * i, degrees=True).as_matrix(), [0.3 * i, 0, 1.1 * i])
-                      for i in range(6)])
-    seq = type("Seq", (), {"has_poses": True, "pose": staticmethod(lambda i: truth[i]),
-                           "__getitem__": lambda self, i: SimpleNamespace(K=K)})()
-    frames = {i: SimpleNamespace(gt=np.array([5.0, 12.0, 30.0]), pick=(np.array([10, 100, 200]), np.array([20, 160, 300])))
-              for i in range(6)}
+    truth = np.stack(
+        [make_T(Rotation.from_euler("y", 2 * i, degrees=True).as_matrix(), [0.3 * i, 0, 1.1 * i]) for i in range(6)]
+    )
+    seq = type(
+        "Seq",
+        (),
+        {
+            "has_poses": True,
+            "pose": staticmethod(lambda i: truth[i]),
+            "__getitem__": lambda self, i: SimpleNamespace(K=K),
+        },
+    )()
+    frames = {
+        i: SimpleNamespace(gt=np.array([5.0, 12.0, 30.0]), pick=(np.array([10, 100, 200]), np.array([20, 160, 300])))
+        for i in range(6)
+    }
     moved = make_T(Rotation.from_euler("xyz", [3, -20, 5], degrees=True).as_matrix(), [4.0, -1.0, 2.5])
     placed_on_truth = heldout_world_points(seq, frames, truth, 25.0)
     placed_on_moved = heldout_world_points(seq, frames, np.einsum("ij,fjk->fik", moved, truth), 25.0)

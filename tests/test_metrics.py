@@ -84,7 +84,9 @@ def test_ate_split_along_the_reference_cameras_axes():
         est = np.stack([make_T(R, R @ [wobble[i], 0, 1.0 * i]) for i in range(n)])
         m = trajectory_metrics(est, ref, "none")
         assert m["ate_lateral_m"] == pytest.approx(m["ate_m"]) and m["ate_lateral_m"] > 0.05
-        assert m["ate_vertical_m"] == pytest.approx(0.0, abs=1e-12) and m["ate_forward_m"] == pytest.approx(0.0, abs=1e-12)
+        assert m["ate_vertical_m"] == pytest.approx(0.0, abs=1e-12) and m["ate_forward_m"] == pytest.approx(
+            0.0, abs=1e-12
+        )
 
 
 def test_trajectory_metrics_reject_bad_shapes():
@@ -115,9 +117,15 @@ def test_kitti_relative_errors_as_the_devkit_computes_them():
     half = curved.copy()
     half[:, :3, 3] *= 0.5
     assert trajectory_metrics(half, curved, "none")["kitti_t_err_pct"] == pytest.approx(50.0, rel=0.05)
-    assert trajectory_metrics(half, curved, "sim3")["kitti_t_err_pct"] == pytest.approx(0.0, abs=1e-6)  # scale taken out
+    assert trajectory_metrics(half, curved, "sim3")["kitti_t_err_pct"] == pytest.approx(
+        0.0, abs=1e-6
+    )  # scale taken out
     a = np.radians(0.01) * np.arange(n)
-    turning = np.stack([make_T(np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]]),
-                               [0, 0, 1.0 * i]) for i, t in enumerate(a)])
+    turning = np.stack(
+        [
+            make_T(np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]]), [0, 0, 1.0 * i])
+            for i, t in enumerate(a)
+        ]
+    )
     assert trajectory_metrics(turning, ref, "none")["kitti_r_err_deg_per_m"] == pytest.approx(0.01, rel=0.05)
     assert trajectory_metrics(_line(20), _line(20), "none")["kitti_t_err_pct"] is None  # no 25 m segment fits

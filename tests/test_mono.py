@@ -44,7 +44,9 @@ def test_the_camera_only_profile_puts_its_graph_settings_over_refine_graph():
     from leovr.pipeline.refine import camera_only_config
 
     assert set(CameraOnlyGraphConfig.model_fields) <= set(GraphConfig.model_fields)
-    cfg = RefineConfig(graph={"pixel_sigma": 2.0, "landmark_prior_rel": 0.4}, camera_only={"graph": {"consistency_sigma_log": 0.5}})
+    cfg = RefineConfig(
+        graph={"pixel_sigma": 2.0, "landmark_prior_rel": 0.4}, camera_only={"graph": {"consistency_sigma_log": 0.5}}
+    )
     graph = camera_only_config(cfg).graph
     assert (graph.pixel_sigma, graph.landmark_prior_rel, graph.consistency_sigma_log) == (2.0, 10.0, 0.5)
     assert graph.model_copy(update={"landmark_prior_rel": 0.4, "consistency_sigma_log": 0.05}) == cfg.graph
@@ -180,8 +182,15 @@ def test_camera_only_refine_holds_the_scan_out_and_scores_the_textbook_beside(dr
     # PnP only where it passed the epipolar test, constant velocity only where the essential matrix failed
     assert epipolar >= len(frames) - 3 and sum(sources.values()) == len(frames) and sources["first"] == 1
     # the simulator records the camera's height: the road plane gives the scale
-    assert sources.keys() <= {"first", "pnp", "constant_velocity", "epipolar (ground)", "epipolar (ground+tracks)",
-                              "epipolar (depth)", "epipolar (depth+tracks)"}
+    assert sources.keys() <= {
+        "first",
+        "pnp",
+        "constant_velocity",
+        "epipolar (ground)",
+        "epipolar (ground+tracks)",
+        "epipolar (depth)",
+        "epipolar (depth+tracks)",
+    }
     assert sum(v for k, v in sources.items() if "ground" in k) >= len(frames) - 3
     assert json.loads((out / "run.json").read_text())["camera_height_m"] == pytest.approx(1.65)
     traj = m["trajectory"]
@@ -193,10 +202,22 @@ def test_camera_only_refine_holds_the_scan_out_and_scores_the_textbook_beside(dr
     assert m["depth"]["generator"]["n"] > 0 and "nearest" not in m["depth"]  # no LiDAR input to fill
 
 
+@pytest.mark.slow
 @needs_shared
 def test_poses_compare_on_the_real_clip_without_lidar(tmp_path):
-    res = CliRunner().invoke(app, ["poses", str(kitti_odometry_dir()), "--out", str(tmp_path / "p"), "--compare",
-                                   "--no-loop-closure", "--config", str(_short_config(tmp_path, 10))])
+    res = CliRunner().invoke(
+        app,
+        [
+            "poses",
+            str(kitti_odometry_dir()),
+            "--out",
+            str(tmp_path / "p"),
+            "--compare",
+            "--no-loop-closure",
+            "--config",
+            str(_short_config(tmp_path, 10)),
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "mono_vo" in res.output and "scale" in res.output
     m = json.loads((tmp_path / "p" / "metrics.json").read_text())
@@ -210,7 +231,7 @@ def _short_config(tmp_path, end: int):
     return p
 
 
-
+@pytest.mark.slow
 @needs_shared
 def test_camera_only_poses_on_the_real_raw_clip_stay_metric(tmp_path):
     """Without LiDAR the generator's errors on real frames grow with distance; as tight landmark priors and
@@ -225,8 +246,13 @@ def test_camera_only_poses_on_the_real_raw_clip_stay_metric(tmp_path):
     scales = {}
     lidar_graph = {"landmark_prior_rel": 0.3, "consistency_sigma_log": 0.05}  # refine.graph's defaults
     for name, camera_only in (("shipped", {}), ("lidar_settings", {"graph": lidar_graph})):
-        run_refine(seq, RefineConfig(input="none", end=n, camera_only=camera_only), tmp_path / name,
-                   progress=False, score=False)
+        run_refine(
+            seq,
+            RefineConfig(input="none", end=n, camera_only=camera_only),
+            tmp_path / name,
+            progress=False,
+            score=False,
+        )
         est = read_kitti_poses(tmp_path / name / "poses_kitti.txt")
         scales[name] = trajectory_metrics(est, ref, "sim3")["scale"]
     print(scales)
@@ -298,6 +324,7 @@ def test_a_reversed_epipolar_motion_is_turned_back_to_the_heading():
     assert motion[2, 3] == pytest.approx(-1.0)
 
 
+@pytest.mark.slow
 @needs_shared
 def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
     """KITTI raw clip, camera only: trucks drive off ahead while the car creeps forward (KISS-ICP on the full
@@ -313,8 +340,14 @@ def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
     cfg = RefineConfig(input="none")
     gen = generator_method(completion_config(cfg))
     mono = cfg.camera_only
-    mm = MonoMotion(seq[0].K, mono.depth_sigma_log, mono.track_sigma_log, mono.speed_sigma_log,
-                    camera_height=road_height(seq, cfg), ground_sigma_log=mono.ground_sigma_log)
+    mm = MonoMotion(
+        seq[0].K,
+        mono.depth_sigma_log,
+        mono.track_sigma_log,
+        mono.speed_sigma_log,
+        camera_height=road_height(seq, cfg),
+        ground_sigma_log=mono.ground_sigma_log,
+    )
     icp = LidarOdometry(seq[0].T_cam_lidar)
     poses, ref = [np.eye(4)], []
     for i in range(n):
@@ -328,6 +361,7 @@ def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
     assert traj["ate_m"] < 0.2 and 0.8 < traj["scale"] < 1.25
 
 
+@pytest.mark.slow
 def test_a_resumed_camera_only_run_gives_the_poses_of_an_uninterrupted_one(drive, tmp_path):
     """The step-length filter carries state from frame to frame; a run killed after 4 frames and resumed
     replays the finished frames through the front end, so the written poses are those of an uninterrupted run."""

@@ -33,8 +33,11 @@ def _run(drive, own_scale: float = 1.0, load=None):
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape) * own_scale
     images = GrayImages(load or (lambda j: frames[j].image), keep=16)
-    return f, own, motion_stereo_depth(4, neighbour_frames(4, list(range(9)), SETTINGS.offsets), images, f.K, own,
-                                       s=SETTINGS)
+    return (
+        f,
+        own,
+        motion_stereo_depth(4, neighbour_frames(4, list(range(9)), SETTINGS.offsets), images, f.K, own, s=SETTINGS),
+    )
 
 
 def test_corners_outside_the_cone_take_their_true_depth(drive):
@@ -104,6 +107,7 @@ def test_corrected_depth_keeps_a_corner_on_its_own_surface():
     assert np.allclose(edge, depth, rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monkeypatch):
     import odometry.motion_stereo as ms
     from leovr.config import RefineConfig
@@ -115,12 +119,19 @@ def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monke
     real = ms.motion_stereo_depth
     monkeypatch.setattr(ms, "motion_stereo_depth", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
     run_refine(seq, RefineConfig(input="full"), tmp_path / "auto", progress=False)
-    assert calls == list(range(9))  # a Mid-40 cone: every frame (offsets 2, 4, 8 of the shipped ones: frames 2-6 have 4 views or more)
+    assert calls == list(
+        range(9)
+    )  # a Mid-40 cone: every frame (offsets 2, 4, 8 of the shipped ones: frames 2-6 have 4 views or more)
     calls.clear()
     run_refine(seq, RefineConfig(input="full", motion_stereo={"enabled": False}), tmp_path / "off", progress=False)
     assert calls == []
-    moved = [np.abs(read_depth_png(tmp_path / "auto" / "depth_generator" / f"{i:06d}.png")
-                    - read_depth_png(tmp_path / "off" / "depth_generator" / f"{i:06d}.png")).max() for i in range(9)]
+    moved = [
+        np.abs(
+            read_depth_png(tmp_path / "auto" / "depth_generator" / f"{i:06d}.png")
+            - read_depth_png(tmp_path / "off" / "depth_generator" / f"{i:06d}.png")
+        ).max()
+        for i in range(9)
+    ]
     assert max(moved) > 1.0  # the corners corrected the generator's depth
     spinning = tmp_path / "vlp16"
     simulate(SimulateConfig(scenario="straight", lidar="vlp16", frames=3, seed=21), spinning, progress=False)
@@ -184,8 +195,9 @@ def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, mon
     neighbours = neighbour_frames(4, list(range(9)), SETTINGS.offsets)
     alone = motion_stereo_depth(4, neighbours, images, f.K, own, s=SETTINGS)
     # the pairs alone, asked farthest first: each rung tracks its rung below first
-    pairs_alone = ms.pair_motions(4, [1, 2, 3], images, f.K, own, SETTINGS,
-                                  tracks=ms.FrameTracks(4, images, f.K, own, SETTINGS, neighbours))
+    pairs_alone = ms.pair_motions(
+        4, [1, 2, 3], images, f.K, own, SETTINGS, tracks=ms.FrameTracks(4, images, f.K, own, SETTINGS, neighbours)
+    )
     tracked = []
     real_track = ms.track
     monkeypatch.setattr(ms, "track", lambda g0, g1, c, s: tracked.append(1) or real_track(g0, g1, c, s))

@@ -3,6 +3,7 @@ depth-consistency residual with its analytic Jacobians."""
 
 from __future__ import annotations
 
+import pytest
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -168,8 +169,19 @@ def test_icp_window_factors_make_the_graph_follow_the_lidar_motion():
     for i, T in enumerate(truth):
         wrong = make_T(t=[0, 0, 0.5 * i])  # the front end's guess: half speed, no turn
         rel = None if i == 0 else np.linalg.inv(make_T(t=[0, 0, 0.5 * (i - 1)])) @ wrong
-        f = FrameInput(i, wrong, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel, None,
-                       (T, np.zeros((6, 6)) if i == 0 else cov))
+        f = FrameInput(
+            i,
+            wrong,
+            np.zeros(SHAPE),
+            np.full(SHAPE, 0.1),
+            [],
+            {},
+            None,
+            None,
+            rel,
+            None,
+            (T, np.zeros((6, 6)) if i == 0 else cov),
+        )
         done += graph.add_frame(f)
     done += graph.flush()
     est = {r.index: r.T_world_cam for r in done}
@@ -195,8 +207,20 @@ def test_a_kiss_icp_motion_that_slipped_from_the_images_rotation_is_left_out():
         rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
         icp = slip @ T if i >= 5 else T  # its map turned by the slip: later motions among themselves right
         pairs = {i - 1: rel} if i else {}
-        f = FrameInput(i, T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel, None,
-                       (icp, np.zeros((6, 6)) if i == 0 else cov), pair_motions=pairs)
+        f = FrameInput(
+            i,
+            T,
+            np.zeros(SHAPE),
+            np.full(SHAPE, 0.1),
+            [],
+            {},
+            None,
+            None,
+            rel,
+            None,
+            (icp, np.zeros((6, 6)) if i == 0 else cov),
+            pair_motions=pairs,
+        )
         done += graph.add_frame(f)
     done += graph.flush()
     est = {r.index: r.T_world_cam for r in done}
@@ -234,12 +258,22 @@ def _window_run(condition: bool, frames: int = 7) -> tuple[list[np.ndarray], int
         uv = (cam @ K.T)[:, :2] / cam[:, 2:]
         obs = [Observation(k, i, uv[k]) for k in range(len(pts))]
         noisy = T @ make_T(Rotation.from_rotvec(rng.normal(0, 0.003, 3)).as_matrix(), rng.normal(0, 0.05, 3))
-        fi = FrameInput(i, noisy if i else T, np.full(SHAPE, np.log(20.0)), np.full(SHAPE, 0.2), obs,
-                        {k: pts[k] + rng.normal(0, 0.2, 3) for k in range(len(pts))} if i == 0 else {}, None, None,
-                        None if i == 0 else make_T(t=[0.0, 0.0, 0.5]))
+        fi = FrameInput(
+            i,
+            noisy if i else T,
+            np.full(SHAPE, np.log(20.0)),
+            np.full(SHAPE, 0.2),
+            obs,
+            {k: pts[k] + rng.normal(0, 0.2, 3) for k in range(len(pts))} if i == 0 else {},
+            None,
+            None,
+            None if i == 0 else make_T(t=[0.0, 0.0, 0.5]),
+        )
         done += g.add_frame(fi)
         factors = g.smoother.getFactors()
-        largest = max([largest] + [len(factors.at(n).keys()) for n in range(factors.size()) if factors.at(n) is not None])
+        largest = max(
+            [largest] + [len(factors.at(n).keys()) for n in range(factors.size()) if factors.at(n) is not None]
+        )
     done += g.flush()
     return [r.T_world_cam for r in sorted(done, key=lambda r: r.index)], largest, truth
 
@@ -268,7 +302,9 @@ def test_pair_factors_make_the_graph_follow_the_images_motion():
         done = []
         guesses = [make_T(T[:3, :3], [0, 0, 0.5 * i]) for i, T in enumerate(truth)]
         for i, T in enumerate(truth):
-            wrong = guesses[i]  # the front end's guess: the turn right (else the pair gate refuses the pairs), half speed
+            wrong = guesses[
+                i
+            ]  # the front end's guess: the turn right (else the pair gate refuses the pairs), half speed
             rel = None if i == 0 else np.linalg.inv(guesses[i - 1]) @ wrong
             f = FrameInput(i, wrong if i else T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel)
             if pairs:
@@ -332,7 +368,12 @@ def _turning_drive(yaw_deg: list[float], length_m: list[float] | None = None, se
     rng = np.random.default_rng(seed)
     parts = [rng.uniform([-60, -60, -1.7], [60, 60, -1.7], (40000, 3))]  # the road, LiDAR axes (x forward, z up)
     for _ in range(40):  # walls at random places and headings
-        x0, y0, a, length = rng.uniform(-60, 60), rng.choice([-1, 1]) * rng.uniform(7, 30), rng.uniform(0, np.pi), rng.uniform(3, 15)
+        x0, y0, a, length = (
+            rng.uniform(-60, 60),
+            rng.choice([-1, 1]) * rng.uniform(7, 30),
+            rng.uniform(0, np.pi),
+            rng.uniform(3, 15),
+        )
         s = rng.uniform(0, length, 1500)
         parts.append(np.c_[x0 + s * np.cos(a), y0 + s * np.sin(a), rng.uniform(-1.7, 6, 1500)])
     world = np.vstack(parts)
@@ -364,8 +405,10 @@ def test_kiss_icp_predicted_with_the_images_motion_follows_a_turn_that_constant_
         for k, scan in enumerate(scans):
             guess = steps[k - 1] if k == 1 or (predicted and k) else None  # the first step is given to both
             poses.append(odo.register(scan, guess=guess))
-        return max(rotation_angle_deg((invert_T(steps[k - 1]) @ invert_T(poses[k - 1]) @ poses[k])[:3, :3])
-                   for k in range(6, len(scans)))
+        return max(
+            rotation_angle_deg((invert_T(steps[k - 1]) @ invert_T(poses[k - 1]) @ poses[k])[:3, :3])
+            for k in range(6, len(scans))
+        )
 
     assert worst_turn_error(predicted=False) > 5.0
     assert worst_turn_error(predicted=True) < 0.5
@@ -405,7 +448,9 @@ def test_a_guess_after_a_skipped_scan_is_not_used(monkeypatch):
     scans, T_cl, steps = _turning_drive([0.0] * 4)
     odo, predicted = LidarOdometry(T_cl), []
     real = LidarOdometry._register_predicted
-    monkeypatch.setattr(LidarOdometry, "_register_predicted", lambda self, *a: predicted.append(self.frames) or real(self, *a))
+    monkeypatch.setattr(
+        LidarOdometry, "_register_predicted", lambda self, *a: predicted.append(self.frames) or real(self, *a)
+    )
     odo.register(scans[0])
     odo.register(scans[1], guess=steps[0])
     assert predicted == [1]
@@ -471,9 +516,17 @@ def _scaled_pixel_run(weighted: bool) -> float:
         uv = (cam @ K.T)[:, :2] / cam[:, 2:] + rng.normal(0, 1, (80, 2)) * np.where(coarse, 4.0, 0.2)[:, None]
         scale = np.where(coarse, 4.0, 1.0) if weighted else np.ones(80)
         obs = [Observation(k, i, uv[k], None, float(scale[k])) for k in range(len(pts))]
-        fi = FrameInput(i, T, np.full(SHAPE, np.log(20.0)), np.full(SHAPE, 0.2), obs,
-                        {k: pts[k] + rng.normal(0, 0.2, 3) for k in range(len(pts))} if i == 0 else {}, None, None,
-                        None if i == 0 else make_T(t=[0.0, 0.0, 0.5]))
+        fi = FrameInput(
+            i,
+            T,
+            np.full(SHAPE, np.log(20.0)),
+            np.full(SHAPE, 0.2),
+            obs,
+            {k: pts[k] + rng.normal(0, 0.2, 3) for k in range(len(pts))} if i == 0 else {},
+            None,
+            None,
+            None if i == 0 else make_T(t=[0.0, 0.0, 0.5]),
+        )
         done += g.add_frame(fi)
     done += g.flush()
     est = [r.T_world_cam for r in sorted(done, key=lambda r: r.index)]
@@ -490,10 +543,11 @@ def test_reprojection_factors_weigh_each_pixel_by_its_pyramid_level():
     feats = detect(np.dstack([image] * 3), 500)
     assert feats.octave is not None and feats.octave.max() >= 2
     idx = np.arange(len(feats))
-    assert np.allclose(feats.pixel_scale(idx), SCALE_FACTOR ** feats.octave)
+    assert np.allclose(feats.pixel_scale(idx), SCALE_FACTOR**feats.octave)
     assert _scaled_pixel_run(weighted=True) < 0.7 * _scaled_pixel_run(weighted=False)
 
 
+@pytest.mark.slow
 @needs_shared
 def test_orb_matches_are_those_of_opencvs_brute_force_matcher_on_a_real_drive():
     """`match` computes the mutual check only for the chosen features: on consecutive frames of both KITTI raw
@@ -506,8 +560,11 @@ def test_orb_matches_are_those_of_opencvs_brute_force_matcher_on_a_real_drive():
     def reference(a, b, ratio=0.8, max_distance=64):
         bf = cv2.BFMatcher(cv2.NORM_HAMMING)
         back = {m.queryIdx: m.trainIdx for m in bf.match(b.desc, a.desc)}
-        pairs = [(m.queryIdx, m.trainIdx) for m, n in bf.knnMatch(a.desc, b.desc, k=2)
-                 if m.distance < ratio * n.distance and m.distance <= max_distance and back.get(m.trainIdx) == m.queryIdx]
+        pairs = [
+            (m.queryIdx, m.trainIdx)
+            for m, n in bf.knnMatch(a.desc, b.desc, k=2)
+            if m.distance < ratio * n.distance and m.distance <= max_distance and back.get(m.trainIdx) == m.queryIdx
+        ]
         return np.array(pairs, np.int64).reshape(-1, 2).T
 
     checked = 0

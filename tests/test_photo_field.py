@@ -66,6 +66,7 @@ def test_no_neighbour_no_free_node_or_a_flat_image_moves_nothing(drive):
     assert photometric_correction(depth, np.zeros(S.rows * S.cols), S) is depth
 
 
+@pytest.mark.slow
 def test_refine_runs_it_with_a_cone_lidar_and_can_be_turned_off(drive, tmp_path, monkeypatch):
     import odometry.photo_field as pf
     from leovr.config import RefineConfig
@@ -79,8 +80,13 @@ def test_refine_runs_it_with_a_cone_lidar_and_can_be_turned_off(drive, tmp_path,
     run_refine(seq, RefineConfig(input="full", end=7), tmp_path / "on", progress=False, score=False)
     assert len(calls) == 7 and min(calls) == 3 and max(calls) == 6  # every frame; its neighbours within 3 frames
     calls.clear()
-    run_refine(seq, RefineConfig(input="full", end=7, photometric={"enabled": False}), tmp_path / "off", progress=False,
-               score=False)
+    run_refine(
+        seq,
+        RefineConfig(input="full", end=7, photometric={"enabled": False}),
+        tmp_path / "off",
+        progress=False,
+        score=False,
+    )
     assert calls == []
 
     def png(run: str, kind: str, i: int) -> np.ndarray:
@@ -141,7 +147,7 @@ def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive):
     wrong = np.where(f.depth > 0, f.depth * np.exp(grid.upsample(0.3 * free)), 0.0)
     cone = grid.upsample((~free).astype(float)) > 0.3
     cols = np.nonzero(cone.any(0))[0]
-    cone[:, int(np.percentile(cols, 80)):] = False  # the cone's right part stays as it is: a few nodes still pin it
+    cone[:, int(np.percentile(cols, 80)) :] = False  # the cone's right part stays as it is: a few nodes still pin it
     rng = np.random.default_rng(0)
     unpinned = []
     for im, T in _neighbours(frames):
@@ -166,7 +172,9 @@ def test_far_coordinates_are_brought_back_to_the_samples_opencv_takes_there():
     rng = np.random.default_rng(0)
     h, w = 12, 40
     image = rng.uniform(0, 255, (h, w)).astype(np.float32)
-    u = np.concatenate([rng.uniform(-w, 2 * w, 200), rng.uniform(-1e8, 1e8, 200), [-4e6 + 0.25, 3e7 + 0.5, -w - 0.5, 2 * w]])
+    u = np.concatenate(
+        [rng.uniform(-w, 2 * w, 200), rng.uniform(-1e8, 1e8, 200), [-4e6 + 0.25, 3e7 + 0.5, -w - 0.5, 2 * w]]
+    )
     u = u.astype(np.float32).reshape(1, -1)
     v = np.full_like(u, 5.5)
     brought = _reflected(u, w)

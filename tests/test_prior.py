@@ -23,7 +23,9 @@ def ground_plane(h: int = 120, w: int = 200, f: float = 150.0, cam_height: float
 def test_interpolation_is_exact_on_a_plane_where_nearest_fill_is_not():
     gt = ground_plane()
     sparse = np.zeros_like(gt)
-    sparse[80::4, ::2] = gt[80::4, ::2]  # rings every 4 rows (depth ratio < 1.25 ring to ring), a return every 2 columns
+    sparse[80::4, ::2] = gt[
+        80::4, ::2
+    ]  # rings every 4 rows (depth ratio < 1.25 ring to ring), a return every 2 columns
     inside = np.zeros_like(gt, bool)
     inside[80:117, 2:-2] = True  # between the first and the last ring
     prior, near = interpolated_fill(sparse), nearest_fill(sparse)
@@ -222,9 +224,14 @@ def test_delaunay_triangles_tile_the_hull_with_empty_circumcircles(seed):
     assert area.sum() == pytest.approx(hull, rel=1e-9)  # the triangles tile the convex hull, none missing
     # Delaunay: no point lies strictly inside any triangle's circumcircle
     d = 2 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
-    sq = [(q ** 2).sum(1) for q in (a, b, c)]
-    centre = np.stack([(sq[0] * (b[:, 1] - c[:, 1]) + sq[1] * (c[:, 1] - a[:, 1]) + sq[2] * (a[:, 1] - b[:, 1])) / d,
-                       (sq[0] * (c[:, 0] - b[:, 0]) + sq[1] * (a[:, 0] - c[:, 0]) + sq[2] * (b[:, 0] - a[:, 0])) / d], 1)
+    sq = [(q**2).sum(1) for q in (a, b, c)]
+    centre = np.stack(
+        [
+            (sq[0] * (b[:, 1] - c[:, 1]) + sq[1] * (c[:, 1] - a[:, 1]) + sq[2] * (a[:, 1] - b[:, 1])) / d,
+            (sq[0] * (c[:, 0] - b[:, 0]) + sq[1] * (a[:, 0] - c[:, 0]) + sq[2] * (b[:, 0] - a[:, 0])) / d,
+        ],
+        1,
+    )
     radius = np.linalg.norm(a - centre, axis=1)
     dist = np.linalg.norm(p[None] - centre[:, None], axis=2)
     assert (dist >= radius[:, None] - 1e-6).all()
@@ -241,11 +248,14 @@ def test_triangle_map_covers_each_pixel_inside_or_on_a_triangle_and_nothing_else
     a, b, c = (corners[:, k].astype(np.float64) for k in range(3))
 
     def side(p, q):  # pixels x triangles: which side of the directed side p -> q each pixel lies on
-        return ((q[None, :, 0] - p[None, :, 0]) * (pix[:, None, 1] - p[None, :, 1])
-                - (q[None, :, 1] - p[None, :, 1]) * (pix[:, None, 0] - p[None, :, 0]))
+        return (q[None, :, 0] - p[None, :, 0]) * (pix[:, None, 1] - p[None, :, 1]) - (q[None, :, 1] - p[None, :, 1]) * (
+            pix[:, None, 0] - p[None, :, 0]
+        )
 
     s1, s2, s3 = side(a, b), side(b, c), side(c, a)
-    inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | ((s1 <= 0) & (s2 <= 0) & (s3 <= 0))  # pixels x triangles, sides included
+    inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | (
+        (s1 <= 0) & (s2 <= 0) & (s3 <= 0)
+    )  # pixels x triangles, sides included
     flat = covered.ravel()
     assert ((flat >= 0) == inside.any(1)).all()  # covered exactly where some triangle holds the pixel
     hit = np.nonzero(flat >= 0)[0]

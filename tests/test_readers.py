@@ -167,9 +167,19 @@ def test_native_writer_keeps_poses_depth_times_and_masks(tmp_path):
         depth = np.full((20, 30), 3.2567, np.float32)
         mask = np.zeros((20, 30), bool)
         mask[:, i] = True
-        w.write(Frame(i, 0.1 * i, rng.integers(0, 255, (20, 30, 3), dtype=np.uint8), np.eye(3),
-                      points=rng.normal(size=(50, 4)).astype(np.float32), point_times=np.linspace(0, 0.1, 50),
-                      T_world_cam=T, depth=depth, moving_mask=mask))
+        w.write(
+            Frame(
+                i,
+                0.1 * i,
+                rng.integers(0, 255, (20, 30, 3), dtype=np.uint8),
+                np.eye(3),
+                points=rng.normal(size=(50, 4)).astype(np.float32),
+                point_times=np.linspace(0, 0.1, 50),
+                T_world_cam=T,
+                depth=depth,
+                moving_mask=mask,
+            )
+        )
     seq = open_sequence(w.close())
     assert seq.has_poses and seq.has_depth and seq.has_lidar
     f = seq[2]

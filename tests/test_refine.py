@@ -26,6 +26,7 @@ def refined(tmp_path_factory):
     return seq_dir, out, m
 
 
+@pytest.mark.slow
 def test_refine_writes_every_output(refined):
     _, out, m = refined
     assert len(list((out / "depth").glob("*.png"))) == 7 and len(list((out / "depth_generator").glob("*.png"))) == 7
@@ -34,8 +35,15 @@ def test_refine_writes_every_output(refined):
     # a Mid-40 cone: earlier scans join the generator's input, and the generator on the frame's own scan is scored
     # beside it, with the fills of the same frames' returns placed by KISS-ICP
     depth = json.loads((out / "metrics.json").read_text())["depth"]
-    assert depth.keys() == {"nearest", "ipbasic", "nearest_accumulated", "ipbasic_accumulated", "generator",
-                            "generator_frame", "refined"}
+    assert depth.keys() == {
+        "nearest",
+        "ipbasic",
+        "nearest_accumulated",
+        "ipbasic_accumulated",
+        "generator",
+        "generator_frame",
+        "refined",
+    }
     assert len({v["n"] for v in depth.values()}) == 1  # the same pixels
     assert depth["nearest_accumulated"]["mae_m"] < depth["nearest"]["mae_m"]  # several scans fill more of the image
     timing = json.loads((out / "timing.json").read_text())
@@ -44,7 +52,11 @@ def test_refine_writes_every_output(refined):
     assert timing["series"]["frame"] == list(range(7)) and len(timing["series"]["graph_ms"]) == 7
     g = np.array(timing["series"]["graph_ms"])
     assert timing["stats"]["graph_ms"]["max"] == pytest.approx(g.max(), abs=0.01)
-    assert timing["stats"]["graph_ms"]["median"] <= timing["stats"]["graph_ms"]["p95"] <= timing["stats"]["graph_ms"]["max"]
+    assert (
+        timing["stats"]["graph_ms"]["median"]
+        <= timing["stats"]["graph_ms"]["p95"]
+        <= timing["stats"]["graph_ms"]["max"]
+    )
 
 
 def test_refine_tracks_the_camera_and_does_not_degrade_depth(refined):
@@ -58,24 +70,33 @@ def test_refine_tracks_the_camera_and_does_not_degrade_depth(refined):
     assert m["depth"]["generator"]["mae_m"] < m["depth"]["generator_frame"]["mae_m"]  # the earlier scans help
 
 
+@pytest.mark.slow
 def test_depth_factors_auto_leave_a_spinning_lidars_depth_to_the_generator(refined, tmp_path):
     """`depth_factors: auto` (default): with a Mid-40 cone the correction field moves the depth; with a
     spinning VLP-16 the graph has no depth factors, so the refined maps are the generator's."""
     from leovr.data.io import read_depth_png
 
     def changed(out) -> float:
-        return max(float(np.abs(read_depth_png(p) - read_depth_png(out / "depth_generator" / p.name)).max())
-                   for p in sorted((out / "depth").glob("*.png")))
+        return max(
+            float(np.abs(read_depth_png(p) - read_depth_png(out / "depth_generator" / p.name)).max())
+            for p in sorted((out / "depth").glob("*.png"))
+        )
 
     assert changed(refined[1]) > 0.1
     seq_dir = tmp_path / "vlp16"
     simulate(SimulateConfig(scenario="straight", lidar="vlp16", frames=4, seed=3002), seq_dir, progress=False)
     run_refine(open_sequence(seq_dir), RefineConfig(input="full"), tmp_path / "auto", progress=False)
     assert changed(tmp_path / "auto") == 0.0
-    run_refine(open_sequence(seq_dir), RefineConfig(input="full", graph={"depth_factors": True}), tmp_path / "on", progress=False)
+    run_refine(
+        open_sequence(seq_dir),
+        RefineConfig(input="full", graph={"depth_factors": True}),
+        tmp_path / "on",
+        progress=False,
+    )
     assert changed(tmp_path / "on") > 0.1
 
 
+@pytest.mark.slow
 def test_refined_depth_is_scored_as_the_png_holds_it(tmp_path, monkeypatch):
     """A correction that carries depth past the format's 255.99 m is scored as the written PNG holds it
     (saturated), never as kilometres that no file contains."""
@@ -116,6 +137,7 @@ def test_the_kiss_icp_baseline_is_kiss_icp_alone_deskewing_the_raw_scans_itself(
     assert np.abs(undeskewed[1:, :3, 3] - alone[1:, :3, 3]).max() > 0.01
 
 
+@pytest.mark.slow
 def test_refine_resumes_after_an_interruption(refined, tmp_path):
     seq_dir, out, _ = refined
     import shutil
@@ -135,6 +157,7 @@ def test_refine_resumes_after_an_interruption(refined, tmp_path):
     assert np.linalg.norm(a - b) < 0.5
 
 
+@pytest.mark.slow
 @needs_shared
 def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_path):
     """KITTI raw, VLP-16-like input, 8 frames: killed after 4 frames were finished (later ones were already
@@ -169,6 +192,7 @@ def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_pat
     assert np.abs(np.array([ia[k] for k in ia]) - np.array([ib[k] for k in ia])).max() < 1e-5
 
 
+@pytest.mark.slow
 @needs_shared
 def test_an_interrupted_causal_run_resumed_records_every_frame(tmp_path):
     """A causal run finishes each frame in its own step: killed after 3 of 6 frames and resumed, its progress
@@ -185,8 +209,9 @@ def test_an_interrupted_causal_run_resumed_records_every_frame(tmp_path):
     def complete() -> bool:
         rec = json.loads((run / "progress.json").read_text())
         timed = json.loads((run / "timing.json").read_text())["frames_timed"]
-        return timed == 6 and all(sorted(rec[k], key=int) == [str(i) for i in range(6)]
-                                  for k in ("poses", "icp_poses", "sources", "times"))
+        return timed == 6 and all(
+            sorted(rec[k], key=int) == [str(i) for i in range(6)] for k in ("poses", "icp_poses", "sources", "times")
+        )
 
     assert complete()
     rec = json.loads((run / "progress.json").read_text())
@@ -252,6 +277,7 @@ def test_a_corrupt_frame_met_by_the_generator_thread_names_the_file_and_keeps_fi
     assert sorted(p.name for p in (out / "depth").glob("*.png")) == ["000000.png"]
 
 
+@pytest.mark.slow
 def test_a_sequential_run_counts_the_generator_in_each_frames_wall_time(refined, tmp_path):
     """With one torch thread (a batch task with one CPU) the generator runs in line; the frame's wall time
     must then hold it, with the front end and the graph (it was once subtracted with the baselines)."""
@@ -269,6 +295,7 @@ def test_a_sequential_run_counts_the_generator_in_each_frames_wall_time(refined,
     assert times[:, 4].sum() >= 0.95 * times[:, :4].sum()
 
 
+@pytest.mark.slow
 def test_a_causal_run_gives_each_frame_outputs_from_it_and_earlier_frames_only(refined, tmp_path):
     """`refine.causal`: the same recording cut after frame 4 gives frames 0-4 the very same depth and poses, though
     motion stereo, the photometric step and the deskew would otherwise read later images; the offline run's differ."""
@@ -286,21 +313,26 @@ def test_a_causal_run_gives_each_frame_outputs_from_it_and_earlier_frames_only(r
     assert m["trajectory"]["leovr"]["ate_m"] < 1.0
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_a_cone_lidars_refined_depth_beats_the_generator_and_the_accumulated_fill_on_a_real_drive(tmp_path):
     """The first 16 frames of the real drive with poses, Mid-40-like input: the graph improves the generator's depth
     and beats the nearest fill of the same frames' returns placed with KISS-ICP's poses (measured 0.81x and 0.83x),
     and its trajectory beats KISS-ICP's on the same input (0.04 against 0.53 m)."""
-    m = run_refine(open_sequence(KITTI_RAW_POSES), RefineConfig(input="mid40", end=16), tmp_path / "out", progress=False)
+    m = run_refine(
+        open_sequence(KITTI_RAW_POSES), RefineConfig(input="mid40", end=16), tmp_path / "out", progress=False
+    )
     d, t = m["depth"], m["trajectory"]
     assert d["refined"]["mae_m"] < 0.9 * d["generator"]["mae_m"], d
     assert d["refined"]["mae_m"] < 0.9 * d["nearest_accumulated"]["mae_m"], d
     assert t["leovr"]["ate_m"] < 0.5 * min(t["kiss_icp"]["ate_m"], t["kiss_icp_no_deskew"]["ate_m"]), t
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_visual_lidar_poses_beat_kiss_icp_on_the_real_drive_with_poses(tmp_path):
-    """The real drive with GPS/IMU poses, its first 32 frames, VLP-16-like input: the graph's trajectory (KISS-ICP's motion as its
+    """The real drive with GPS/IMU poses, its first 32 frames, VLP-16-like input: the graph's trajectory (KISS-ICP's
+    motion as its
     pose prior, images and returns added) is at least as good as KISS-ICP alone on the same input, deskewed
     by KISS-ICP or not; with KISS-ICP's covariance inflated 60x it was 1.35x."""
     seq = open_sequence(KITTI_RAW_POSES)
@@ -311,8 +343,11 @@ def test_visual_lidar_poses_beat_kiss_icp_on_the_real_drive_with_poses(tmp_path)
     assert t["leovr"]["ate_m"] < 0.08
 
 
+@pytest.mark.slow
 @needs_posed_drive
-def test_a_causal_run_restarts_kiss_icp_from_the_first_scan_deskewed_once_the_first_step_is_known(tmp_path, monkeypatch):
+def test_a_causal_run_restarts_kiss_icp_from_the_first_scan_deskewed_once_the_first_step_is_known(
+    tmp_path, monkeypatch
+):
     """Live use on the real drive with point times and poses, the whole scan as input: the first scan's motion is
     unknown when it arrives, so it enters KISS-ICP's map skewed; once the second frame gives the first step, the
     map starts again from the first scan deskewed with it. Without that restart the skewed scan biases every
@@ -327,6 +362,7 @@ def test_a_causal_run_restarts_kiss_icp_from_the_first_scan_deskewed_once_the_fi
     assert ate < 0.6 * skewed, (ate, skewed)
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_only_a_run_that_deskews_a_scan_reads_the_sweeps_motion_from_the_images(tmp_path, monkeypatch):
     """The sweep's motion (ORB matching and an essential matrix per frame, the generator stage's largest cost without
@@ -336,8 +372,9 @@ def test_only_a_run_that_deskews_a_scan_reads_the_sweeps_motion_from_the_images(
 
     calls: list[int] = []
     read = prepare.PrepareStage._images_motion
-    monkeypatch.setattr(prepare.PrepareStage, "_images_motion",
-                        lambda self, i, this, nxt: calls.append(i) or read(self, i, this, nxt))
+    monkeypatch.setattr(
+        prepare.PrepareStage, "_images_motion", lambda self, i, this, nxt: calls.append(i) or read(self, i, this, nxt)
+    )
     seq = open_sequence(KITTI_RAW_POSES)
     run_refine(seq, RefineConfig(input="none", end=4), tmp_path / "none", progress=False, score=False)
     assert calls == []
@@ -370,6 +407,7 @@ def test_the_held_out_truth_is_deskewed_with_the_ground_truth_motion_whatever_th
     assert (a.gt > 0).sum() > 10_000 and not np.array_equal(own, a.gt)
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_front_end(tmp_path, monkeypatch):
     """A spinning LiDAR's next frame needs nothing of this frame's front end (its sweep is deskewed with the step
@@ -383,8 +421,12 @@ def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_fro
 
     events: list[tuple[str, int]] = []
     prep, front = prepare.PrepareStage.prepare, refine.RefineRun.front_end
-    monkeypatch.setattr(prepare.PrepareStage, "prepare", lambda self, i, *a: events.append(("prepare", i)) or prep(self, i, *a))
-    monkeypatch.setattr(refine.RefineRun, "front_end", lambda self, n, i, p: events.append(("front", i)) or front(self, n, i, p))
+    monkeypatch.setattr(
+        prepare.PrepareStage, "prepare", lambda self, i, *a: events.append(("prepare", i)) or prep(self, i, *a)
+    )
+    monkeypatch.setattr(
+        refine.RefineRun, "front_end", lambda self, n, i, p: events.append(("front", i)) or front(self, n, i, p)
+    )
     seq = open_sequence(KITTI_RAW_POSES)
     before = torch.get_num_threads()
     torch.set_num_threads(1)  # in line: the events in the order they ran
@@ -393,10 +435,26 @@ def test_without_earlier_scans_the_next_frame_is_prepared_beside_this_frames_fro
             run_refine(seq, RefineConfig(input=name, end=4), tmp_path / f"{name}_line", progress=False, score=False)
     finally:
         torch.set_num_threads(before)
-    spinning, cone = events[:len(events) // 2], events[len(events) // 2:]
+    spinning, cone = events[: len(events) // 2], events[len(events) // 2 :]
     order = lambda ev: [e for e in ev if e != ("prepare", 0)]  # noqa: E731
-    assert order(spinning) == [("prepare", 1), ("front", 0), ("prepare", 2), ("front", 1), ("prepare", 3), ("front", 2), ("front", 3)]
-    assert order(cone) == [("front", 0), ("prepare", 1), ("front", 1), ("prepare", 2), ("front", 2), ("prepare", 3), ("front", 3)]
+    assert order(spinning) == [
+        ("prepare", 1),
+        ("front", 0),
+        ("prepare", 2),
+        ("front", 1),
+        ("prepare", 3),
+        ("front", 2),
+        ("front", 3),
+    ]
+    assert order(cone) == [
+        ("front", 0),
+        ("prepare", 1),
+        ("front", 1),
+        ("prepare", 2),
+        ("front", 2),
+        ("prepare", 3),
+        ("front", 3),
+    ]
     run_refine(seq, RefineConfig(input="vlp16", end=4), tmp_path / "vlp16_thread", progress=False, score=False)
     poses = lambda name: np.loadtxt(tmp_path / name / "poses_kitti.txt")  # noqa: E731
     np.testing.assert_array_equal(poses("vlp16_line"), poses("vlp16_thread"))
@@ -418,6 +476,7 @@ def _threaded_then_in_line(seq, cfg: RefineConfig, threaded, in_line) -> None:
         torch.set_num_threads(threads)
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_a_spinning_lidars_window_is_smoothed_incrementally_with_the_batch_poses(tmp_path, monkeypatch):
     """A spinning LiDAR's window (no resampled or pair factors, close first guesses) runs on iSAM2: its poses
@@ -428,10 +487,15 @@ def test_a_spinning_lidars_window_is_smoothed_incrementally_with_the_batch_poses
     cfg = RefineConfig(input="vlp16", end=10)
     smoothers: list[str] = []
     set_sensor = wg.WindowGraph.set_sensor
-    monkeypatch.setattr(wg.WindowGraph, "set_sensor",
-                        lambda self, spinning: set_sensor(self, spinning) or smoothers.append(type(self.smoother).__name__))
+    monkeypatch.setattr(
+        wg.WindowGraph,
+        "set_sensor",
+        lambda self, spinning: set_sensor(self, spinning) or smoothers.append(type(self.smoother).__name__),
+    )
     incremental = run_refine(seq, cfg, tmp_path / "incremental", progress=False)
-    monkeypatch.setattr(wg.WindowGraph, "set_sensor", lambda self, spinning: setattr(self, "depth_factors", not spinning))
+    monkeypatch.setattr(
+        wg.WindowGraph, "set_sensor", lambda self, spinning: setattr(self, "depth_factors", not spinning)
+    )
     batch = run_refine(seq, cfg, tmp_path / "batch", progress=False)
     assert smoothers == ["IncrementalFixedLagSmoother"]
     poses = lambda run: np.loadtxt(tmp_path / run / "poses_kitti.txt").reshape(-1, 3, 4)[:, :, 3]  # noqa: E731
@@ -441,6 +505,7 @@ def test_a_spinning_lidars_window_is_smoothed_incrementally_with_the_batch_poses
     assert ate[0] < 1.05 * ate[1]
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_an_incremental_window_that_fails_its_update_is_rebuilt_and_the_run_goes_on(tmp_path, monkeypatch):
     """A spinning LiDAR's iSAM2 window given a landmark that one ray alone fixes (no prior: free along the ray)
@@ -472,6 +537,7 @@ def _poses_scored_after(tmp_path, inp: str, end: int, warning: str) -> dict:
     return m["trajectory"]["leovr"]
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_a_batch_window_anchors_every_landmark_it_holds_when_found_indeterminate(tmp_path, monkeypatch):
     """A cone LiDAR's batch window given, at frame 5, a landmark that one ray alone fixes and that the graph does
@@ -505,6 +571,7 @@ def test_a_batch_window_anchors_every_landmark_it_holds_when_found_indeterminate
     assert _poses_scored_after(tmp_path, "mid40", 12, "indeterminate; every landmark got a depth prior")["ate_m"] < 0.2
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_the_real_drives_own_scan_runs_past_the_window_iSAM2_once_found_indeterminate(tmp_path):
     """The real drive with poses, its own HDL-64 scan: at frame 68 iSAM2 once found the window indeterminate and
@@ -519,6 +586,7 @@ def test_the_real_drives_own_scan_runs_past_the_window_iSAM2_once_found_indeterm
     assert trajectory_metrics(est, np.stack([seq.pose(i) for i in range(70)]))["ate_m"] < 0.3
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkeypatch):
     """The metric scale comes from measurements that hold over a drive (the LiDAR's returns, KISS-ICP), not
@@ -531,9 +599,11 @@ def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkey
     seq = open_sequence(KITTI_RAW_POSES)
     steps = {}
     for scale in (1.0, 0.9, 1.1):
+
         def scaled(ccfg, scale=scale):
             run = method(ccfg)
             return lambda sample: (lambda d, s: (d * scale, s + np.log(scale)))(*run(sample))
+
         monkeypatch.setattr(refine_module, "generator_method", scaled)
         run_refine(seq, RefineConfig(input="mid40", end=32), tmp_path / str(scale), progress=False, score=False)
         xyz = np.loadtxt(tmp_path / str(scale) / "poses_kitti.txt").reshape(-1, 3, 4)[:, :, 3]
@@ -543,6 +613,7 @@ def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkey
         assert abs(ratio - 1.0) < 0.01, (scale, ratio)
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outputs(tmp_path, monkeypatch):
     """A cone LiDAR's frame: its corner tracks (motion stereo, pair motions) need nothing of its generator and
@@ -556,8 +627,11 @@ def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outp
     where: list[tuple[int, str]] = []
     ahead: list[int] = []
     tracked, images_tracks = prepare.PrepareStage._tracked, prepare.PrepareStage._images_tracks
-    monkeypatch.setattr(prepare.PrepareStage, "_tracked",
-                        lambda self, i, *a: where.append((i, threading.current_thread().name)) or tracked(self, i, *a))
+    monkeypatch.setattr(
+        prepare.PrepareStage,
+        "_tracked",
+        lambda self, i, *a: where.append((i, threading.current_thread().name)) or tracked(self, i, *a),
+    )
 
     def started_ahead(self, i, *a):
         out = images_tracks(self, i, *a)
@@ -567,19 +641,22 @@ def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outp
 
     monkeypatch.setattr(prepare.PrepareStage, "_images_tracks", started_ahead)
     _threaded_then_in_line(seq, cfg, tmp_path / "beside", tmp_path / "in_line")
-    beside, in_line = where[:len(where) // 2], where[len(where) // 2:]
+    beside, in_line = where[: len(where) // 2], where[len(where) // 2 :]
     assert [i for i, _ in beside] == list(range(6)) and all(name.startswith("leovr-tracks") for _, name in beside)
     assert all(not name.startswith("leovr-tracks") for _, name in in_line)
     # the first two frames are tracked in their own turn (the sensor is judged on the first; the second's image
     # was no neighbour's before), the others ahead
     assert ahead == [2, 3, 4, 5]
-    assert (tmp_path / "beside" / "poses_kitti.txt").read_text() == (tmp_path / "in_line" / "poses_kitti.txt").read_text()
+    assert (tmp_path / "beside" / "poses_kitti.txt").read_text() == (
+        tmp_path / "in_line" / "poses_kitti.txt"
+    ).read_text()
     pngs = sorted((tmp_path / "in_line" / "depth").glob("*.png"))
     assert len(pngs) == 6
     for png in pngs:
         assert png.read_bytes() == (tmp_path / "beside" / "depth" / png.name).read_bytes(), png.name
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_a_camera_only_run_computes_the_next_motion_ahead_with_the_same_poses(tmp_path, monkeypatch):
     """Camera only, the next frame's motion (Lucas-Kanade tracks and the essential matrix) runs in a worker

@@ -37,10 +37,23 @@ def _cloud(k: int, n: int = 500) -> np.ndarray:
     return pts.astype(np.float32)
 
 
-def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...] = ("/cam0/image_raw",),
-         compressed: bool = False, tf: bool = True, missing_clouds: tuple[int, ...] = (), offset_ns: bool = False,
-         distortion: np.ndarray | None = None, mono16: bool = False, encoding: str = "", stamp_at: str = "image",
-         restamp: dict[int, float] | None = None, times_as: str = "s", lidar_clock_s: float = 0.0) -> Path:
+def _bag(
+    path: Path,
+    fmt: str = "mcap",
+    frames: int = 4,
+    cameras: tuple[str, ...] = ("/cam0/image_raw",),
+    compressed: bool = False,
+    tf: bool = True,
+    missing_clouds: tuple[int, ...] = (),
+    offset_ns: bool = False,
+    distortion: np.ndarray | None = None,
+    mono16: bool = False,
+    encoding: str = "",
+    stamp_at: str = "image",
+    restamp: dict[int, float] | None = None,
+    times_as: str = "s",
+    lidar_clock_s: float = 0.0,
+) -> Path:
     """A small bag: camera(s) with their CameraInfo, a cloud (the LiDAR frame is the camera's turned 90
     degrees about y), optionally /tf_static, at 10 Hz. `stamp_at`: each cloud's stamp at its image's time
     (its points' times spanning 50 ms either side), or at the start or end of a 100 ms sweep that the image
@@ -75,13 +88,14 @@ def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...
                 img = _image(k)
                 if compressed:
                     ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-                    msg = T["sensor_msgs/msg/CompressedImage"](header=m.header(t, "cam0", k), format="rgb8; png compressed",
-                                                               data=png.ravel())
+                    msg = T["sensor_msgs/msg/CompressedImage"](
+                        header=m.header(t, "cam0", k), format="rgb8; png compressed", data=png.ravel()
+                    )
                     put(cam, "sensor_msgs/msg/CompressedImage", log, msg)
                 else:
                     msg = m.image(t, img, k)
                     if mono16:
-                        gray = (img[..., 0].astype(np.uint16) << 4)  # a 12-bit camera
+                        gray = img[..., 0].astype(np.uint16) << 4  # a 12-bit camera
                         msg.encoding, msg.step = "mono16", 2 * W
                         msg.data = gray.astype("<u2").view(np.uint8).ravel()
                     msg.header.frame_id = "cam0"
@@ -100,7 +114,11 @@ def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...
                 cam_pts = pts[:, :3] @ np.linalg.inv(T_cam_lidar)[:3, :3].T + np.linalg.inv(T_cam_lidar)[:3, 3]
                 lidar = np.c_[cam_pts, pts[:, 3]].astype(np.float32)
                 into = {"image": 0.05, "sweep_start": 0.053, "sweep_end": 0.053}[stamp_at]
-                tc = t + {"image": 0, "sweep_start": -53_000_000, "sweep_end": 47_000_000}[stamp_at] + round(lidar_clock_s * 1e9)
+                tc = (
+                    t
+                    + {"image": 0, "sweep_start": -53_000_000, "sweep_end": 47_000_000}[stamp_at]
+                    + round(lidar_clock_s * 1e9)
+                )
                 times = np.linspace(-into, 0.1 - into, len(pts)) + (t - tc) * 1e-9 + lidar_clock_s
                 if times_as == "ms":
                     times = times * 1e3
@@ -114,8 +132,10 @@ def _bag(path: Path, fmt: str = "mcap", frames: int = 4, cameras: tuple[str, ...
                         rec[n] = lidar[:, c]
                     rec["offset_time"] = np.linspace(0, 100_000_000, len(pts)).astype(np.uint32)
                     PF = T["sensor_msgs/msg/PointField"]
-                    msg.fields = [PF(name=n, offset=rec.dtype.fields[n][1], datatype=6 if n == "offset_time" else 7, count=1)
-                                  for n in rec.dtype.names]
+                    msg.fields = [
+                        PF(name=n, offset=rec.dtype.fields[n][1], datatype=6 if n == "offset_time" else 7, count=1)
+                        for n in rec.dtype.names
+                    ]
                     msg.point_step, msg.row_step = rec.dtype.itemsize, rec.dtype.itemsize * len(rec)
                     msg.data = rec.view(np.uint8).ravel()
                 put("/points", "sensor_msgs/msg/PointCloud2", log, msg)
@@ -139,13 +159,15 @@ def test_the_kitti_clip_round_trips_through_a_bag_bit_identical(tmp_path, fmt):
         assert np.abs(a.T_world_cam - b.T_world_cam).max() < 1e-6  # through a quaternion
 
 
+@pytest.mark.slow
 @needs_posed_drive
 def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_path):
     """`leovr refine` on the clip as an MCAP bag, as one whose scans are stamped at their sweep's start, and as a
     ROS 1 bag, and on the bag's frames written to a folder:
     the same metrics (to 1e-5: the folder keeps the ground-truth poses as text, which the held-out truth's deskew
     reads, and the poses' last digits reach the generator's input through the deskew motion; measured 2.3e-6 on
-    the generator's MAE, 3e-8 on the nearest fill's). (Against the KITTI folder itself the extrinsic differs by 2e-8, KITTI's
+    the generator's MAE, 3e-8 on the nearest fill's). (Against the KITTI folder itself the extrinsic differs by 2e-8,
+    KITTI's
     rectified calibration being that far from a rotation, which /tf_static's quaternion cannot carry: depth MAE
     then moves by about 0.1 %.)"""
     from leovr.config import RefineConfig
@@ -154,9 +176,12 @@ def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_pa
 
     src = open_sequence(KITTI_RAW_POSES)[0:4]
     mcap = write_bag(src, tmp_path / "d.mcap", progress=False)
-    seqs = {"mcap": mcap, "ros1": write_bag(src, tmp_path / "d.bag", progress=False),
-            "sweep_start": write_bag(src, tmp_path / "s.mcap", progress=False, cloud_stamp="sweep_start"),
-            "folder": write_native(open_sequence(mcap), tmp_path / "native")}
+    seqs = {
+        "mcap": mcap,
+        "ros1": write_bag(src, tmp_path / "d.bag", progress=False),
+        "sweep_start": write_bag(src, tmp_path / "s.mcap", progress=False, cloud_stamp="sweep_start"),
+        "folder": write_native(open_sequence(mcap), tmp_path / "native"),
+    }
     runs = {}
     for name, path in seqs.items():
         m = run_refine(open_sequence(path), RefineConfig(input="vlp16"), tmp_path / f"run_{name}", progress=False)
@@ -170,7 +195,9 @@ def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_pa
 
 def test_two_cameras_are_named_and_a_compressed_one_is_read(tmp_path):
     bag = _bag(tmp_path / "two", cameras=("/cam0/image_raw", "/cam1/image_raw"))
-    with pytest.raises(DataError, match=r"2 camera topics \(/cam0/image_raw, /cam1/image_raw\): choose one with --camera-topic"):
+    with pytest.raises(
+        DataError, match=r"2 camera topics \(/cam0/image_raw, /cam1/image_raw\): choose one with --camera-topic"
+    ):
         RosbagSequence(bag, TopicChoice())
     seq = RosbagSequence(bag, TopicChoice(camera="/cam1/image_raw"))
     assert seq.info_topic == "/cam1/camera_info"  # the camera info beside the chosen camera
@@ -190,7 +217,9 @@ def test_points_in_the_camera_with_times_in_nanoseconds(tmp_path):
 
 def test_a_bag_without_tf_static_needs_an_extrinsic_file(tmp_path):
     bag = _bag(tmp_path / "b", tf=False)
-    with pytest.raises(DataError, match=r"no transform from the LiDAR's frame 'lidar' to the camera's 'cam0'.*--extrinsic"):
+    with pytest.raises(
+        DataError, match=r"no transform from the LiDAR's frame 'lidar' to the camera's 'cam0'.*--extrinsic"
+    ):
         RosbagSequence(bag, TopicChoice())
     ext = tmp_path / "T.txt"
     ext.write_text("0 0 1 0.1\n0 1 0 -0.2\n-1 0 0 0.3\n")
@@ -207,7 +236,9 @@ def test_images_without_a_scan_are_kept_empty_or_dropped(tmp_path):
     assert len(seq) == 6 and seq.unpaired == 1 and len(seq[3].points) == 0 and len(seq[4].points) == 500
     kept = RosbagSequence(bag, TopicChoice(drop_unpaired=True))
     assert len(kept) == 5 and np.allclose(kept.timestamps(), [0.0, 0.1, 0.2, 0.4, 0.5])
-    late = RosbagSequence(_bag(tmp_path / "late", frames=4, missing_clouds=(0,)), TopicChoice())  # a LiDAR starting late
+    late = RosbagSequence(
+        _bag(tmp_path / "late", frames=4, missing_clouds=(0,)), TopicChoice()
+    )  # a LiDAR starting late
     info = late.info()
     assert late.unpaired == 1 and info.points_per_scan == 500 and info.has_point_times
     assert {t["topic"]: t["rate_hz"] for t in late.topic_table()}["/points"] == 10.0  # over its own messages' span
@@ -229,7 +260,9 @@ def test_a_bag_cut_off_gives_its_frames_before_the_damage_and_says_where_it_stop
     f = bag if bag.is_file() else next(p for p in bag.iterdir() if p.suffix in (".mcap", ".db3"))
     data = f.read_bytes()
     f.write_bytes(data[: len(data) * 2 // 3])  # a recorder killed mid-write: no index, summary or last pages
-    with pytest.warns(UserWarning, match=rf"damaged, .* stops 0\.[23]0 s into the recording .*{tool}.*; the [34] frames"):
+    with pytest.warns(
+        UserWarning, match=rf"damaged, .* stops 0\.[23]0 s into the recording .*{tool}.*; the [34] frames"
+    ):
         seq = RosbagSequence(bag, TopicChoice())
     assert len(seq) in (3, 4) and "stops" in seq.pairing()["damaged"]
     for i in range(len(seq)):
@@ -269,13 +302,23 @@ def test_info_lists_the_topics_and_what_each_is_for(tmp_path):
     cmd = [sys.executable, "-c", "from leovr.cli import main; main()"]
     r = subprocess.run([*cmd, "info", str(bag)], capture_output=True, text=True, cwd=REPO_ROOT)
     assert r.returncode == 2 and "choose one with --camera-topic" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run([*cmd, "--camera-topic", "/cam0/image_raw", "info", str(bag), "--json", "--frames"],
-                       capture_output=True, text=True, cwd=REPO_ROOT)
+    r = subprocess.run(
+        [*cmd, "--camera-topic", "/cam0/image_raw", "info", str(bag), "--json", "--frames"],
+        capture_output=True,
+        text=True,
+        cwd=REPO_ROOT,
+    )
     assert r.returncode == 0, r.stderr
     info = json.loads(r.stdout)
     used = {t["topic"]: t["used_as"] for t in info["topics"]}
-    assert used == {"/cam0/camera_info": "camera info", "/cam0/image_raw": "camera", "/cam1/camera_info": "",
-                    "/cam1/image_raw": "", "/points": "LiDAR", "/tf_static": "extrinsic"}
+    assert used == {
+        "/cam0/camera_info": "camera info",
+        "/cam0/image_raw": "camera",
+        "/cam1/camera_info": "",
+        "/cam1/image_raw": "",
+        "/points": "LiDAR",
+        "/tf_static": "extrinsic",
+    }
     assert info["frames"] == 4 and info["paired_with_a_scan"] == 4 and info["read_frames_per_s"] > 0
 
 
@@ -284,14 +327,17 @@ def test_an_image_takes_the_sweep_its_stamp_falls_in_whichever_end_the_driver_st
     """A camera firing 53 ms into each 100 ms sweep: image k takes sweep k, whose points span its time (by the
     nearest header stamp, a sweep stamped at its start would give it sweep k + 1, 47 ms away, and leave the
     last image without a scan)."""
-    seq = RosbagSequence(_bag(tmp_path / "b", frames=4, stamp_at=stamp_at, offset_ns=stamp_at == "sweep_start"),
-                         TopicChoice())
+    seq = RosbagSequence(
+        _bag(tmp_path / "b", frames=4, stamp_at=stamp_at, offset_ns=stamp_at == "sweep_start"), TopicChoice()
+    )
     assert seq.unpaired == 0
     for k in range(4):
         f = seq[k]
         cam = f.points[:, :3] @ f.T_cam_lidar[:3, :3].T + f.T_cam_lidar[:3, 3]
         assert np.abs(cam - _cloud(k)[:, :3]).max() < 1e-4, k
-        assert f.point_times.min() == pytest.approx(-0.053, abs=1e-6) and f.point_times.max() == pytest.approx(0.047, abs=1e-6)
+        assert f.point_times.min() == pytest.approx(-0.053, abs=1e-6) and f.point_times.max() == pytest.approx(
+            0.047, abs=1e-6
+        )
     p = seq.pairing()
     assert p["pairing"] == "sweep time span (per-point times)" and p["image_after_sweep_start_s"] == [0.053] * 3
     assert p["scan_stamp_after_image_s"] == ([-0.053] * 3 if stamp_at == "sweep_start" else [0.047] * 3)
@@ -313,13 +359,18 @@ def test_a_stamp_that_repeats_goes_back_or_jumps_is_named_and_its_message_left_o
     """Frame 2 of 4 stamped like frame 1, 0.9 s before frame 0, or 1000 s ahead; frame 0 stamped 0 (a clock
     not set): that frame left out with a warning naming the topic, the message and its stamp; the other frames
     keep their order, images and scans."""
-    cases = (({2: 0.1}, r"message 2 stamped 1600000000\.100000 s repeats message 1's 1600000000\.100000 s", (0, 1, 3)),
-             ({2: -0.9}, r"message 2 stamped 1599999999\.100000 s goes back from message 1's", (0, 1, 3)),
-             ({2: 1000.2}, r"message 2 stamped 1600001000\.200000 s, message 3 1600000000\.300000 s", (0, 1, 3)),
-             ({0: -1.6e9}, r"message 0 stamped 0\.000000 s, message 1 1600000000\.100000 s", (1, 2, 3)))
+    cases = (
+        ({2: 0.1}, r"message 2 stamped 1600000000\.100000 s repeats message 1's 1600000000\.100000 s", (0, 1, 3)),
+        ({2: -0.9}, r"message 2 stamped 1599999999\.100000 s goes back from message 1's", (0, 1, 3)),
+        ({2: 1000.2}, r"message 2 stamped 1600001000\.200000 s, message 3 1600000000\.300000 s", (0, 1, 3)),
+        ({0: -1.6e9}, r"message 0 stamped 0\.000000 s, message 1 1600000000\.100000 s", (1, 2, 3)),
+    )
     for n, (restamp, named, frames) in enumerate(cases):
-        with pytest.warns(UserWarning, match=r"/cam0/image_raw: 1 message\(s\) whose stamp repeats, goes back or jumps "
-                                             r"against the recording order left out \(" + named):
+        with pytest.warns(
+            UserWarning,
+            match=r"/cam0/image_raw: 1 message\(s\) whose stamp repeats, goes back or jumps "
+            r"against the recording order left out \(" + named,
+        ):
             seq = RosbagSequence(_bag(tmp_path / str(n), restamp=restamp), TopicChoice())
         assert len(seq) == 3 and np.allclose(seq.timestamps(), (np.array(frames) - frames[0]) * 0.1)
         assert seq.unpaired == 0
@@ -334,14 +385,19 @@ def test_a_stamp_that_repeats_goes_back_or_jumps_is_named_and_its_message_left_o
 def test_convert_writes_a_frame_without_a_scan_as_one_without_returns_and_a_ros2_bag_as_its_folder(tmp_path):
     bag = _bag(tmp_path / "b", frames=4, missing_clouds=(3,))  # the last image's sweep lost
     cmd = [sys.executable, "-c", "from leovr.cli import main; main()"]
-    r = subprocess.run([*cmd, "convert", str(bag), "--out", str(tmp_path / "native")], capture_output=True, text=True,
-                       cwd=REPO_ROOT)
+    r = subprocess.run(
+        [*cmd, "convert", str(bag), "--out", str(tmp_path / "native")], capture_output=True, text=True, cwd=REPO_ROOT
+    )
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     seq = open_sequence(tmp_path / "native")
     assert len(seq) == 4 and len(seq[3].points) == 0 and len(seq[2].points) == len(_cloud(2))
     assert seq[2].point_times is not None
-    r = subprocess.run([*cmd, "convert", str(tmp_path / "native"), "--out", str(tmp_path / "x.mcap")],
-                       capture_output=True, text=True, cwd=REPO_ROOT)
+    r = subprocess.run(
+        [*cmd, "convert", str(tmp_path / "native"), "--out", str(tmp_path / "x.mcap")],
+        capture_output=True,
+        text=True,
+        cwd=REPO_ROOT,
+    )
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in (tmp_path / "x").iterdir()) == ["metadata.yaml", "x.mcap"]
     assert f"wrote {tmp_path / 'x'}" in r.stdout and not (tmp_path / "x.mcap").exists()
@@ -365,19 +421,27 @@ def test_a_run_in_which_no_frame_has_a_return_says_so(tmp_path, monkeypatch):
 def test_point_times_in_another_unit_or_partly_missing_are_read_against_the_scan_period(tmp_path):
     """Milliseconds in a float `time` field (a sweep 1000x the scan period as seconds): read x0.001 with a
     warning; NaN times: those points keep their coordinates and take the sweep's median time."""
-    with pytest.warns(UserWarning, match=r"/points: a sweep's per-point times span 100 s as read, 1e\+03x the scan "
-                                         r"period of 0\.100 s: read x0\.001"):
+    with pytest.warns(
+        UserWarning,
+        match=r"/points: a sweep's per-point times span 100 s as read, 1e\+03x the scan "
+        r"period of 0\.100 s: read x0\.001",
+    ):
         seq = RosbagSequence(_bag(tmp_path / "ms", times_as="ms"), TopicChoice())
     f = seq[1]
     assert seq.unpaired == 0 and abs(f.point_times.min() + 0.05) < 1e-6 and abs(f.point_times.max() - 0.05) < 1e-6
     seq = RosbagSequence(_bag(tmp_path / "nan", times_as="nan_third"), TopicChoice())
     f = seq[1]
     assert len(f.points) == len(_cloud(1)) and np.isfinite(f.point_times).all()
-    assert np.abs(f.point_times[::3] - np.median(f.point_times[1::3].tolist() + f.point_times[2::3].tolist())).max() < 1e-3
+    assert (
+        np.abs(f.point_times[::3] - np.median(f.point_times[1::3].tolist() + f.point_times[2::3].tolist())).max() < 1e-3
+    )
 
 
 def test_scans_on_another_clock_are_named_not_paired(tmp_path):
-    with pytest.warns(UserWarning, match=r"4 of 4 images of /cam0/image_raw have no sweep of /points at their time; the "
-                                         r"scans' stamps lie a median \+2\.850 s from the images'"):
+    with pytest.warns(
+        UserWarning,
+        match=r"4 of 4 images of /cam0/image_raw have no sweep of /points at their time; the "
+        r"scans' stamps lie a median \+2\.850 s from the images'",
+    ):
         seq = RosbagSequence(_bag(tmp_path / "b", lidar_clock_s=3.0), TopicChoice())
     assert seq.unpaired == 4

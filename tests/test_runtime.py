@@ -20,8 +20,11 @@ from leovr.sim.simulate import simulate
 def rendered_frame(tmp_path: Path, scenario: str, lidar: str, seed: int, size: tuple[int, int, float]):
     """One rendered frame of `size` (width, height, focal) and its own-scan sample."""
     w, h, f = size
-    simulate(SimulateConfig(scenario=scenario, lidar=lidar, frames=1, seed=seed, width=w, height=h, focal=f),
-             tmp_path / "seq", progress=False)
+    simulate(
+        SimulateConfig(scenario=scenario, lidar=lidar, frames=1, seed=seed, width=w, height=h, focal=f),
+        tmp_path / "seq",
+        progress=False,
+    )
     frame = open_sequence(tmp_path / "seq")[0]
     return frame, prepare_sample(frame, CompleteConfig(method="generator", input="full"))
 
@@ -49,6 +52,7 @@ def test_absolute_networks_and_the_torch_setting_stay_on_torch():
     assert for_inference(shipped, "torch") is shipped
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [(448, 256, 260.0), (300, 180, 400.0)])  # calibrated size; another size, padded
 def test_int8_runtime_keeps_the_depth_of_the_floating_point_network(tmp_path: Path, size):
     """The shipped checkpoint's int8 table (measured at 448 x 256 on training frames) quantises the network
@@ -93,7 +97,10 @@ def test_an_exported_model_is_reused_only_for_the_same_weights_and_table():
     import torch
 
     model = load_generator(shipped_checkpoint())
-    a, b = for_inference(model, "onnxruntime_int8"), for_inference(load_generator(shipped_checkpoint()), "onnxruntime_int8")
+    a, b = (
+        for_inference(model, "onnxruntime_int8"),
+        for_inference(load_generator(shipped_checkpoint()), "onnxruntime_int8"),
+    )
     assert a._digest() == b._digest()  # a second build of the same checkpoint skips the ~2 s export
     assert for_inference(model, "onnxruntime")._digest() != a._digest()  # no table: the floating-point graph
     other = load_generator(shipped_checkpoint())

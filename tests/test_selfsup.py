@@ -32,8 +32,13 @@ from selfsup.supervision import TrainFrame, landmark_depth, refined_agrees
 from selfsup.warp import warp_image
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = {"channels": [8, 8, 16, 16, 16], "blocks": [1, 1, 1, 1], "train_focal_px": 130.0, "loop_closure": False,
-        "batch_size": 2}
+TINY = {
+    "channels": [8, 8, 16, 16, 16],
+    "blocks": [1, 1, 1, 1],
+    "train_focal_px": 130.0,
+    "loop_closure": False,
+    "batch_size": 2,
+}
 
 
 def _K(f=100.0, cx=31.5, cy=23.5) -> torch.Tensor:
@@ -76,7 +81,9 @@ def test_photometric_error_and_depth_terms():
     # log_l1 is relative: 1 m off at 5 m costs as much as 10 m off at 50 m; l2 weighs the far one 100x
     near, far = torch.tensor([[[[5.0]]]]), torch.tensor([[[[50.0]]]])
     assert feature_point_loss(near * 1.2, near).item() == pytest.approx(feature_point_loss(far * 1.2, far).item())
-    assert feature_point_loss(far * 1.2, far, "l2").item() == pytest.approx(100 * feature_point_loss(near * 1.2, near, "l2").item())
+    assert feature_point_loss(far * 1.2, far, "l2").item() == pytest.approx(
+        100 * feature_point_loss(near * 1.2, near, "l2").item()
+    )
     # a plane in inverse depth is perfectly smooth (second order); a step is not
     ramp = 1.0 / torch.linspace(0.05, 0.2, 30).expand(2, 1, 20, 30)
     step = depth.clone()
@@ -176,6 +183,7 @@ def _no_truth_copy(src: Path, dst: Path) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_selfsup_cli_without_ground_truth_rerun_and_resume(dynamic_seq, tmp_path):
     """`leovr train --mode selfsup` on a sequence whose ground truth files were deleted: trains, logs the
     flow mask / warped image / photometric error to Rerun, writes a loadable generator, resumes."""
@@ -189,7 +197,19 @@ def test_selfsup_cli_without_ground_truth_rerun_and_resume(dynamic_seq, tmp_path
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(yaml.safe_dump({"selfsup": {**TINY, "epochs": 2, "init_fraction": 0.5}}))
     out, rrd = tmp_path / "run", tmp_path / "train.rrd"
-    cmd = [sys.executable, "-m", "leovr.cli", "train", "--mode", "selfsup", str(seq), "--out", str(out), "--config", str(cfg)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "leovr.cli",
+        "train",
+        "--mode",
+        "selfsup",
+        str(seq),
+        "--out",
+        str(out),
+        "--config",
+        str(cfg),
+    ]
     r = subprocess.run(cmd + ["--rerun", str(rrd)], capture_output=True, text=True, cwd=REPO)
     assert r.returncode == 0, r.stderr[-2000:]
     log = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
@@ -239,13 +259,16 @@ def test_oracle_masks_are_the_true_moving_mask_at_training_resolution(dynamic_se
     truth = seq.base[1].moving_mask
     assert moving[1].shape == (h, w) and truth.shape != (h, w) and truth.any()
     assert abs(moving[1].mean() - truth.mean()) < 0.01  # the same share of moving pixels after resampling
-    graph = GraphResult(np.stack([np.eye(4)] * 4), list(range(4)), np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, bool), Path("-"))
+    graph = GraphResult(
+        np.stack([np.eye(4)] * 4), list(range(4)), np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, bool), Path("-")
+    )
     sup = build_supervision(frames, graph, cfg, False, moving=moving)
     assert np.array_equal(sup.mask_prev[1], ~moving[1]) and np.array_equal(sup.mask_next[1], ~moving[1])
     assert sup.mask_prev[0] is None and sup.mask_next[3] is None
     assert build_supervision(frames, graph, cfg, False).mask_prev[1] is None  # no oracle, no test: no mask
 
 
+@pytest.mark.slow
 def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
     """torchrun with two CPU processes (gloo): after training, both ranks hold the same weights."""
     worker = tmp_path / "worker.py"
@@ -255,11 +278,28 @@ def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
         f"cfg = SelfSupConfig(**{TINY!r}, epochs=1, max_frames=5)\n"
         "_, model = fit(cfg, [Path(sys.argv[1])], Path(sys.argv[2]), run_refine, progress=False)\n"
         "rank = torch.distributed.get_rank()\n"
-        "torch.save(model.state_dict(), Path(sys.argv[2]) / f'rank{rank}.pt')\n")
+        "torch.save(model.state_dict(), Path(sys.argv[2]) / f'rank{rank}.pt')\n"
+    )
     out = tmp_path / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
-    r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-port", "29517",
-                        str(worker), str(dynamic_seq), str(out)], capture_output=True, text=True, cwd=REPO, env=env)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--nproc-per-node",
+            "2",
+            "--master-port",
+            "29517",
+            str(worker),
+            str(dynamic_seq),
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        env=env,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     a, b = (torch.load(out / f"rank{k}.pt") for k in (0, 1))
     for k in a:

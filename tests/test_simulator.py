@@ -30,8 +30,15 @@ def test_wall_depth_equals_analytic_value():
     b.box((30.0, 0.0, -60.0), (20.0, 200.0, 120.0), Mat.FACADE, (0.5, 0.5, 0.5), param=(3.0, 1))  # front face at x = 20
     scene = build_scene(b.build(), MeshBuilder().build())
     cam = CameraModel()
-    img, depth, moving = render_camera(scene, T_VEHICLE_CAM, cam.ray_directions(), (cam.height, cam.width), cam.fx,
-                                       LIGHTS["day"], np.random.default_rng(0))
+    img, depth, moving = render_camera(
+        scene,
+        T_VEHICLE_CAM,
+        cam.ray_directions(),
+        (cam.height, cam.width),
+        cam.fx,
+        LIGHTS["day"],
+        np.random.default_rng(0),
+    )
     # the camera sits 1.0 m ahead of the vehicle origin, looking along +x: z-depth of the wall is 19 m everywhere
     np.testing.assert_allclose(depth, 19.0, atol=2e-3)
     assert img.shape == (256, 448, 3) and not moving.any() and img.std() > 5  # textured, not flat
@@ -106,6 +113,7 @@ def test_moving_mask_moves_and_marks_movers(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(np.diff(p, axis=0), axis=1), 30 / 3.6 / 10, rtol=0.02)
 
 
+@pytest.mark.slow
 def test_same_seed_gives_identical_files_and_other_seed_differs(tmp_path):
     cfg = SimulateConfig(frames=2, lidar="vlp16", scenario="dynamic")
     for name in ("a", "b"):
@@ -115,7 +123,9 @@ def test_same_seed_gives_identical_files_and_other_seed_differs(tmp_path):
     assert len(files) >= 10
     for rel in files:
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
-    assert (tmp_path / "a" / "images" / "000000.png").read_bytes() != (tmp_path / "c" / "images" / "000000.png").read_bytes()
+    assert (tmp_path / "a" / "images" / "000000.png").read_bytes() != (
+        tmp_path / "c" / "images" / "000000.png"
+    ).read_bytes()
 
 
 def test_ground_truth_reaches_long_range_and_preview_exists(hdl_seq):

@@ -1,7 +1,6 @@
 """The sweep's motion for deskewing: read from the two images where the last step is wrong (a turn's
 start), the last step kept where it is right, and the first two scans' own motion before any step."""
 
-
 import numpy as np
 import pytest
 
@@ -22,7 +21,9 @@ def _deg(R: np.ndarray) -> float:
 def turning(tmp_path_factory) -> object:
     """A city loop at 80 km/h: it starts in a 90-degree turn, about 13 degrees of yaw a frame."""
     out = tmp_path_factory.mktemp("turn") / "seq"
-    simulate(SimulateConfig(scenario="city_loop", lidar="vlp16", frames=4, seed=3001, speed_kmh=80.0), out, progress=False)
+    simulate(
+        SimulateConfig(scenario="city_loop", lidar="vlp16", frames=4, seed=3001, speed_kmh=80.0), out, progress=False
+    )
     return open_sequence(out)
 
 
@@ -62,6 +63,7 @@ def test_first_step_from_the_first_two_raw_scans(turning):
     assert first_step(f0.points[:10], f1.points, f0.T_cam_lidar) is None  # too few points: no motion
 
 
+@pytest.mark.slow
 def test_refine_predicts_kiss_icp_with_the_images_motion_only_where_it_overruled_the_last_step(tmp_path, monkeypatch):
     """With a spinning LiDAR KISS-ICP starts from the sweep's motion read from the images only at frames where
     that motion overruled the last step (a turn's start or end); elsewhere it keeps its own prediction, so its
@@ -75,11 +77,17 @@ def test_refine_predicts_kiss_icp_with_the_images_motion_only_where_it_overruled
     from odometry.frontend import FrontEnd
 
     seq_dir = tmp_path / "seq"  # a city loop at 80 km/h that starts in a 90-degree turn and leaves it
-    simulate(SimulateConfig(scenario="city_loop", lidar="vlp16", frames=10, seed=3001, speed_kmh=80.0), seq_dir, progress=False)
+    simulate(
+        SimulateConfig(scenario="city_loop", lidar="vlp16", frames=10, seed=3001, speed_kmh=80.0),
+        seq_dir,
+        progress=False,
+    )
     seq = open_sequence(seq_dir)
     predicted: list[int] = []
     real = LidarOdometry._register_predicted
-    monkeypatch.setattr(LidarOdometry, "_register_predicted", lambda self, *a: predicted.append(self.frames) or real(self, *a))
+    monkeypatch.setattr(
+        LidarOdometry, "_register_predicted", lambda self, *a: predicted.append(self.frames) or real(self, *a)
+    )
 
     def icp_poses(name: str) -> dict[int, np.ndarray]:
         run_refine(seq, RefineConfig(input="full"), tmp_path / name, progress=False)

@@ -13,10 +13,18 @@ from leovr.errors import DataError
 from leovr.sim.dataset import Recipe, make_dataset
 
 
+@pytest.mark.slow
 def test_train_checkpoints_resume_and_sigma_phase(tmp_path):
     root = make_dataset(Recipe("t", {"train": 1, "val": 1}, ("mid40",), ("day",), 3), tmp_path / "data", progress=False)
-    cfg = TrainConfig(dataset=str(root), epochs=2, sigma_epochs=1, batch_size=2, lr=1e-3,
-                      channels=[8, 8, 16, 16, 16], blocks=[1, 1, 1, 1])
+    cfg = TrainConfig(
+        dataset=str(root),
+        epochs=2,
+        sigma_epochs=1,
+        batch_size=2,
+        lr=1e-3,
+        channels=[8, 8, 16, 16, 16],
+        blocks=[1, 1, 1, 1],
+    )
     out = tmp_path / "run"
     train_supervised(cfg.model_copy(update={"epochs": 1, "sigma_epochs": 0}), out, progress=False)
     first = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
@@ -34,6 +42,7 @@ def test_train_checkpoints_resume_and_sigma_phase(tmp_path):
     assert (out / "best.pt").is_file()
 
 
+@pytest.mark.slow
 def test_fine_tuning_starts_from_init_checkpoint_and_rejects_other_networks(tmp_path):
     root = make_dataset(Recipe("t", {"train": 1, "val": 1}, ("mid40",), ("day",), 2), tmp_path / "data", progress=False)
     small = dict(dataset=str(root), epochs=1, sigma_epochs=0, batch_size=2, lr=1e-3, blocks=[1, 1, 1, 1])

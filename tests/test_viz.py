@@ -31,6 +31,7 @@ def _read(path, timed=None):
     return entities, frames
 
 
+@pytest.mark.slow
 def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
     simulate(SimulateConfig(lidar="mid40", frames=4, seed=7), tmp_path / "seq", progress=False)
     run_refine(open_sequence(tmp_path / "seq"), RefineConfig(input="full"), tmp_path / "run", progress=False)
@@ -45,11 +46,27 @@ def test_refine_run_recording_has_trajectories_depth_and_every_frame(tmp_path):
     assert "frame" not in columns["/world/map"] and any("Mesh3D" in c for c in columns["/world/map"])
     assert any("EncodedImage" in c for c in columns["/world/camera/image/rgb"])  # JPEG, not raw pixels
     assert any("DepthImage" in c for c in columns["/world/camera/image/error"])  # metres, not RGB
-    for e in ("/world/trajectory/ground_truth", "/world/trajectory/leovr", "/world/trajectory/kiss_icp", "/world/landmarks",
-              "/world/camera", "/world/camera/image", "/world/camera/image/rgb", "/world/camera/image/depth_generator",
-              "/world/camera/image/depth_refined", "/world/camera/image/error", "/world/depth_cloud", "/world/lidar",
-              "/world/loops", "/metrics/mae_m/refined", "/metrics/mae_m/generator", "/metrics/time_ms/graph_ms", "/metrics/time_ms/wall_ms",
-              "/metrics/landmarks_last_seen", "/metrics/loop_closed"):
+    for e in (
+        "/world/trajectory/ground_truth",
+        "/world/trajectory/leovr",
+        "/world/trajectory/kiss_icp",
+        "/world/landmarks",
+        "/world/camera",
+        "/world/camera/image",
+        "/world/camera/image/rgb",
+        "/world/camera/image/depth_generator",
+        "/world/camera/image/depth_refined",
+        "/world/camera/image/error",
+        "/world/depth_cloud",
+        "/world/lidar",
+        "/world/loops",
+        "/metrics/mae_m/refined",
+        "/metrics/mae_m/generator",
+        "/metrics/time_ms/graph_ms",
+        "/metrics/time_ms/wall_ms",
+        "/metrics/landmarks_last_seen",
+        "/metrics/loop_closed",
+    ):
         assert e in entities, e
     assert frames == {0, 1, 2, 3}
     assert not (tmp_path / "r.rrd.part").exists()

@@ -54,8 +54,10 @@ def main() -> None:
     state = torch.load(path, map_location="cpu", weights_only=False)
     state["int8_ranges"] = ranges
     atomic_write(path, lambda tmp: torch.save(state, tmp))
-    print(f"{path}: int8 ranges of {len(ranges['data'])} tensors from {len(recorder.feeds)} frames of "
-          f"{len(pick)} training sequences ({time.time() - t0:.0f} s)")
+    print(
+        f"{path}: int8 ranges of {len(ranges['data'])} tensors from {len(recorder.feeds)} frames of "
+        f"{len(pick)} training sequences ({time.time() - t0:.0f} s)"
+    )
 
 
 if __name__ == "__main__":

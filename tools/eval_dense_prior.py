@@ -59,7 +59,9 @@ def main() -> None:
             err["nearest fill"].append(np.abs(nearest_fill(kept)[rows, cols] - truth))
         parts = [f"{name} MAE {np.concatenate(e).mean():.4f} m" for name, e in err.items()]
         times = [f"{name} {1000 * s / len(frames):.0f} ms" for name, s in secs.items()]
-        print(f"{clip.name} ({len(frames)} frames): " + ", ".join(parts) + "; prior time per frame: " + ", ".join(times))
+        print(
+            f"{clip.name} ({len(frames)} frames): " + ", ".join(parts) + "; prior time per frame: " + ", ".join(times)
+        )
 
 
 if __name__ == "__main__":

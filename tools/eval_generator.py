@@ -31,7 +31,9 @@ def main() -> None:
     ap.add_argument("--checkpoint", type=Path, default=shipped_checkpoint())
     args = ap.parse_args()
     model = load_generator(args.checkpoint)
-    samples = DepthSamples(split_sequences(args.dataset, "val"), max_frames=args.frames, seed=args.seed, random_input=False)
+    samples = DepthSamples(
+        split_sequences(args.dataset, "val"), max_frames=args.frames, seed=args.seed, random_input=False
+    )
     methods = {
         "nearest": lambda img, sp: nearest_fill(sp),
         "ipbasic": lambda img, sp: ipbasic(sp),
@@ -54,8 +56,14 @@ def main() -> None:
             d = fn(img, sp)
             secs[m] += time.perf_counter() - t0
             err[m] += float(np.abs(np.where(valid, d, 0) - gt)[valid].sum())  # empty predictions count in full
-    out = {m: {"mae_m": err[m] / n, "ms_per_frame": 1000 * secs[m] / len(samples),
-               "time_vs_ipbasic": secs[m] / secs["ipbasic"]} for m in methods}
+    out = {
+        m: {
+            "mae_m": err[m] / n,
+            "ms_per_frame": 1000 * secs[m] / len(samples),
+            "time_vs_ipbasic": secs[m] / secs["ipbasic"],
+        }
+        for m in methods
+    }
     print(json.dumps({"frames": len(samples), "pixels": n, "results": out}, indent=2))
 
 

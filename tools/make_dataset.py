@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Generate the simulator dataset splits (see docs/datasets.md).
 
-    .venv/bin/python tools/make_dataset.py [--recipe default|tiny|traffic] [--root DIR]
+.venv/bin/python tools/make_dataset.py [--recipe default|tiny|traffic] [--root DIR]
 """
 
 from __future__ import annotations

@@ -51,11 +51,15 @@ def main() -> None:
     for name in "BC":
         X = a.work / name
         pose = np.abs(np.loadtxt(A / "poses_kitti.txt") - np.loadtxt(X / "poses_kitti.txt")).max()
-        depth = max(np.abs(read_run_depth(A, "depth", i) - read_run_depth(X, "depth", i)).max() for i in range(a.frames))
+        depth = max(
+            np.abs(read_run_depth(A, "depth", i) - read_run_depth(X, "depth", i)).max() for i in range(a.frames)
+        )
         la, lx = np.load(A / "landmarks.npy"), np.load(X / "landmarks.npy")
         timed = json.loads((X / "timing.json").read_text())["frames_timed"]
-        print(f"{name} vs A: poses max {pose:.1e} m, refined depth max {depth:.3f} m, "
-              f"landmarks {len(lx)} (A {len(la)}), frames timed {timed}")
+        print(
+            f"{name} vs A: poses max {pose:.1e} m, refined depth max {depth:.3f} m, "
+            f"landmarks {len(lx)} (A {len(la)}), frames timed {timed}"
+        )
 
 
 if __name__ == "__main__":

@@ -30,16 +30,27 @@ def main() -> None:
     a = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
-    server = subprocess.Popen([a.rerun, "--serve-web", "--bind", "127.0.0.1", "--port", "9877",
-                               "--web-viewer-port", "9091", a.rrd],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    server = subprocess.Popen(
+        [a.rerun, "--serve-web", "--bind", "127.0.0.1", "--port", "9877", "--web-viewer-port", "9091", a.rrd],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     url = "http://127.0.0.1:9091/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9877%2Fproxy&renderer=webgl"
     try:
         time.sleep(3)
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=shutil.which("chromium"), headless=True,
-                                        args=["--no-sandbox", "--use-gl=angle", "--use-angle=swiftshader",
-                                              "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"])
+            browser = p.chromium.launch(
+                executable_path=shutil.which("chromium"),
+                headless=True,
+                args=[
+                    "--no-sandbox",
+                    "--use-gl=angle",
+                    "--use-angle=swiftshader",
+                    "--enable-unsafe-swiftshader",
+                    "--ignore-gpu-blocklist",
+                ],
+            )
             page = browser.new_page(viewport={"width": 1600, "height": 1000})
             page.goto(url)
             time.sleep(a.wait)

@@ -31,9 +31,13 @@ def main() -> None:
         shipped["int8_ranges"] = state["int8_ranges"]
     atomic_write(out, lambda tmp: torch.save(shipped, tmp))
     log = args.best.parent / "log.jsonl"
-    meta = {"trained_with": args.command, "config": state.get("config"), "epoch": state.get("epoch"),
-            "val_mae_m": state.get("val_mae_m"),
-            "log": [json.loads(x) for x in log.read_text().splitlines()] if log.is_file() else None}
+    meta = {
+        "trained_with": args.command,
+        "config": state.get("config"),
+        "epoch": state.get("epoch"),
+        "val_mae_m": state.get("val_mae_m"),
+        "log": [json.loads(x) for x in log.read_text().splitlines()] if log.is_file() else None,
+    }
     write_text(out.with_suffix(".json"), json.dumps(meta, indent=2) + "\n")
     print(f"{out} ({out.stat().st_size / 1e6:.1f} MB)")
     if "int8_ranges" not in shipped:  # the default runtime needs it; without it the network runs in floating point

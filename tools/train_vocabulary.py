@@ -46,10 +46,19 @@ def main() -> None:
     t0 = time.time()
     voc = Vocabulary.train(desc, args.k, args.levels, seed=0, docs=docs)
     voc.save(args.out)
-    note = {"command": "tools/train_vocabulary.py " + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k not in ("out", "with_real"))
-            + (" --with-real" if args.with_real else ""), "real_clips_seen": bool(args.with_real),
-            "sources": [str(p) for p in paths], "images": len(docs), "descriptors": int(len(desc)),
-            "k": args.k, "levels": args.levels, "words": voc.words, "train_s": round(time.time() - t0, 1)}
+    note = {
+        "command": "tools/train_vocabulary.py "
+        + " ".join(f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k not in ("out", "with_real"))
+        + (" --with-real" if args.with_real else ""),
+        "real_clips_seen": bool(args.with_real),
+        "sources": [str(p) for p in paths],
+        "images": len(docs),
+        "descriptors": int(len(desc)),
+        "k": args.k,
+        "levels": args.levels,
+        "words": voc.words,
+        "train_s": round(time.time() - t0, 1),
+    }
     write_text(args.out.with_suffix(".json"), json.dumps(note, indent=2) + "\n")
     print(json.dumps(note, indent=2))
 

@@ -24,8 +24,11 @@ def run_batch_bench(out: Path, cfg: LeovrConfig, progress: bool = True) -> dict:
     for n in range(bcfg.sequences):
         d = drives / f"drive{n}"
         if not (d / "sequence.yaml").is_file():
-            simulate(SimulateConfig(scenario="city_loop", lidar=bcfg.lidar, frames=bcfg.frames, seed=bcfg.seed + n), d,
-                     progress=False)
+            simulate(
+                SimulateConfig(scenario="city_loop", lidar=bcfg.lidar, frames=bcfg.frames, seed=bcfg.seed + n),
+                d,
+                progress=False,
+            )
     items = read_batch(drives)
     wall: dict[str, float] = {}
     task_s: dict[str, float] = {}
@@ -56,8 +59,13 @@ def run_batch_bench(out: Path, cfg: LeovrConfig, progress: bool = True) -> dict:
         "ceiling_speedup": round(2.0 * task_s["1"] / task_s["2"], 3),
         "fixed_s": {"1": round(wall["1"] - task_s["1"], 2), "2": round(wall["2"] - task_s["2"] / 2, 2)},
         "frames_per_core_hour": round(frames * 3600.0 / (2 * wall["2"]), 1),  # 2 workers, one core each
-        "settings": {"lidar": bcfg.lidar, "frames_per_sequence": bcfg.frames, "seed": bcfg.seed,
-                     "cpus_per_task": 1, "refine": "defaults (configs/default.yaml)"},
+        "settings": {
+            "lidar": bcfg.lidar,
+            "frames_per_sequence": bcfg.frames,
+            "seed": bcfg.seed,
+            "cpus_per_task": 1,
+            "refine": "defaults (configs/default.yaml)",
+        },
         "target_speedup": bcfg.target_speedup,
         "targets_met": {"speedup": bool(speedup >= bcfg.target_speedup)},
     }

@@ -18,7 +18,9 @@ DEPTH_KEYS = ("mae_m", "rmse_m", "absrel", "delta1", "imae_per_km", "irmse_per_k
 def depth_entry(metrics: dict) -> dict:
     """The benchmark contract's per-method record: headline keys plus per-bin metrics."""
     entry = {k: metrics.get(k) for k in DEPTH_KEYS}
-    entry["bins"] = {b: {k: v.get(k) for k in ("mae_m", "rmse_m", "absrel", "delta1", "n")} for b, v in metrics["bins"].items()}
+    entry["bins"] = {
+        b: {k: v.get(k) for k in ("mae_m", "rmse_m", "absrel", "delta1", "n")} for b, v in metrics["bins"].items()
+    }
     return entry
 
 
@@ -44,7 +46,11 @@ def write_bench(out: Path, name: str, body: dict, started: float, argv: list[str
         "benchmark": name,
         "leovr_version": __version__,
         "command": " ".join(argv if argv is not None else sys.argv),
-        "machine": {"platform": platform.platform(), "python": platform.python_version(), "processor": platform.processor()},
+        "machine": {
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "processor": platform.processor(),
+        },
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "commit": git_commit(),
         "duration_s": round(time.time() - started, 2),

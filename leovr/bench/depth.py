@@ -46,8 +46,9 @@ class MethodScores:
         self.sigma: list[np.ndarray] = []
         self.bins = bins
 
-    def add(self, pred: np.ndarray, gt: np.ndarray, seconds: float, light: str | None,
-            log_sigma: np.ndarray | None = None) -> None:
+    def add(
+        self, pred: np.ndarray, gt: np.ndarray, seconds: float, light: str | None, log_sigma: np.ndarray | None = None
+    ) -> None:
         self.acc.add(pred, gt)
         if light is not None:
             self.by_light.setdefault(light, DepthMetricAccumulator(self.bins)).add(pred, gt)
@@ -60,8 +61,10 @@ class MethodScores:
     def entry(self, seed: int) -> dict:
         e = depth_entry({**self.acc.result(), "ms_per_frame": 1000.0 * float(np.mean(self.seconds))})
         if self.by_light:
-            e["by_light"] = {k: {m: v for m, v in a.result().items() if m in ("mae_m", "rmse_m", "n")}
-                             for k, a in sorted(self.by_light.items())}
+            e["by_light"] = {
+                k: {m: v for m, v in a.result().items() if m in ("mae_m", "rmse_m", "n")}
+                for k, a in sorted(self.by_light.items())
+            }
         if self.err:
             err, sig = np.concatenate(self.err), np.concatenate(self.sigma)
             if err.size > SPEARMAN_SAMPLES:
@@ -72,12 +75,19 @@ class MethodScores:
         return e
 
 
-def score_sequences(seqs: list[tuple[Sequence, str | None]], input_name: str, cfg: BenchDepthConfig,
-                    step: int, desc: str, progress: bool = True) -> tuple[dict, str]:
+def score_sequences(
+    seqs: list[tuple[Sequence, str | None]],
+    input_name: str,
+    cfg: BenchDepthConfig,
+    step: int,
+    desc: str,
+    progress: bool = True,
+) -> tuple[dict, str]:
     """Run every method on every `step`-th frame of the sequences; returns results per method and the
     ground-truth note. `seqs` pairs each sequence with its lighting (None when unknown)."""
-    base = CompleteConfig(input=input_name, seed=cfg.seed, checkpoint=cfg.checkpoint,
-                          generator_focal_px=cfg.generator_focal_px)
+    base = CompleteConfig(
+        input=input_name, seed=cfg.seed, checkpoint=cfg.checkpoint, generator_focal_px=cfg.generator_focal_px
+    )
     runners = {}
     for m in cfg.methods:
         mcfg = base.model_copy(update={"method": m})
@@ -125,7 +135,8 @@ def run_depth_bench(out: Path, cfg: BenchDepthConfig, quick: bool = False, progr
         if lidar not in groups:
             raise DataError(root / "manifest.json", f"no {lidar} sequences in the test split")
         results[f"synthetic_{lidar}"], notes["synthetic"] = score_sequences(
-            groups[lidar], "full", cfg, 1 if quick else cfg.synthetic_step, f"synthetic {lidar}", progress)
+            groups[lidar], "full", cfg, 1 if quick else cfg.synthetic_step, f"synthetic {lidar}", progress
+        )
     kitti = None
     if cfg.kitti_inputs:
         from leovr.paths import kitti_raw_dir
@@ -135,14 +146,17 @@ def run_depth_bench(out: Path, cfg: BenchDepthConfig, quick: bool = False, progr
             raise DataError(kitti, "KITTI raw clip not found (set LEOVR_SHARED_DATA or bench_depth.kitti)")
         seq = open_sequence(kitti)
         for inp in cfg.kitti_inputs:
-            results[f"kitti_{inp}"], notes["kitti"] = score_sequences([(seq, None)], inp, cfg, step, f"kitti {inp}",
-                                                                      progress)
+            results[f"kitti_{inp}"], notes["kitti"] = score_sequences(
+                [(seq, None)], inp, cfg, step, f"kitti {inp}", progress
+            )
     summary = {}
     for key, methods in results.items():
         if "generator" in methods and "ipbasic" in methods:
             g, ipb = methods["generator"], methods["ipbasic"]
-            summary[key] = {"generator_mae_vs_ipbasic": g["mae_m"] / ipb["mae_m"],
-                            "generator_time_vs_ipbasic": g["ms_per_frame"] / ipb["ms_per_frame"]}
+            summary[key] = {
+                "generator_mae_vs_ipbasic": g["mae_m"] / ipb["mae_m"],
+                "generator_time_vs_ipbasic": g["ms_per_frame"] / ipb["ms_per_frame"],
+            }
     body = {
         "quick": quick,
         "synthetic_dataset": str(root),

@@ -53,15 +53,28 @@ def loop_truth(run: Path, gt: list[np.ndarray] | None, min_gap: int) -> dict:
         err_m, err_deg, ok = loop_error(np.array(r["T_j_i"]), gt[i], gt[j])
         true += int(ok)
         # each accepted loop's measured relative pose against the truth: how far off a false one is
-        errors.append({"frame": i, "candidate": j, "error_m": round(err_m, 3), "error_deg": round(err_deg, 3), "true": ok})
+        errors.append(
+            {"frame": i, "candidate": j, "error_m": round(err_m, 3), "error_deg": round(err_deg, 3), "true": ok}
+        )
     pos = np.stack([T[:3, 3] for T in gt])
     fwd = np.stack([T[:3, 2] for T in gt])
-    revisit = [i for i in range(len(gt)) if any(
-        np.linalg.norm(pos[i] - pos[j]) < 5.0 and fwd[i] @ fwd[j] > np.cos(np.radians(30)) for j in range(i - min_gap + 1))]
+    revisit = [
+        i
+        for i in range(len(gt))
+        if any(
+            np.linalg.norm(pos[i] - pos[j]) < 5.0 and fwd[i] @ fwd[j] > np.cos(np.radians(30))
+            for j in range(i - min_gap + 1)
+        )
+    ]
     covered = {r["frame"] for r in accepted}
     missed = sum(not any(abs(i - c) <= 5 for c in covered) for i in revisit)
-    out.update(loops_true=true, loops_false=len(accepted) - true, loops_missed=missed, revisit_frames=len(revisit),
-               accepted_errors=errors)
+    out.update(
+        loops_true=true,
+        loops_false=len(accepted) - true,
+        loops_missed=missed,
+        revisit_frames=len(revisit),
+        accepted_errors=errors,
+    )
     return out
 
 
@@ -75,9 +88,11 @@ def ideal_loop_ate(run: Path, gt: list[np.ndarray], odo_cauchy: float) -> float 
     before = json.loads((run / "progress.json").read_text()).get("poses_no_loop") or {}
     indices = sorted(int(k) for k in before)
     at = {i: n for n, i in enumerate(indices)}
-    loops = [(at[r["frame"]], at[r["candidate"]], invert_T(gt[r["candidate"]]) @ gt[r["frame"]])
-             for r in json.loads((run / "loops.json").read_text())["loops"]
-             if r["accepted"] and r["frame"] in at and r["candidate"] in at]
+    loops = [
+        (at[r["frame"]], at[r["candidate"]], invert_T(gt[r["candidate"]]) @ gt[r["frame"]])
+        for r in json.loads((run / "loops.json").read_text())["loops"]
+        if r["accepted"] and r["frame"] in at and r["candidate"] in at
+    ]
     if not loops:
         return None
     poses = np.stack([np.array(before[str(i)]).reshape(4, 4) for i in indices])
@@ -129,12 +144,21 @@ def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progres
                 tuning[f"synthetic_{lidar}_s{seed}"] = lap(lidar, seed)
         raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
         if raw.exists():
-            results["kitti_raw_vlp16"] = one(open_sequence(raw), base.model_copy(update={"input": "vlp16"}), "kitti_raw")
+            results["kitti_raw_vlp16"] = one(
+                open_sequence(raw), base.model_copy(update={"input": "vlp16"}), "kitti_raw"
+            )
         odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
         if odo.exists():
             results["kitti_odometry"] = one(open_sequence(odo), base, "kitti_odometry")
-    body = {"quick": quick, "frames_per_synthetic_sequence": frames, "speed_kmh": cfg.speed_kmh,
-            "loop_min_gap": cfg.loop_min_gap, "seeds": seeds, "results": results,
-            "tuning_seeds": [] if quick else cfg.tuning_seeds, "tuning_results": tuning,
-            "vocabulary": vocabulary_note()}
+    body = {
+        "quick": quick,
+        "frames_per_synthetic_sequence": frames,
+        "speed_kmh": cfg.speed_kmh,
+        "loop_min_gap": cfg.loop_min_gap,
+        "seeds": seeds,
+        "results": results,
+        "tuning_seeds": [] if quick else cfg.tuning_seeds,
+        "tuning_results": tuning,
+        "vocabulary": vocabulary_note(),
+    }
     return write_bench(out, "loop", body, started)

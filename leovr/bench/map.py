@@ -64,10 +64,15 @@ def summary_of(entry: dict) -> dict:
     refined map is better), and completeness against the accumulated cheap returns and the nearest fill."""
     maps = entry["maps"]
     ref, near, acc = maps["refined"], maps["nearest"], maps["accumulated"]
-    ratio = (lambda a, b: None if a is None or not b else round(a / b, 3))
-    return {"accuracy_vs_nearest": ratio(near["accuracy_m"], ref["accuracy_m"]),
-            "completeness_vs_accumulated": ratio(ref["completeness"], acc["completeness"]),
-            "completeness_vs_nearest": ratio(ref["completeness"], near["completeness"])}
+
+    def ratio(a: float | None, b: float | None) -> float | None:
+        return None if a is None or not b else round(a / b, 3)
+
+    return {
+        "accuracy_vs_nearest": ratio(near["accuracy_m"], ref["accuracy_m"]),
+        "completeness_vs_accumulated": ratio(ref["completeness"], acc["completeness"]),
+        "completeness_vs_nearest": ratio(ref["completeness"], near["completeness"]),
+    }
 
 
 def clip_map(seq, n: int, inp: str, cfg: BenchMapConfig, work: Path, progress: bool) -> dict:
@@ -94,21 +99,34 @@ def clip_map(seq, n: int, inp: str, cfg: BenchMapConfig, work: Path, progress: b
         for t, vol in refined.items():
             vol.add(frame.image, map_depth(depth, sigma, vol.s, float(frame.K[0, 0])), frame.K, poses[i])
         t_fuse += (time.perf_counter() - t0) / len(refined)
-        nearest.add(frame.image, map_depth(complete_depth(sample.sparse, "nearest"), None, settings, float(frame.K[0, 0])),
-                    frame.K, poses[i])
+        nearest.add(
+            frame.image,
+            map_depth(complete_depth(sample.sparse, "nearest"), None, settings, float(frame.K[0, 0])),
+            frame.K,
+            poses[i],
+        )
         v, u = np.nonzero((sample.sparse > 0) & (sample.sparse <= cfg.map.max_depth_m))
         cam = back_project(np.stack([u, v], 1).astype(float), sample.sparse[v, u].astype(float), frame.K)
         accumulated.append(transform_points(poses[i], cam))
-    maps = {f"refined_sigma_{'all' if t is None else t}": map_scores(distances_to_mesh(vol.mesh(), truth))
-            for t, vol in refined.items()}
+    maps = {
+        f"refined_sigma_{'all' if t is None else t}": map_scores(distances_to_mesh(vol.mesh(), truth))
+        for t, vol in refined.items()
+    }
     default = cfg.map.sigma_max
     maps["refined"] = maps[f"refined_sigma_{'all' if default is None else default}"]
     maps["nearest"] = map_scores(distances_to_mesh(nearest.mesh(), truth))
     maps["accumulated"] = map_scores(distances_to_points(np.concatenate(accumulated), truth))
     truth_poses = "ground truth (rigidly aligned to the run's)" if seq.has_poses else "run"
-    return {"frames": n, "input": inp, "truth_points": len(truth), "poses": truth_poses,
-            "maps": maps, "seconds_per_frame": round(t_fuse / n, 4), "peak_memory_mb": round(peak_memory_mb(), 1),
-            "blocks": refined[default].blocks}
+    return {
+        "frames": n,
+        "input": inp,
+        "truth_points": len(truth),
+        "poses": truth_poses,
+        "maps": maps,
+        "seconds_per_frame": round(t_fuse / n, 4),
+        "peak_memory_mb": round(peak_memory_mb(), 1),
+        "blocks": refined[default].blocks,
+    }
 
 
 def camera_marks(poses: np.ndarray, reach_m: float = 10.0) -> np.ndarray:

@@ -42,8 +42,18 @@ from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE
 # generator: the shipped generator as it ran in refine (with earlier scans for a cone LiDAR, Mid-40-like);
 # generator_frame: on the frame's own input alone (only where earlier scans were added)
 # nearest / ipbasic_accumulated: the same frames' returns placed with KISS-ICP's poses, then filled (cone LiDAR only)
-METHODS = ("nearest", "ipbasic", "nearest_accumulated", "ipbasic_accumulated", "interp", "generator", "generator_frame",
-           "refined", "adapted", "adapted_refined")
+METHODS = (
+    "nearest",
+    "ipbasic",
+    "nearest_accumulated",
+    "ipbasic_accumulated",
+    "interp",
+    "generator",
+    "generator_frame",
+    "refined",
+    "adapted",
+    "adapted_refined",
+)
 
 
 def prepared_work(work: Path, settings: dict) -> None:
@@ -108,8 +118,12 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     body = {
         "quick": quick,
         "clips": per_clip,
-        "pooled": {"clips": list(per_clip), "results": pooled_results, "summary": summary_of(pooled_results),
-                   "trajectory_vs_kiss_icp": {inp: float(np.mean(r)) for inp, r in trajectory_ratios(per_clip).items()}},
+        "pooled": {
+            "clips": list(per_clip),
+            "results": pooled_results,
+            "summary": summary_of(pooled_results),
+            "trajectory_vs_kiss_icp": {inp: float(np.mean(r)) for inp, r in trajectory_ratios(per_clip).items()},
+        },
         "ground_truth": "; ".join(ground_truth_note(k, completion_config(RefineConfig())) for k in sorted(notes))
         + ("; " + TRUTH_DESKEW_NOTE if "heldout" in notes else ""),
     }
@@ -134,8 +148,18 @@ def trajectory_entry(metrics: dict) -> dict:
     """ATE (whole clip and per stretch of 32 frames), RPE, KITTI's relative errors and the median step ratio of
     leovr and the baselines of one refine run, and leovr's ATE over KISS-ICP's (the better of its two deskew
     settings)."""
-    keys = ("ate_m", "ate_lateral_m", "ate_vertical_m", "ate_forward_m", "ate_per_stretch_m", "rpe_m",
-            "kitti_t_err_pct", "kitti_r_err_deg_per_m", "kitti_segments", "step_ratio_median")
+    keys = (
+        "ate_m",
+        "ate_lateral_m",
+        "ate_vertical_m",
+        "ate_forward_m",
+        "ate_per_stretch_m",
+        "rpe_m",
+        "kitti_t_err_pct",
+        "kitti_r_err_deg_per_m",
+        "kitti_segments",
+        "step_ratio_median",
+    )
     t = {k: {key: v[key] for key in keys if key in v} for k, v in metrics["trajectory"].items()}
     kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
     return t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
@@ -160,12 +184,14 @@ def summary_of(results: dict) -> dict:
         if "nearest_accumulated" in r:  # the fair yardstick where the refinement sees several frames
             summary[key]["refined_vs_nearest_accumulated"] = r["refined"]["mae_m"] / r["nearest_accumulated"]["mae_m"]
         summary[key]["worse_than_nearest_0_20m"] = [
-            m for m in r if (r[m]["bins"].get("0-20") or {}).get("mae_m", 0) > r["nearest"]["bins"]["0-20"]["mae_m"]]
+            m for m in r if (r[m]["bins"].get("0-20") or {}).get("mae_m", 0) > r["nearest"]["bins"]["0-20"]["mae_m"]
+        ]
     return summary
 
 
-def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, work: Path
-               ) -> tuple[dict, dict[str, tuple[dict[int, FrameScore], list[int]]]]:
+def clip_bench(
+    clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, work: Path
+) -> tuple[dict, dict[str, tuple[dict[int, FrameScore], list[int]]]]:
     """One drive: its results and summary per protocol and input, leovr's and KISS-ICP's trajectories where
     it has poses, adaptation minutes; and each protocol's frame scores with the frames it scores (to pool)."""
     seq = open_sequence(clip)
@@ -186,8 +212,14 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
             trajectory[inp] = trajectory_entry(m)
         if cfg.causal:  # live use: every output from its frame and earlier ones (baselines too)
             live: dict[int, FrameScore] = {}
-            mc = run_refine(seq, base.model_copy(update={"causal": True}), work / f"{inp}_causal", resume=True,
-                            progress=progress, collect=live)
+            mc = run_refine(
+                seq,
+                base.model_copy(update={"causal": True}),
+                work / f"{inp}_causal",
+                resume=True,
+                progress=progress,
+                collect=live,
+            )
             results[f"causal_{inp}"] = pooled([(live, list(range(n)))], list(base.bins))
             scored_sets[f"causal_{inp}"] = live, list(range(n))
             if "trajectory" in mc:
@@ -199,29 +231,54 @@ def clip_bench(clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, wo
         for protocol, (adapt_end, scored) in protocols.items():
             end = adapt_end if adapt_end is not None else n
             val_every = AdaptConfig().val_every  # a selection too short to hold a frame out adapts without validation
-            acfg = AdaptConfig(input=inp, end=end, epochs=epochs, init_checkpoint=cfg.checkpoint, seed=cfg.seed,
-                               val_every=val_every if end > val_every // 2 else 0)
+            acfg = AdaptConfig(
+                input=inp,
+                end=end,
+                epochs=epochs,
+                init_checkpoint=cfg.checkpoint,
+                seed=cfg.seed,
+                val_every=val_every if end > val_every // 2 else 0,
+            )
             from selfsup.adapt import adapt
 
             folder = work / f"{inp}_{protocol}_adapt"
             record = adapt([seq], acfg, folder, resume=(folder / "checkpoint_last.pt").is_file(), progress=progress)
             minutes[f"{protocol}_{inp}"] = record["minutes"]
-            blends[f"{protocol}_{inp}"] = {"blend": record.get("blend", 1.0),
-                                           "val_mae_m_by_blend": record.get("val_mae_m_by_blend")}
+            blends[f"{protocol}_{inp}"] = {
+                "blend": record.get("blend", 1.0),
+                "val_mae_m_by_blend": record.get("val_mae_m_by_blend"),
+            }
             adapted: dict[int, FrameScore] = {}
             ck = work / f"{inp}_{protocol}_adapt" / "generator.pt"
-            run_refine(seq, base.model_copy(update={"checkpoint": str(ck)}), work / f"{inp}_{protocol}_refine",
-                       resume=True, progress=progress, collect=adapted)
+            run_refine(
+                seq,
+                base.model_copy(update={"checkpoint": str(ck)}),
+                work / f"{inp}_{protocol}_refine",
+                resume=True,
+                progress=progress,
+                collect=adapted,
+            )
             for i, fs in adapted.items():  # same frames, same input
                 if i in shipped:
                     add_adapted(shipped[i], fs)
             results[f"{protocol}_{inp}"] = pooled([(shipped, scored)], list(base.bins))
             scored_sets[f"{protocol}_{inp}"] = shipped, scored
-    entry = {"path": str(clip), "frames": n, "has_poses": seq.has_poses, "results": results,
-             "summary": summary_of(results), "trajectory": trajectory}
+    entry = {
+        "path": str(clip),
+        "frames": n,
+        "has_poses": seq.has_poses,
+        "results": results,
+        "summary": summary_of(results),
+        "trajectory": trajectory,
+    }
     if minutes:
-        entry |= {"protocols": {"inductive": f"adapt on frames 0-{split - 1}, score frames {split}-{n - 1}",
-                                "transductive": f"adapt on frames 0-{n - 1} (their cheap input only), score all of them"},
-                  "adapt_epochs": epochs, "adapt_minutes": minutes,
-                  "adapt_blend": blends}  # the adapted network's weight against its prior, chosen on validation frames
+        entry |= {
+            "protocols": {
+                "inductive": f"adapt on frames 0-{split - 1}, score frames {split}-{n - 1}",
+                "transductive": f"adapt on frames 0-{n - 1} (their cheap input only), score all of them",
+            },
+            "adapt_epochs": epochs,
+            "adapt_minutes": minutes,
+            "adapt_blend": blends,
+        }  # the adapted network's weight against its prior, chosen on validation frames
     return entry, scored_sets

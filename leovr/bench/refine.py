@@ -1,7 +1,8 @@
 """`leovr bench refine`: IP-Basic, the generator and the refined depth, LeoVR's trajectory against
 KISS-ICP's, the time per stage and a window-length ablation, on simulator test sequences (Mid-40 and
 VLP-16, city loop, straight avenue and the dynamic scenario), every KITTI raw drive under ../shared/data
-(simulated cheap inputs; trajectories where a drive has poses) and the KITTI odometry clip (no LiDAR: ATE after Sim(3) alignment). Every trajectory is
+(simulated cheap inputs; trajectories where a drive has poses) and the KITTI odometry clip (no LiDAR: ATE after Sim(3)
+alignment). Every trajectory is
 scored beside the textbook monocular VO of the same frames (`mono_vo`, Sim(3)-aligned), and every ATE
 carries its alignment scale (1.0 under SE(3); near 1.0 under Sim(3) when the metric scale is right)."""
 
@@ -23,8 +24,15 @@ from leovr.pipeline.refine import TIMED, run_refine
 from leovr.sim.dataset import Recipe, default_root, make_dataset
 
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
-DEPTH_METHODS = ("nearest", "ipbasic", "nearest_accumulated", "ipbasic_accumulated", "generator", "generator_frame",
-                 "refined")  # generator_frame and the accumulated fills: cone LiDARs only
+DEPTH_METHODS = (
+    "nearest",
+    "ipbasic",
+    "nearest_accumulated",
+    "ipbasic_accumulated",
+    "generator",
+    "generator_frame",
+    "refined",
+)  # generator_frame and the accumulated fills: cone LiDARs only
 TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
 
 
@@ -63,36 +71,60 @@ def run_refine_bench(out: Path, cfg: BenchRefineConfig, quick: bool = False, pro
         entries = [e for e in split_entries(root, "test") if e["light"] == "day"]
         for lidar in cfg.synthetic_lidars:
             pool = {m: DepthMetricAccumulator(base.bins) for m in DEPTH_METHODS}
-            runs = [refine(e["path"], base.model_copy(update={"input": "full"}), f"{lidar}_{e['scenario']}", pool)
-                    for e in entries if e["lidar"] == lidar]
-            results[f"synthetic_{lidar}"] = {m: depth_entry({**a.result(), "ms_per_frame": None}) for m, a in pool.items() if not a.empty}
+            runs = [
+                refine(e["path"], base.model_copy(update={"input": "full"}), f"{lidar}_{e['scenario']}", pool)
+                for e in entries
+                if e["lidar"] == lidar
+            ]
+            results[f"synthetic_{lidar}"] = {
+                m: depth_entry({**a.result(), "ms_per_frame": None}) for m, a in pool.items() if not a.empty
+            }
             for m in results[f"synthetic_{lidar}"]:
                 results[f"synthetic_{lidar}"][m]["per_sequence_mae_m"] = {
-                    Path(r["sequence"]).name: r["depth"][m]["mae_m"] for r in runs}
+                    Path(r["sequence"]).name: r["depth"][m]["mae_m"] for r in runs
+                }
             trajectory[f"synthetic_{lidar}"] = _traj(runs)
         ablate = next(e for e in entries if e["lidar"] == "mid40")
         for w in cfg.windows:
             m = refine(ablate["path"], base.model_copy(update={"input": "full", "window": w}), f"window{w}")
-            windows[str(w)] = {"refined_mae_m": m["depth"]["refined"]["mae_m"], "generator_mae_m": m["depth"]["generator"]["mae_m"],
-                               "ate_m": m["trajectory"]["leovr"]["ate_m"], "graph_ms": m["timing"]["graph_ms"]}
+            windows[str(w)] = {
+                "refined_mae_m": m["depth"]["refined"]["mae_m"],
+                "generator_mae_m": m["depth"]["generator"]["mae_m"],
+                "ate_m": m["trajectory"]["leovr"]["ate_m"],
+                "graph_ms": m["timing"]["graph_ms"],
+            }
         shared = shared_data_dir().resolve()
         clips = [Path(c) for c in cfg.kitti_raw_clips] if cfg.kitti_raw_clips is not None else kitti_raw_clips()
         for raw in [c for c in clips if c.exists()]:
             development[raw.name] = shared in raw.resolve().parents
             for inp in cfg.kitti_inputs:
                 m = refine(raw, base.model_copy(update={"input": inp}), f"{raw.name}_{inp}")
-                results[f"{raw.name}_{inp}"] = {k: depth_entry({**v, "ms_per_frame": None}) for k, v in m["depth"].items()}
+                results[f"{raw.name}_{inp}"] = {
+                    k: depth_entry({**v, "ms_per_frame": None}) for k, v in m["depth"].items()
+                }
                 if "trajectory" in m:  # a drive with poses: leovr and KISS-ICP on the same input
-                    trajectory[f"{raw.name}_{inp}"] = {k: {kk: v[kk] for kk in TRAJ_KEYS} for k, v in m["trajectory"].items()}
+                    trajectory[f"{raw.name}_{inp}"] = {
+                        k: {kk: v[kk] for kk in TRAJ_KEYS} for k, v in m["trajectory"].items()
+                    }
         odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
         if odo.exists():
             m = refine(odo, base, "kitti_odometry")
-            trajectory["kitti_odometry"] = {k: {kk: m["trajectory"][k][kk] for kk in TRAJ_KEYS}
-                                            for k in ("mono_vo", "leovr") if k in m["trajectory"]}
+            trajectory["kitti_odometry"] = {
+                k: {kk: m["trajectory"][k][kk] for kk in TRAJ_KEYS}
+                for k in ("mono_vo", "leovr")
+                if k in m["trajectory"]
+            }
     for k in TIMED:
         timing[k] = float(np.mean([r["timing"][k] for r in all_runs]))
-    body = {"quick": quick, "synthetic_dataset": str(root), "frames_per_sequence": frames, "window": cfg.window,
-            "results": results, "trajectory": trajectory, "timing": timing, "kitti_raw_development": development,
-            "window_ablation": {"sequence": str(ablate["path"]), "results": windows}}
+    body = {
+        "quick": quick,
+        "synthetic_dataset": str(root),
+        "frames_per_sequence": frames,
+        "window": cfg.window,
+        "results": results,
+        "trajectory": trajectory,
+        "timing": timing,
+        "kitti_raw_development": development,
+        "window_ablation": {"sequence": str(ablate["path"]), "results": windows},
+    }
     return write_bench(out, "refine", body, started)
-

@@ -41,11 +41,14 @@ from selfsup.trainer import config_changes, train_selfsup
 
 NO_MASKS = {"flow_mask": False, "rigid_mask": False, "depth_mask": False, "auto_mask": False}  # the "no mask" variants
 # --quick: one short sequence per scenario in each split, rendered on demand (a fresh clone has no dataset)
-QUICK_RECIPE = Recipe("selfsup_quick", {"train": 3, "test": 3}, ("mid40",), ("day",), 12, ("dynamic", "city_loop", "traffic"))
+QUICK_RECIPE = Recipe(
+    "selfsup_quick", {"train": 3, "test": 3}, ("mid40",), ("day",), 12, ("dynamic", "city_loop", "traffic")
+)
 
 
-def pick_sequences(root: Path, split: str, cfg: BenchSelfSupConfig, per_scenario: int,
-                   scenarios: list[str] | None = None) -> list[Path]:
+def pick_sequences(
+    root: Path, split: str, cfg: BenchSelfSupConfig, per_scenario: int, scenarios: list[str] | None = None
+) -> list[Path]:
     """`per_scenario` sequences of each scenario with the bench's LiDAR, day before night, by seed."""
     entries = [e for e in split_entries(root, split) if e["lidar"] == cfg.lidar]
     out = []
@@ -56,7 +59,9 @@ def pick_sequences(root: Path, split: str, cfg: BenchSelfSupConfig, per_scenario
 
 
 @torch.no_grad()
-def score(model: DepthGenerator, seqs: list[Sequence], input_name: str, focal_px: float | None, bins: list[float]) -> dict:
+def score(
+    model: DepthGenerator, seqs: list[Sequence], input_name: str, focal_px: float | None, bins: list[float]
+) -> dict:
     """Depth metrics of a model over every frame of the sequences (dense ground truth, else held-out beams)."""
     model.eval()
     acc = DepthMetricAccumulator(bins)
@@ -95,8 +100,13 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
         for f in train_frames(seq, cfg):
             gt = seq[f.index].depth
             gt = cv2.resize(gt, (f.sparse.shape[1], f.sparse.shape[0]), interpolation=cv2.INTER_NEAREST)
-            samples.append((torch.from_numpy(f.image).permute(2, 0, 1).float() / 255.0,
-                            torch.from_numpy(f.sparse)[None], torch.from_numpy(gt.astype(np.float32))[None]))
+            samples.append(
+                (
+                    torch.from_numpy(f.image).permute(2, 0, 1).float() / 255.0,
+                    torch.from_numpy(f.sparse)[None],
+                    torch.from_numpy(gt.astype(np.float32))[None],
+                )
+            )
     model = DepthGenerator(generator_config(cfg))
     opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
@@ -104,27 +114,51 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
         model.train()
         order = torch.randperm(len(samples), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
         for k in range(0, len(order), cfg.batch_size):
-            img, sp, gt = (torch.stack(x) for x in zip(*(samples[int(j)] for j in order[k:k + cfg.batch_size])))
+            img, sp, gt = (torch.stack(x) for x in zip(*(samples[int(j)] for j in order[k : k + cfg.batch_size])))
             depth, _ = forward_padded(model, img, sp)
             loss = depth_loss(depth, gt, "l1")
             opt.zero_grad()
             loss.backward()
             opt.step()
         sched.step()
-    atomic_write(final, lambda tmp: torch.save({"model": model.state_dict(), "network": generator_config(cfg).__dict__,
-                                                "config": cfg.model_dump(), "mode": "supervised"}, tmp))
+    atomic_write(
+        final,
+        lambda tmp: torch.save(
+            {
+                "model": model.state_dict(),
+                "network": generator_config(cfg).__dict__,
+                "config": cfg.model_dump(),
+                "mode": "supervised",
+            },
+            tmp,
+        ),
+    )
     _minutes(out, (time.time() - t0) / 60.0)
     return final
 
 
 def base_config(cfg: BenchSelfSupConfig, epochs: int, max_frames: int | None = None, **update) -> SelfSupConfig:
     """The bench's self-supervised settings (simulator input, half resolution), with `update` on top."""
-    return SelfSupConfig(epochs=epochs, batch_size=cfg.batch_size, lr=cfg.lr, channels=cfg.channels,
-                         train_focal_px=cfg.train_focal_px, input="full", max_frames=max_frames, **update)
+    return SelfSupConfig(
+        epochs=epochs,
+        batch_size=cfg.batch_size,
+        lr=cfg.lr,
+        channels=cfg.channels,
+        train_focal_px=cfg.train_focal_px,
+        input="full",
+        max_frames=max_frames,
+        **update,
+    )
 
 
-def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bool, share_init: Path | None = None,
-              oracle_masks: bool = False) -> tuple[Path, float]:
+def train_run(
+    cfg: SelfSupConfig,
+    sequences: list[Path],
+    run: Path,
+    progress: bool,
+    share_init: Path | None = None,
+    oracle_masks: bool = False,
+) -> tuple[Path, float]:
     """Self-supervised run (resumed when interrupted); returns (generator.pt, minutes spent on it over
     every invocation, kept in `train_minutes.json`). `oracle_masks`: the bound of `train_selfsup`; keep
     such a run in its own folder (the flag is not part of the config that resuming checks)."""
@@ -139,7 +173,9 @@ def train_run(cfg: SelfSupConfig, sequences: list[Path], run: Path, progress: bo
         elif done.is_file() and state["epoch"] + 1 >= cfg.epochs:
             return done, _minutes(run)
     if share_init is not None and share_init.is_dir() and not (run / "graph" / "init").exists():
-        shutil.copytree(share_init, run / "graph" / "init")  # the initialisation pass uses no network: same for every run
+        shutil.copytree(
+            share_init, run / "graph" / "init"
+        )  # the initialisation pass uses no network: same for every run
     train_selfsup(cfg, sequences, run, run_refine, resume=last.is_file(), progress=progress, oracle_masks=oracle_masks)
     return done, _minutes(run, (time.time() - t0) / 60.0)
 
@@ -182,10 +218,15 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     results: dict = {"train_minutes": {}}
     traffic_body: dict = {}
     if "synthetic" in cfg.parts:
-        results.update(synthetic_runs(cfg, base, train, [shorten(open_sequence(p)) for p in test_paths], test_paths, work,
-                                      progress, bins))
+        results.update(
+            synthetic_runs(
+                cfg, base, train, [shorten(open_sequence(p)) for p in test_paths], test_paths, work, progress, bins
+            )
+        )
     if "traffic" in cfg.parts:
-        results["traffic_only"], traffic_body = traffic_runs(cfg, base, traffic_root, work, quick, shorten, progress, bins)
+        results["traffic_only"], traffic_body = traffic_runs(
+            cfg, base, traffic_root, work, quick, shorten, progress, bins
+        )
         results["mask_quality"] = traffic_body.pop("mask_quality")
         results["mask_quality_refine"] = traffic_body.pop("mask_quality_refine")
         results["train_minutes"].update(traffic_body.pop("train_minutes"))
@@ -193,18 +234,38 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     if "kitti" in cfg.parts and raw.exists():
         synthetic_ck = work / "selfsup" / "generator.pt" if "synthetic" in cfg.parts else None
         results["kitti_raw"] = kitti_cold_start(raw, cfg, base, work, synthetic_ck, quick, progress, bins)
-    body = {"quick": quick, "parts": cfg.parts, "train_sequences": [str(p.relative_to(root)) for p in train],
-            "test_sequences": [str(p.relative_to(root)) for p in test_paths], **traffic_body, "epochs": epochs,
-            "train_focal_px": cfg.train_focal_px, "lr": cfg.lr, "batch_size": cfg.batch_size,
-            "loop_closure_note": LOOP_NOTE, "results": results}
+    body = {
+        "quick": quick,
+        "parts": cfg.parts,
+        "train_sequences": [str(p.relative_to(root)) for p in train],
+        "test_sequences": [str(p.relative_to(root)) for p in test_paths],
+        **traffic_body,
+        "epochs": epochs,
+        "train_focal_px": cfg.train_focal_px,
+        "lr": cfg.lr,
+        "batch_size": cfg.batch_size,
+        "loop_closure_note": LOOP_NOTE,
+        "results": results,
+    }
     return write_bench(out, "selfsup", body, started)
 
 
-def synthetic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, train: list[Path], tests: list[Sequence],
-                   test_paths: list[Path], work: Path, progress: bool, bins: list[float]) -> dict:
+def synthetic_runs(
+    cfg: BenchSelfSupConfig,
+    base: SelfSupConfig,
+    train: list[Path],
+    tests: list[Sequence],
+    test_paths: list[Path],
+    work: Path,
+    progress: bool,
+    bins: list[float],
+) -> dict:
     """dynamic + city_loop: self-supervised (full masks), no masks, no L_f / L_r, supervised reference."""
-    variants = {"selfsup": base, "selfsup_nomask": base.model_copy(update=NO_MASKS),
-                "selfsup_no_lf_lr": base.model_copy(update={"weight_feature": 0.0, "weight_refined": 0.0})}
+    variants = {
+        "selfsup": base,
+        "selfsup_nomask": base.model_copy(update=NO_MASKS),
+        "selfsup_no_lf_lr": base.model_copy(update={"weight_feature": 0.0, "weight_refined": 0.0}),
+    }
     minutes, checkpoints = {}, {}
     for name, vcfg in variants.items():
         share = None if name == "selfsup" else work / "selfsup" / "graph" / "init"
@@ -221,17 +282,29 @@ def synthetic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, train: list[Pat
     results["mask_gain"] = 1.0 - synthetic["selfsup"]["mae_m"] / synthetic["selfsup_nomask"]["mae_m"]
     dyn = [t for t, p in zip(tests, test_paths) if "dynamic" in p.name]
     if dyn:
-        results["dynamic_only"] = {k: score_paths(checkpoints[k], dyn, cfg, bins)["mae_m"] for k in ("selfsup", "selfsup_nomask")}
+        results["dynamic_only"] = {
+            k: score_paths(checkpoints[k], dyn, cfg, bins)["mae_m"] for k in ("selfsup", "selfsup_nomask")
+        }
     return results
 
 
-LOOP_NOTE = ("The pose-quality loop closure (Sec. IV-B) runs in every graph pass but cannot act here: each simulator "
-             "sequence is 40 frames (4 s, about 33 m at 30 km/h) and never revisits a place, and the city loop "
-             "closes only after about 240 m (29 s). leovr bench loop measures loop closure on full laps instead.")
+LOOP_NOTE = (
+    "The pose-quality loop closure (Sec. IV-B) runs in every graph pass but cannot act here: each simulator "
+    "sequence is 40 frames (4 s, about 33 m at 30 km/h) and never revisits a place, and the city loop "
+    "closes only after about 240 m (29 s). leovr bench loop measures loop closure on full laps instead."
+)
 
 
-def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work: Path, quick: bool, shorten,
-                 progress: bool, bins: list[float]) -> tuple[dict, dict]:
+def traffic_runs(
+    cfg: BenchSelfSupConfig,
+    base: SelfSupConfig,
+    root: Path,
+    work: Path,
+    quick: bool,
+    shorten,
+    progress: bool,
+    bins: list[float],
+) -> tuple[dict, dict]:
     """The masks on the `traffic` scenario: the full mask (eq. 19 + rigid-flow test + auto-mask), eq. 19
     alone and no mask, each trained on the traffic training sequences and scored on its test
     sequences; then each mask test scored against the moving masks of the test sequences.
@@ -241,14 +314,18 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
     train = pick_sequences(root, "train", cfg, 1 if quick else cfg.traffic_sequences, ["traffic"])
     test_paths = pick_sequences(root, "test", cfg, 1 if quick else 2, ["traffic"])
     tests = [shorten(open_sequence(p)) for p in test_paths]
-    runs = {"selfsup": base, "selfsup_nomask": base.model_copy(update=NO_MASKS),
-            "selfsup_eq19_only": base.model_copy(update={"rigid_mask": False, "depth_mask": False, "auto_mask": False}),
-            "selfsup_oracle_mask": base.model_copy(update=NO_MASKS)}
+    runs = {
+        "selfsup": base,
+        "selfsup_nomask": base.model_copy(update=NO_MASKS),
+        "selfsup_eq19_only": base.model_copy(update={"rigid_mask": False, "depth_mask": False, "auto_mask": False}),
+        "selfsup_oracle_mask": base.model_copy(update=NO_MASKS),
+    }
     maes, minutes, checkpoints = {}, {}, {}
     for name, vcfg in runs.items():
         share = None if name == "selfsup" else work / "traffic_selfsup" / "graph" / "init"
-        checkpoints[name], minutes[f"traffic_{name}"] = train_run(vcfg, train, work / f"traffic_{name}", progress, share,
-                                                                  oracle_masks=name == "selfsup_oracle_mask")
+        checkpoints[name], minutes[f"traffic_{name}"] = train_run(
+            vcfg, train, work / f"traffic_{name}", progress, share, oracle_masks=name == "selfsup_oracle_mask"
+        )
         maes[name] = score_paths(checkpoints[name], tests, cfg, bins)["mae_m"]
     maes["mask_gain"] = 1.0 - maes["selfsup"] / maes["selfsup_nomask"]
     maes["eq19_gain"] = 1.0 - maes["selfsup_eq19_only"] / maes["selfsup_nomask"]
@@ -256,32 +333,66 @@ def traffic_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, root: Path, work:
     model = load_generator(checkpoints["selfsup"])
     quality = {}
     for stage, ck in (("mask_quality", None), ("mask_quality_refine", checkpoints["selfsup"])):
-        per_seq = [score_masks(t, base, work / stage / p.name, run_refine, model, checkpoint=ck) for t, p in zip(tests, test_paths)]
-        quality[stage] = {v: {k: float(np.mean([q["variants"][v][k] for q in per_seq])) for k in ("precision", "recall", "dropped_share")}
-                          for v in VARIANTS}
+        per_seq = [
+            score_masks(t, base, work / stage / p.name, run_refine, model, checkpoint=ck)
+            for t, p in zip(tests, test_paths)
+        ]
+        quality[stage] = {
+            v: {
+                k: float(np.mean([q["variants"][v][k] for q in per_seq]))
+                for k in ("precision", "recall", "dropped_share")
+            }
+            for v in VARIANTS
+        }
         for key in ("moving_share", "moving_with_depth"):
             quality[stage][key] = float(np.mean([q[key] for q in per_seq]))
-    body = {"traffic_train_sequences": [str(p.relative_to(root)) for p in train],
-            "traffic_test_sequences": [str(p.relative_to(root)) for p in test_paths],
-            "train_minutes": {k: round(v, 2) for k, v in minutes.items()}, **quality}
+    body = {
+        "traffic_train_sequences": [str(p.relative_to(root)) for p in train],
+        "traffic_test_sequences": [str(p.relative_to(root)) for p in test_paths],
+        "train_minutes": {k: round(v, 2) for k, v in minutes.items()},
+        **quality,
+    }
     return maes, body
 
 
-def kitti_cold_start(raw: Path, cfg: BenchSelfSupConfig, base: SelfSupConfig, work: Path, synthetic_ck: Path | None,
-                     quick: bool, progress: bool, bins: list[float]) -> dict:
+def kitti_cold_start(
+    raw: Path,
+    cfg: BenchSelfSupConfig,
+    base: SelfSupConfig,
+    work: Path,
+    synthetic_ck: Path | None,
+    quick: bool,
+    progress: bool,
+    bins: list[float],
+) -> dict:
     """Cold start on the clip's first frames; every model scored on held-out beams of the last frames."""
     seq = open_sequence(raw)
     n_train = min(cfg.kitti_train_frames, len(seq) - cfg.kitti_test_frames)
     epochs = cfg.quick_epochs if quick else cfg.kitti_epochs
     # the learning rate halves four times over the run, as in the paper's 24 epochs halved every 6
-    kcfg = base.model_copy(update={"input": cfg.kitti_input, "max_frames": n_train, "epochs": epochs,
-                                   "refresh_every": cfg.kitti_refresh_every, "lr_step_epochs": max(1, epochs // 4)})
+    kcfg = base.model_copy(
+        update={
+            "input": cfg.kitti_input,
+            "max_frames": n_train,
+            "epochs": epochs,
+            "refresh_every": cfg.kitti_refresh_every,
+            "lr_step_epochs": max(1, epochs // 4),
+        }
+    )
     test = [SequenceView(seq, list(range(len(seq) - cfg.kitti_test_frames, len(seq))))]
     ck, minutes = train_run(kcfg, [raw], work / "kitti_cold_start", progress)
-    models = {"untrained": (untrained_generator(kcfg), cfg.train_focal_px),
-              **({"synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px)} if synthetic_ck else {}),
-              "shipped_supervised_synthetic": (load_generator(shipped_checkpoint()), 260.0),
-              "kitti_cold_start": (load_generator(ck), cfg.train_focal_px)}
+    models = {
+        "untrained": (untrained_generator(kcfg), cfg.train_focal_px),
+        **({"synthetic_selfsup": (load_generator(synthetic_ck), cfg.train_focal_px)} if synthetic_ck else {}),
+        "shipped_supervised_synthetic": (load_generator(shipped_checkpoint()), 260.0),
+        "kitti_cold_start": (load_generator(ck), cfg.train_focal_px),
+    }
     out = {name: score(m, test, cfg.kitti_input, focal, bins) for name, (m, focal) in models.items()}
-    return {"train_frames": n_train, "test_frames": cfg.kitti_test_frames, "input": cfg.kitti_input,
-            "epochs": epochs, "train_minutes": round(minutes, 2), "held_out": out}
+    return {
+        "train_frames": n_train,
+        "test_frames": cfg.kitti_test_frames,
+        "input": cfg.kitti_input,
+        "epochs": epochs,
+        "train_minutes": round(minutes, 2),
+        "held_out": out,
+    }

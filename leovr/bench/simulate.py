@@ -21,9 +21,19 @@ def run_simulate_bench(out: Path, cfg: BenchSimulateConfig, progress: bool = Tru
             t0 = time.perf_counter()
             r = simulate(sim, Path(tmp) / "seq", progress=progress)
             wall = time.perf_counter() - t0
-        per[lidar] = {"frames_per_s": r["frames_per_s"], "render_s_per_frame": r["s_per_frame"],
-                      "wall_s_per_frame_with_writing": wall / cfg.frames, "frames": cfg.frames}
+        per[lidar] = {
+            "frames_per_s": r["frames_per_s"],
+            "render_s_per_frame": r["s_per_frame"],
+            "wall_s_per_frame_with_writing": wall / cfg.frames,
+            "frames": cfg.frames,
+        }
     first = cfg.lidars[0]
-    body = {"frames_per_s": per[first]["frames_per_s"], "width": sim.width, "height": sim.height, "lidar": first,
-            "scenario": sim.scenario, "per_lidar": per}
+    body = {
+        "frames_per_s": per[first]["frames_per_s"],
+        "width": sim.width,
+        "height": sim.height,
+        "lidar": first,
+        "scenario": sim.scenario,
+        "per_lidar": per,
+    }
     return write_bench(out, "simulate", body, started)

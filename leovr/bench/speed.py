@@ -48,7 +48,7 @@ def growth(series: list[float]) -> float | None:
     if n < 8:
         return None
     q = n // 4
-    return float(np.median(series[-q:]) / max(np.median(series[q:2 * q]), 1e-9))
+    return float(np.median(series[-q:]) / max(np.median(series[q : 2 * q]), 1e-9))
 
 
 def speed_record(seq, rcfg: RefineConfig, run: Path, progress: bool) -> dict:
@@ -61,7 +61,10 @@ def speed_record(seq, rcfg: RefineConfig, run: Path, progress: bool) -> dict:
     frames = timing["series"]["frame"]
     median_total = stats["total_ms"]["median"]
     rec = {
-        "frames": len(frames), "width": int(seq[0].shape[1]), "height": int(seq[0].shape[0]), "input": rcfg.input,
+        "frames": len(frames),
+        "width": int(seq[0].shape[1]),
+        "height": int(seq[0].shape[0]),
+        "input": rcfg.input,
         "ms_per_frame": stats,
         "fps_stages": round(1000.0 / median_total, 3),  # from the median of the stage sum (a sequential run)
         "fps_frame_wall": round(1000.0 / stats[WALL]["median"], 3),  # the generator overlapping the graph
@@ -74,7 +77,9 @@ def speed_record(seq, rcfg: RefineConfig, run: Path, progress: bool) -> dict:
     rec["total_over_ipbasic"] = round(median_total / max(rec["ipbasic_ms_per_frame"], 1e-9), 1)
     rec["wall_over_ipbasic"] = round(stats[WALL]["median"] / max(rec["ipbasic_ms_per_frame"], 1e-9), 1)
     depth = metrics.get("depth", {})
-    rec["mae_m"] = {m: round(depth[m]["mae_m"], 4) for m in ("nearest", "generator", "generator_frame", "refined") if m in depth}
+    rec["mae_m"] = {
+        m: round(depth[m]["mae_m"], 4) for m in ("nearest", "generator", "generator_frame", "refined") if m in depth
+    }
     traj = metrics.get("trajectory", {})
     rec["ate_m"] = {m: round(t["ate_m"], 4) for m, t in traj.items()}
     return rec
@@ -108,6 +113,13 @@ def run_speed_bench(out: Path, cfg: BenchSpeedConfig, quick: bool = False, progr
         limit = cfg.target_ms_real.get(r["input"]) if k != key else None
         if limit is not None:
             targets[f"{k}_wall_median_ms<={limit:g}"] = wall[k] <= limit
-    body = {"quick": quick, "scenario": cfg.scenario, "seed": cfg.seed, "generator_runtime": cfg.generator_runtime,
-            "clips": [str(c) for c in clips], "results": results, "targets_met": targets}
+    body = {
+        "quick": quick,
+        "scenario": cfg.scenario,
+        "seed": cfg.seed,
+        "generator_runtime": cfg.generator_runtime,
+        "clips": [str(c) for c in clips],
+        "results": results,
+        "targets_met": targets,
+    }
     return write_bench(out, "speed", body, started)

@@ -78,7 +78,7 @@ def _ros1_fields(header: bytes) -> dict[str, bytes]:
     fields, at = {}, 0
     while at < len(header):
         n = _u32(header, at)
-        name, eq, value = header[at + 4: at + 4 + n].partition(b"=")
+        name, eq, value = header[at + 4 : at + 4 + n].partition(b"=")
         if at + 4 + n > len(header) or not eq:
             raise Truncated("a record header is malformed")
         fields[name.decode("latin-1")] = value
@@ -91,7 +91,7 @@ def _ros1_records(buf: bytes) -> Iterator[tuple[dict[str, bytes], int, int]]:
     at = 0
     while at < len(buf):
         hlen = _u32(buf, at)
-        fields = _ros1_fields(buf[at + 4: at + 4 + hlen])
+        fields = _ros1_fields(buf[at + 4 : at + 4 + hlen])
         dlen = _u32(buf, at + 4 + hlen)
         start = at + 8 + hlen
         if start + dlen > len(buf):
@@ -133,7 +133,7 @@ class _Ros1File:
                     raise Truncated("the file ends inside a compressed chunk")
                 raw = self._unpack(data, fields) if len(data) == dlen else data
                 for rec, start, n in _ros1_records(raw):
-                    self._record(rec, raw[start: start + n], (data_at, dlen, compression, start, n), out)
+                    self._record(rec, raw[start : start + n], (data_at, dlen, compression, start, n), out)
                 if len(data) < dlen:
                     raise Truncated("the file ends inside a chunk")
             elif op == 0x07:
@@ -158,8 +158,14 @@ class _Ros1File:
             conn = _u32(fields["conn"])
             if conn not in out.conn_by_file.get(id(self), {}):
                 info = _ros1_fields(data)
-                out.add_connection(self, conn, fields["topic"].decode(), info["type"].decode(),
-                                   info.get("message_definition", b"").decode(), "msg")
+                out.add_connection(
+                    self,
+                    conn,
+                    fields["topic"].decode(),
+                    info["type"].decode(),
+                    info.get("message_definition", b"").decode(),
+                    "msg",
+                )
         elif op == 0x02:
             sec, nsec = struct.unpack("<II", fields["time"])
             out.add_message(self, _u32(fields["conn"]), sec * 1_000_000_000 + nsec, where)
@@ -172,7 +178,7 @@ class _Ros1File:
         if self._chunk is None or self._chunk[0] != data_at:  # chunks hold many messages: keep the last one
             self.f.seek(data_at)
             self._chunk = (data_at, _decompress(self.f.read(dlen), compression.decode()))
-        return self._chunk[1][start: start + n]
+        return self._chunk[1][start : start + n]
 
 
 # -- MCAP -------------------------------------------------------------------------------------------------
@@ -180,7 +186,7 @@ class _Ros1File:
 
 def _string(b: bytes, at: int) -> tuple[str, int]:
     n = _u32(b, at)
-    return b[at + 4: at + 4 + n].decode(), at + 4 + n
+    return b[at + 4 : at + 4 + n].decode(), at + 4 + n
 
 
 def _mcap_records(body: bytes) -> bytes:
@@ -190,7 +196,7 @@ def _mcap_records(body: bytes) -> bytes:
 
     comp, at = _string(body, 28)
     try:
-        return decompress(body[at + 8: at + 8 + _u64(body, at)], comp, _u64(body, 16), _u32(body, 24))
+        return decompress(body[at + 8 : at + 8 + _u64(body, at)], comp, _u64(body, 16), _u32(body, 24))
     except ReaderError as exc:
         raise Truncated(str(exc)) from exc
 
@@ -219,7 +225,7 @@ class _McapFile:
             if op[0] == 0x06:  # chunk: its records, decompressed (an uncompressed one cut off: up to the cut)
                 body = self.f.read(n)
                 comp, at = _string(body, 28)
-                records = body[at + 8: at + 8 + _u64(body, at)]
+                records = body[at + 8 : at + 8 + _u64(body, at)]
                 if comp == "":
                     self._records(records, (), out, file_at=body_at + at + 8)
                 elif len(body) < n:
@@ -242,14 +248,14 @@ class _McapFile:
         at = 0
         while at < len(buf):
             op, n = buf[at], _u64(buf, at + 1)
-            body = buf[at + 9: at + 9 + n]
+            body = buf[at + 9 : at + 9 + n]
             if len(body) != n:
                 raise Truncated("the file ends inside a chunk's record")
             if op == 0x03:
                 sid = struct.unpack_from("<H", body)[0]
                 name, p = _string(body, 2)
                 enc, p = _string(body, p)
-                self.schemas[sid] = (name, enc, body[p + 4: p + 4 + _u32(body, p)].decode())
+                self.schemas[sid] = (name, enc, body[p + 4 : p + 4 + _u32(body, p)].decode())
             elif op == 0x04:
                 cid, sid = struct.unpack_from("<HH", body)
                 topic, _ = _string(body, 4)
@@ -270,7 +276,7 @@ class _McapFile:
         if self._chunk is None or self._chunk[0] != body_at:
             self.f.seek(body_at)
             self._chunk = (body_at, _mcap_records(self.f.read(n)))
-        return self._chunk[1][start: start + size]
+        return self._chunk[1][start : start + size]
 
 
 # -- SQLite 3 ---------------------------------------------------------------------------------------------
@@ -289,8 +295,12 @@ class _SqliteFile:
             topics = self.db.execute("SELECT id, name, type FROM topics").fetchall()
             defs = {}
             try:
-                defs = {t: (text, enc) for t, enc, text in self.db.execute(
-                    "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions")}
+                defs = {
+                    t: (text, enc)
+                    for t, enc, text in self.db.execute(
+                        "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
+                    )
+                }
             except sqlite3.DatabaseError:
                 pass  # older bags carry no definitions: the standard store has the usual types
         except sqlite3.DatabaseError as exc:
@@ -378,8 +388,11 @@ class SalvagedBag:
             try:
                 file.scan(scan)
             except (Truncated, struct.error, ValueError, OSError, KeyError, IndexError, UnicodeDecodeError) as exc:
-                where = (f", in the record from byte {scan.offset:,} of {p.stat().st_size:,}"
-                         if p.suffix != ".db3" and scan.offset else "")
+                where = (
+                    f", in the record from byte {scan.offset:,} of {p.stat().st_size:,}"
+                    if p.suffix != ".db3" and scan.offset
+                    else ""
+                )
                 last = max((e.log_ns for e in scan.entries[first:]), default=-1)
                 damage.append((p.name, last, f"{exc}{where}"))
         self.is2 = not any(_kind(p) is _Ros1File for p in files)
@@ -389,9 +402,11 @@ class SalvagedBag:
         self._times = [e.log_ns for e in scan.entries]
         self.start_time = self._times[0] if self._times else 0
         self.end_time = self._times[-1] + 1 if self._times else 0
-        self.damaged = "; ".join(
-            f"{name} stops {'at its start' if last < 0 else f'{(last - self.start_time) * 1e-9:.2f} s into the recording'}"
-            f" ({why})" for name, last, why in damage)
+
+        def where(last: int) -> str:
+            return "at its start" if last < 0 else f"{(last - self.start_time) * 1e-9:.2f} s into the recording"
+
+        self.damaged = "; ".join(f"{name} stops {where(last)} ({why})" for name, last, why in damage)
         self.typestore = self._typestore(scan.defs)
 
     def _typestore(self, defs: list[tuple[str, str, str]]) -> Any:
@@ -407,8 +422,9 @@ class SalvagedBag:
         store.register(typs)
         return store
 
-    def messages(self, connections: list[Connection] | None = None, start: int | None = None,
-                 stop: int | None = None) -> Iterator[tuple[Connection, int, bytes]]:
+    def messages(
+        self, connections: list[Connection] | None = None, start: int | None = None, stop: int | None = None
+    ) -> Iterator[tuple[Connection, int, bytes]]:
         """(connection, log time ns, raw bytes) in log-time order, from `start` (ns) to before `stop`."""
         want = None if connections is None else {c.id for c in connections}
         lo = 0 if start is None else bisect.bisect_left(self._times, start)
@@ -419,8 +435,10 @@ class SalvagedBag:
                 try:
                     raw = file.raw(e.where[1:])
                 except (sqlite3.DatabaseError, OSError, ValueError) as exc:
-                    raise Truncated(f"{file.path.name}: the message logged {(e.log_ns - self.start_time) * 1e-9:.2f} s "
-                                    f"into the bag cannot be read ({exc})") from exc
+                    raise Truncated(
+                        f"{file.path.name}: the message logged {(e.log_ns - self.start_time) * 1e-9:.2f} s "
+                        f"into the bag cannot be read ({exc})"
+                    ) from exc
                 yield self.connections[e.conn], e.log_ns, raw
 
     def close(self) -> None:

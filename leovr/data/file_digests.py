@@ -95,5 +95,8 @@ def digest_of(digests: dict[str, str]) -> str:
 def changed_files(old: dict[str, str], new: dict[str, str]) -> list[str]:
     """The files that differ between two listings: edited, added or removed."""
     edited = [f"{rel} (changed)" for rel in sorted(old.keys() & new.keys()) if old[rel] != new[rel]]
-    return (edited + [f"{rel} (new)" for rel in sorted(new.keys() - old.keys())]
-            + [f"{rel} (removed)" for rel in sorted(old.keys() - new.keys())])
+    return (
+        edited
+        + [f"{rel} (new)" for rel in sorted(new.keys() - old.keys())]
+        + [f"{rel} (removed)" for rel in sorted(old.keys() - new.keys())]
+    )

@@ -104,7 +104,7 @@ def read_yaml(path: Path) -> object:
     except OSError as exc:
         raise DataError(path, f"cannot read: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
-        raise DataError(path, f"not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r})") from exc
+        raise DataError(path, f"not UTF-8 text (byte {exc.start}: {exc.object[exc.start : exc.start + 1]!r})") from exc
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
@@ -230,8 +230,11 @@ def clean_points(pts: np.ndarray, source: str | Path) -> np.ndarray:
     if len(pts) == 0:
         warnings.warn(f"{source}: empty LiDAR scan (no valid point): the frame has no LiDAR return", stacklevel=3)
     elif len(pts) < MIN_SCAN_POINTS:
-        warnings.warn(f"{source}: only {len(pts)} valid point(s); a LiDAR sweep has thousands (a truncated file?), "
-                      "so this frame's depth and LiDAR odometry rest on almost nothing", stacklevel=3)
+        warnings.warn(
+            f"{source}: only {len(pts)} valid point(s); a LiDAR sweep has thousands (a truncated file?), "
+            "so this frame's depth and LiDAR odometry rest on almost nothing",
+            stacklevel=3,
+        )
     return pts
 
 

@@ -54,7 +54,9 @@ def _stamps_for(path: Path, numbers: list[int], what: str) -> np.ndarray | None:
         return None
     t = _read_kitti_time(path)
     if len(t) <= numbers[-1]:
-        raise DataError(path, f"{len(t)} {what} timestamps, but frame number {numbers[-1]} needs line {numbers[-1] + 1}")
+        raise DataError(
+            path, f"{len(t)} {what} timestamps, but frame number {numbers[-1]} needs line {numbers[-1] + 1}"
+        )
     return t[numbers]
 
 
@@ -121,8 +123,11 @@ class KittiRawSequence(FileSequence):
             if not numbers:
                 raise DataError(velo_dir, "no scan has the frame number of an image in image_02/data")
             if no_scan or no_image:
-                warnings.warn(f"{drive}: frames paired by number; skipped {_frames(no_scan)} without a scan"
-                              f" and {_frames(no_image)} without an image", stacklevel=2)
+                warnings.warn(
+                    f"{drive}: frames paired by number; skipped {_frames(no_scan)} without a scan"
+                    f" and {_frames(no_image)} without an image",
+                    stacklevel=2,
+                )
         self._numbers = numbers
         self.image_files = [images[n] for n in numbers]
         self.scan_files = [scans[n] for n in numbers] if self.has_lidar else []

@@ -85,7 +85,9 @@ def _number(d: dict, key: str, default, kind: type, source: Path):
         if isinstance(v, bool) or not np.isfinite(out) or (kind is float and out <= 0):
             raise ValueError
     except (TypeError, ValueError):
-        raise DataError(source, f"'{key}' must be a {'whole' if kind is int else 'positive'} number, not {v!r}") from None
+        raise DataError(
+            source, f"'{key}' must be a {'whole' if kind is int else 'positive'} number, not {v!r}"
+        ) from None
     if kind is int and out != float(v):
         raise DataError(source, f"'{key}' must be a whole number, not {v!r}")
     return out
@@ -136,14 +138,22 @@ class NativeSequence(FileSequence):
             record = 4 * len(self.fields)  # float32 per field
             odd = next((p for p in self.scan_files if p.stat().st_size % record), None)
             if odd is not None:
-                raise DataError(odd, f"size {odd.stat().st_size} bytes is not a whole number of {len(self.fields)}-field "
-                                     f"points ({record} bytes each, lidar.fields in sequence.yaml)")
+                raise DataError(
+                    odd,
+                    f"size {odd.stat().st_size} bytes is not a whole number of {len(self.fields)}-field "
+                    f"points ({record} bytes each, lidar.fields in sequence.yaml)",
+                )
             unpaired = sorted(set(self.stems) ^ {p.stem for p in self.scan_files})
             if unpaired:
-                raise DataError(path / "lidar", f"scans and images are numbered differently ({', '.join(unpaired[:5])})")
+                raise DataError(
+                    path / "lidar", f"scans and images are numbered differently ({', '.join(unpaired[:5])})"
+                )
         elif (path / "lidar").is_dir() and any((path / "lidar").glob("*.bin")):
-            warnings.warn(f"{meta_file}: no 'lidar:' entry, so the scans in {path / 'lidar'} are not read "
-                          "(camera only); add lidar: {fields, T_cam_lidar} to use them", stacklevel=2)
+            warnings.warn(
+                f"{meta_file}: no 'lidar:' entry, so the scans in {path / 'lidar'} are not read "
+                "(camera only); add lidar: {fields, T_cam_lidar} to use them",
+                stacklevel=2,
+            )
         ts = path / "timestamps.txt"
         self._times = read_timestamp_file(ts, n) if ts.is_file() else np.arange(n) / self.rate_hz
         self._poses = None
@@ -180,7 +190,8 @@ class NativeSequence(FileSequence):
             mask = read_image(self.path / "masks" / f"{self.stems[i]}.png", gray=True) > 0
         if self.width and image.shape[:2] != (self.height, self.width):
             raise DataError(
-                self.image_files[i], f"image is {image.shape[1]}x{image.shape[0]}, sequence.yaml says {self.width}x{self.height}"
+                self.image_files[i],
+                f"image is {image.shape[1]}x{image.shape[0]}, sequence.yaml says {self.width}x{self.height}",
             )
         return self._frame(i, image, points, times, depth=depth, moving_mask=mask)
 
@@ -208,10 +219,16 @@ class NativeWriter:
         self.out = Path(out)
         held = [n for n in SEQUENCE_PARTS if (self.out / n).exists()]
         if held and not overwrite:
-            what = ("already holds a sequence" if "sequence.yaml" in held
-                    else "holds an unfinished sequence (no sequence.yaml: an interrupted write?)")
-            raise DataError(self.out, f"{what} ({', '.join(held)}); write into a new or empty folder, or replace it "
-                                      "(convert --overwrite; frames left from it would mix with the new ones)")
+            what = (
+                "already holds a sequence"
+                if "sequence.yaml" in held
+                else "holds an unfinished sequence (no sequence.yaml: an interrupted write?)"
+            )
+            raise DataError(
+                self.out,
+                f"{what} ({', '.join(held)}); write into a new or empty folder, or replace it "
+                "(convert --overwrite; frames left from it would mix with the new ones)",
+            )
         for name in held:  # the description first: a half-cleared folder is never taken for a sequence
             part = self.out / name
             shutil.rmtree(part) if part.is_dir() else part.unlink()
@@ -304,8 +321,13 @@ class NativeWriter:
 
 def write_native(seq: Sequence, out: str | Path, name: str | None = None, overwrite: bool = False) -> Path:
     """Copy any readable sequence into the native format (`overwrite`: replace a sequence already in `out`)."""
-    writer = NativeWriter(out, name=name or Path(seq.path).name, rate_hz=seq.rate_hz, camera_height_m=seq.camera_height_m,
-                          overwrite=overwrite)
+    writer = NativeWriter(
+        out,
+        name=name or Path(seq.path).name,
+        rate_hz=seq.rate_hz,
+        camera_height_m=seq.camera_height_m,
+        overwrite=overwrite,
+    )
     for frame, number in zip(seq, seq.frame_numbers()):
         writer.write(frame, number)
     return writer.close()

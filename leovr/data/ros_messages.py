@@ -61,8 +61,12 @@ def decode_image(msg: Any, msgtype: str) -> np.ndarray:
     if enc in channels:
         c = channels[enc]
         img = rows[:, : w * c].reshape(h, w, c) if c > 1 else rows[:, :w]
-        conv = {"bgr8": cv2.COLOR_BGR2RGB, "8uc3": cv2.COLOR_BGR2RGB, "rgba8": cv2.COLOR_RGBA2RGB,
-                "bgra8": cv2.COLOR_BGRA2RGB}.get(enc)
+        conv = {
+            "bgr8": cv2.COLOR_BGR2RGB,
+            "8uc3": cv2.COLOR_BGR2RGB,
+            "rgba8": cv2.COLOR_RGBA2RGB,
+            "bgra8": cv2.COLOR_BGRA2RGB,
+        }.get(enc)
         return cv2.cvtColor(img, conv) if conv is not None else img.copy()  # a copy: the message's buffer is read-only
     if enc in ("mono16", "16uc1"):
         dtype = ">u2" if msg.is_bigendian else "<u2"
@@ -125,7 +129,7 @@ def _records(msg: Any, fields: dict[str, tuple[int, str]]) -> np.ndarray:
 def _column(recs: np.ndarray, fields: dict[str, tuple[int, str]], name: str) -> np.ndarray:
     off, typ = fields[name]
     size = np.dtype(typ).itemsize
-    return recs[:, off: off + size].copy().view(typ).ravel()
+    return recs[:, off : off + size].copy().view(typ).ravel()
 
 
 def _point_times(msg: Any, fields: dict[str, tuple[int, str]], recs: np.ndarray) -> tuple[np.ndarray, bool] | None:
@@ -217,8 +221,10 @@ class FrameTree:
 
     def add(self, msg: Any) -> None:
         for tf in msg.transforms:
-            self.parent[str(tf.child_frame_id).lstrip("/")] = (str(tf.header.frame_id).lstrip("/"),
-                                                                transform_matrix(tf.transform))
+            self.parent[str(tf.child_frame_id).lstrip("/")] = (
+                str(tf.header.frame_id).lstrip("/"),
+                transform_matrix(tf.transform),
+            )
 
     def _to_root(self, frame: str) -> tuple[str, np.ndarray]:
         T, seen = np.eye(4), set()

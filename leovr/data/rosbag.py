@@ -124,8 +124,9 @@ class RosbagSequence(Sequence):
         self.camera = self._pick(rm.IMAGE_TYPES, self.choice.camera, "camera", "--camera-topic")
         self.lidar = self._pick((rm.CLOUD_TYPE,), self.choice.lidar, "point cloud", "--lidar-topic", required=False)
         self.info_topic = self._pick_info()
-        self.pose_topic = self._pick((*rm.POSE_TYPES,), self.choice.poses, "pose", "--pose-topic", required=False,
-                                     ambiguous_ok=True)
+        self.pose_topic = self._pick(
+            (*rm.POSE_TYPES,), self.choice.poses, "pose", "--pose-topic", required=False, ambiguous_ok=True
+        )
         idx = self._index(reader)
         self._log_span = idx.log_span
         self._setup_camera(idx)
@@ -165,8 +166,10 @@ class RosbagSequence(Sequence):
             raise DataError(self.path, f"cannot open this bag: {error}{_repair_hint(self.path)}") from exc
         if not bag.end_time:
             why = f": {bag.damaged}" if bag.damaged else ""
-            raise DataError(self.path, f"cannot open this bag ({error}) and no message can be read from it"
-                                       f"{why}{_repair_hint(self.path)}")
+            raise DataError(
+                self.path,
+                f"cannot open this bag ({error}) and no message can be read from it{why}{_repair_hint(self.path)}",
+            )
         if bag.damaged and self._reader is None:  # said once, not again in each worker that reopens it
             self.salvaged = f"damaged, {bag.damaged}{_repair_hint(self.path)}"
         return bag
@@ -179,16 +182,24 @@ class RosbagSequence(Sequence):
             t.connections.append(c)
         return topics
 
-    def _pick(self, types: tuple[str, ...], named: str | None, what: str, option: str, required: bool = True,
-              ambiguous_ok: bool = False) -> str | None:
+    def _pick(
+        self,
+        types: tuple[str, ...],
+        named: str | None,
+        what: str,
+        option: str,
+        required: bool = True,
+        ambiguous_ok: bool = False,
+    ) -> str | None:
         """The topic of one of `types`: the one named, else the only candidate."""
         found = sorted(t.name for t in self.topics.values() if t.msgtype in types and t.count > 0)
         if named is not None:
             if named not in self.topics:
                 raise DataError(self.path, f"no topic {named} (topics of a {what}: {brief(found, 8) or 'none'})")
             if self.topics[named].msgtype not in types:
-                raise DataError(self.path, f"topic {named} is a {self.topics[named].msgtype}, not a {what} "
-                                           f"({' or '.join(types)})")
+                raise DataError(
+                    self.path, f"topic {named} is a {self.topics[named].msgtype}, not a {what} ({' or '.join(types)})"
+                )
             return named
         if len(found) == 1:
             return found[0]
@@ -198,8 +209,10 @@ class RosbagSequence(Sequence):
                 raise DataError(self.path, f"no {what} topic ({' or '.join(types)}) in this bag{damaged}")
             return None
         if ambiguous_ok:
-            warnings.warn(f"{self.path}: {len(found)} {what} topics ({', '.join(found)}); none used, name one "
-                          f"with {option}", stacklevel=3)
+            warnings.warn(
+                f"{self.path}: {len(found)} {what} topics ({', '.join(found)}); none used, name one with {option}",
+                stacklevel=3,
+            )
             return None
         raise DataError(self.path, f"{len(found)} {what} topics ({', '.join(found)}): choose one with {option}")
 
@@ -207,14 +220,16 @@ class RosbagSequence(Sequence):
         """The camera's CameraInfo: the one named, the only one, or the one beside the image topic."""
         infos = sorted(t.name for t in self.topics.values() if t.msgtype == rm.INFO_TYPE and t.count > 0)
         if self.choice.camera_info is not None or len(infos) <= 1:
-            return self._pick((rm.INFO_TYPE,), self.choice.camera_info, "camera info", "--camera-info-topic",
-                              required=False)
+            return self._pick(
+                (rm.INFO_TYPE,), self.choice.camera_info, "camera info", "--camera-info-topic", required=False
+            )
         ns = self.camera.rsplit("/", 1)[0]
         beside = [t for t in infos if t.rsplit("/", 1)[0] == ns]
         if len(beside) == 1:
             return beside[0]
-        raise DataError(self.path, f"{len(infos)} camera info topics ({', '.join(infos)}): choose one with "
-                                   "--camera-info-topic")
+        raise DataError(
+            self.path, f"{len(infos)} camera info topics ({', '.join(infos)}): choose one with --camera-info-topic"
+        )
 
     # -- the index pass -------------------------------------------------------------------------------------
 
@@ -250,15 +265,17 @@ class RosbagSequence(Sequence):
         except Exception as exc:  # a truncated or damaged bag: what came before it stays usable
             idx.damaged = f"unreadable after message {n} ({type(exc).__name__}: {exc})"
         if not idx.images:
-            raise DataError(self.path, f"no image could be read from {self.camera}"
-                                       + (f": {idx.damaged}" if idx.damaged else ""))
+            raise DataError(
+                self.path, f"no image could be read from {self.camera}" + (f": {idx.damaged}" if idx.damaged else "")
+            )
         return idx
 
     def _setup_camera(self, idx: _Index) -> None:
         """Intrinsics from the CameraInfo, with the undistortion maps when the lens distorts."""
         if idx.info is None:
-            raise DataError(self.path, f"no camera info for {self.camera} (sensor_msgs/CameraInfo): the camera "
-                                       "matrix is needed")
+            raise DataError(
+                self.path, f"no camera info for {self.camera} (sensor_msgs/CameraInfo): the camera matrix is needed"
+            )
         try:
             K, D, model, (h, w) = rm.camera_intrinsics(idx.info)
         except rm.MessageError as exc:
@@ -273,8 +290,11 @@ class RosbagSequence(Sequence):
                 Knew = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D[:4], (w, h), np.eye(3))
                 self._maps = cv2.fisheye.initUndistortRectifyMap(K, D[:4], np.eye(3), Knew, (w, h), cv2.CV_32FC1)
             else:
-                raise DataError(self.path, f"{self.info_topic}: distortion model {model!r} is not read "
-                                           "(plumb_bob, rational_polynomial, equidistant)")
+                raise DataError(
+                    self.path,
+                    f"{self.info_topic}: distortion model {model!r} is not read "
+                    "(plumb_bob, rational_polynomial, equidistant)",
+                )
             K = Knew
         self.K = np.asarray(K, np.float64)
 
@@ -302,13 +322,20 @@ class RosbagSequence(Sequence):
             for k, sp in enumerate(spans):
                 if sp is not None:
                     a, b, absolute = sp
-                    lo[k], hi[k] = ((round(a * 1e9), round(b * 1e9)) if absolute else
-                                    (cl_ns[k] + round(a * self.time_scale * 1e9), cl_ns[k] + round(b * self.time_scale * 1e9)))
+                    lo[k], hi[k] = (
+                        (round(a * 1e9), round(b * 1e9))
+                        if absolute
+                        else (cl_ns[k] + round(a * self.time_scale * 1e9), cl_ns[k] + round(b * self.time_scale * 1e9))
+                    )
             timed = sum(sp is not None for sp in spans)
-            self.pairing_rule = ("sweep time span (per-point times)" if timed == len(spans) else
-                                 "nearest header stamp (no per-point times)" if not timed else
-                                 f"sweep time span where clouds carry per-point times ({timed} of {len(spans)}), "
-                                 "else nearest header stamp")
+            self.pairing_rule = (
+                "sweep time span (per-point times)"
+                if timed == len(spans)
+                else "nearest header stamp (no per-point times)"
+                if not timed
+                else f"sweep time span where clouds carry per-point times ({timed} of {len(spans)}), "
+                "else nearest header stamp"
+            )
             # outside every sweep: the nearest within half the time between sweeps (a lost sweep's images stay
             # unpaired); a cloud without point times within half a scan period of its stamp
             scan = pair_by_span(img_ns, lo, hi, cl_ns, np.maximum(period - (hi - lo), 0.0) / 2)
@@ -316,13 +343,18 @@ class RosbagSequence(Sequence):
             self._sweep_offsets = np.c_[img_ns[paired] - lo[scan[paired]], cl_ns[scan[paired]] - img_ns[paired]] * 1e-9
             if (~paired).sum() * 2 > len(paired):
                 near = cl_ns[associate(img_ns, cl_ns, np.inf)]  # each image's nearest scan stamp
-                warnings.warn(f"{self.path}: {(~paired).sum()} of {len(paired)} images of {self.camera} have no sweep of "
-                              f"{self.lidar} at their time; the scans' stamps lie a median "
-                              f"{np.median(near - img_ns) * 1e-9:+.3f} s from the images' (another clock, or an offset "
-                              "the recorder did not correct?)", stacklevel=3)
+                warnings.warn(
+                    f"{self.path}: {(~paired).sum()} of {len(paired)} images of {self.camera} have no sweep of "
+                    f"{self.lidar} at their time; the scans' stamps lie a median "
+                    f"{np.median(near - img_ns) * 1e-9:+.3f} s from the images' (another clock, or an offset "
+                    "the recorder did not correct?)",
+                    stacklevel=3,
+                )
         keep = scan >= 0 if (self.choice.drop_unpaired and self.lidar is not None) else np.ones(len(images), bool)
         if not keep.any():
-            raise DataError(self.path, f"no image of {self.camera} has a scan of {self.lidar} within half a scan period")
+            raise DataError(
+                self.path, f"no image of {self.camera} has a scan of {self.lidar} within half a scan period"
+            )
         self._images = [images[k] for k in np.nonzero(keep)[0]]
         self._scan = scan[keep]
         self._stamps_ns = img_ns[keep]
@@ -336,9 +368,12 @@ class RosbagSequence(Sequence):
         T = idx.tree.between(idx.camera_frame, idx.lidar_frame)
         if T is None:
             frames = brief(idx.tree.frames, 8) or "no /tf_static"
-            raise DataError(self.path, f"no transform from the LiDAR's frame {idx.lidar_frame!r} to the camera's "
-                                       f"{idx.camera_frame!r} ({frames}); give one with --extrinsic FILE "
-                                       "(T_cam_lidar, 12 or 16 numbers)")
+            raise DataError(
+                self.path,
+                f"no transform from the LiDAR's frame {idx.lidar_frame!r} to the camera's "
+                f"{idx.camera_frame!r} ({frames}); give one with --extrinsic FILE "
+                "(T_cam_lidar, 12 or 16 numbers)",
+            )
         return T
 
     def _camera_poses(self, idx: _Index) -> np.ndarray | None:
@@ -352,13 +387,18 @@ class RosbagSequence(Sequence):
         T_body_cam = idx.tree.between(body, idx.camera_frame) if body else None
         if T_body_cam is None:
             if body and body.lstrip("/") != idx.camera_frame.lstrip("/"):
-                warnings.warn(f"{self.path}: no transform from the poses' frame {body!r} to the camera's "
-                              f"{idx.camera_frame!r}; the poses are taken as the camera's", stacklevel=3)
+                warnings.warn(
+                    f"{self.path}: no transform from the poses' frame {body!r} to the camera's "
+                    f"{idx.camera_frame!r}; the poses are taken as the camera's",
+                    stacklevel=3,
+                )
             T_body_cam = np.eye(4)
         gap = max(float(t[0] - self._stamps_ns[0]), float(self._stamps_ns[-1] - t[-1])) * 1e-9
         if gap > MAX_POSE_GAP_S:
-            warnings.warn(f"{self.path}: the poses of {self.pose_topic} end {gap:.2f} s before the images do; "
-                          "not used", stacklevel=3)
+            warnings.warn(
+                f"{self.path}: the poses of {self.pose_topic} end {gap:.2f} s before the images do; not used",
+                stacklevel=3,
+            )
             return None
         at = (self._stamps_ns - t[0]) * 1e-9
         return poses_at((t - t[0]) * 1e-9, T_world_body, at) @ T_body_cam
@@ -408,8 +448,16 @@ class RosbagSequence(Sequence):
                     points, times = rm.decode_cloud(cloud, int(self._stamps_ns[i]), self.time_scale)
                 except rm.MessageError as exc:
                     raise DataError(self.path, f"{self.lidar} scan of frame {i}: {exc}") from exc
-        return Frame(index=i, timestamp=float(self._times[i]), image=image, K=self.K, T_cam_lidar=self.T_cam_lidar,
-                     points=points, point_times=times, T_world_cam=None if self._poses is None else self._poses[i])
+        return Frame(
+            index=i,
+            timestamp=float(self._times[i]),
+            image=image,
+            K=self.K,
+            T_cam_lidar=self.T_cam_lidar,
+            points=points,
+            point_times=times,
+            T_world_cam=None if self._poses is None else self._poses[i],
+        )
 
     # -- what `leovr info` prints ---------------------------------------------------------------------------
 
@@ -426,8 +474,16 @@ class RosbagSequence(Sequence):
             span = (b - a) * 1e-9 if b > a else bag_span
             return round((t.count - 1) / span, 2) if t.count > 1 else 0.0
 
-        return [{"topic": t.name, "type": t.msgtype, "messages": t.count, "rate_hz": rate(t), "used_as": use.get(t.name, "")}
-                for t in sorted(self.topics.values(), key=lambda t: t.name)]
+        return [
+            {
+                "topic": t.name,
+                "type": t.msgtype,
+                "messages": t.count,
+                "rate_hz": rate(t),
+                "used_as": use.get(t.name, ""),
+            }
+            for t in sorted(self.topics.values(), key=lambda t: t.name)
+        ]
 
     def pairing(self) -> dict:
         """Images paired and not, the rule that paired them, and where the images fell: seconds from the
@@ -454,12 +510,17 @@ def _time_scale(path: Path, topic: str, spans: list[tuple[float, float, bool] | 
     for scale in (1.0, 1e-3, 1e3, 1e-6, 1e6):
         if 0.05 <= ratio * scale <= 2.0:
             if scale != 1.0:
-                warnings.warn(f"{path}: {topic}: a sweep's per-point times span {np.median(spread):.6g} s as read, "
-                              f"{ratio:.3g}x the scan period of {period_s:.3f} s: read x{scale:g} (another unit)",
-                              stacklevel=4)
+                warnings.warn(
+                    f"{path}: {topic}: a sweep's per-point times span {np.median(spread):.6g} s as read, "
+                    f"{ratio:.3g}x the scan period of {period_s:.3f} s: read x{scale:g} (another unit)",
+                    stacklevel=4,
+                )
             return scale
-    warnings.warn(f"{path}: {topic}: a sweep's per-point times span {np.median(spread):.6g} s, {ratio:.3g}x the scan "
-                  f"period of {period_s:.3f} s, in no unit a sweep's could: not used", stacklevel=4)
+    warnings.warn(
+        f"{path}: {topic}: a sweep's per-point times span {np.median(spread):.6g} s, {ratio:.3g}x the scan "
+        f"period of {period_s:.3f} s, in no unit a sweep's could: not used",
+        stacklevel=4,
+    )
     return None
 
 
@@ -500,13 +561,19 @@ def _increasing(path: Path, topic: str, stamps: list[int]) -> list[int]:
     kept_set = set(kept)
     dropped = [k for k in range(len(stamps)) if k not in kept_set]
     if len(dropped) * 2 > len(stamps):
-        raise DataError(path, f"{topic}: the stamps of {len(dropped)} of {len(stamps)} messages repeat, go back or "
-                              f"jump against the recording order ({_glitch(stamps, dropped[0])}): not a recording "
-                              "leovr can order")
+        raise DataError(
+            path,
+            f"{topic}: the stamps of {len(dropped)} of {len(stamps)} messages repeat, go back or "
+            f"jump against the recording order ({_glitch(stamps, dropped[0])}): not a recording "
+            "leovr can order",
+        )
     if dropped:
-        warnings.warn(f"{path}: {topic}: {len(dropped)} message(s) whose stamp repeats, goes back or jumps against "
-                      f"the recording order left out ({'; '.join(_glitch(stamps, k) for k in dropped[:5])}"
-                      f"{'; ...' if len(dropped) > 5 else ''})", stacklevel=4)
+        warnings.warn(
+            f"{path}: {topic}: {len(dropped)} message(s) whose stamp repeats, goes back or jumps against "
+            f"the recording order left out ({'; '.join(_glitch(stamps, k) for k in dropped[:5])}"
+            f"{'; ...' if len(dropped) > 5 else ''})",
+            stacklevel=4,
+        )
     return kept
 
 

@@ -23,8 +23,13 @@ from leovr.data.sequence import Sequence
 from leovr.errors import DataError
 
 CAMERA_FRAME, LIDAR_FRAME, WORLD_FRAME = "camera", "lidar", "world"
-TOPICS = {"image": "/camera/image_raw", "info": "/camera/camera_info", "cloud": "/lidar/points",
-          "tf": "/tf_static", "pose": "/ground_truth/pose"}
+TOPICS = {
+    "image": "/camera/image_raw",
+    "info": "/camera/camera_info",
+    "cloud": "/lidar/points",
+    "tf": "/tf_static",
+    "pose": "/ground_truth/pose",
+}
 EPOCH_NS = 1_600_000_000 * 1_000_000_000  # stamps of a sequence that counts from zero start here
 FORMATS = {".mcap": "mcap", ".db3": "sqlite3", ".bag": "ros1"}
 
@@ -45,8 +50,9 @@ class RosMessages:
         if "tf2_msgs/msg/TFMessage" not in self.store.types:  # the ROS 1 store lacks it
             from rosbags.typesys import get_types_from_msg
 
-            self.store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
-                                                   "tf2_msgs/msg/TFMessage"))
+            self.store.register(
+                get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+            )
         self.T = self.store.types
 
     def header(self, ns: int, frame: str, seq: int = 0) -> Any:
@@ -58,9 +64,15 @@ class RosMessages:
     def image(self, ns: int, img: np.ndarray, seq: int) -> Any:
         enc, c = ("rgb8", 3) if img.ndim == 3 else ("mono8", 1)
         h, w = img.shape[:2]
-        return self.T["sensor_msgs/msg/Image"](header=self.header(ns, CAMERA_FRAME, seq), height=h, width=w, encoding=enc,
-                                               is_bigendian=0, step=w * c,
-                                               data=np.ascontiguousarray(img, np.uint8).reshape(-1))
+        return self.T["sensor_msgs/msg/Image"](
+            header=self.header(ns, CAMERA_FRAME, seq),
+            height=h,
+            width=w,
+            encoding=enc,
+            is_bigendian=0,
+            step=w * c,
+            data=np.ascontiguousarray(img, np.uint8).reshape(-1),
+        )
 
     def camera_info(self, ns: int, K: np.ndarray, h: int, w: int, seq: int) -> Any:
         roi = self.T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
@@ -68,9 +80,16 @@ class RosMessages:
         arrays = {"D": np.zeros(5), "K": np.asarray(K, np.float64).ravel(), "R": np.eye(3).ravel(), "P": P}
         if not self.ros1:
             arrays = {k.lower(): v for k, v in arrays.items()}
-        return self.T["sensor_msgs/msg/CameraInfo"](header=self.header(ns, CAMERA_FRAME, seq), height=h, width=w,
-                                                    distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=roi,
-                                                    **arrays)
+        return self.T["sensor_msgs/msg/CameraInfo"](
+            header=self.header(ns, CAMERA_FRAME, seq),
+            height=h,
+            width=w,
+            distortion_model="plumb_bob",
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+            **arrays,
+        )
 
     def cloud(self, ns: int, points: np.ndarray, times: np.ndarray | None, seq: int) -> Any:
         PF = self.T["sensor_msgs/msg/PointField"]
@@ -81,12 +100,21 @@ class RosMessages:
             rec[n] = points[:, c]
         if times is not None:
             rec["time"] = times
-        fields = [PF(name=n, offset=rec.dtype.fields[n][1], datatype=8 if n == "time" else 7, count=1)
-                  for n in rec.dtype.names]
-        return self.T["sensor_msgs/msg/PointCloud2"](header=self.header(ns, LIDAR_FRAME, seq), height=1, width=len(rec),
-                                                     fields=fields, is_bigendian=False, point_step=rec.dtype.itemsize,
-                                                     row_step=rec.dtype.itemsize * len(rec),
-                                                     data=rec.view(np.uint8).reshape(-1), is_dense=True)
+        fields = [
+            PF(name=n, offset=rec.dtype.fields[n][1], datatype=8 if n == "time" else 7, count=1)
+            for n in rec.dtype.names
+        ]
+        return self.T["sensor_msgs/msg/PointCloud2"](
+            header=self.header(ns, LIDAR_FRAME, seq),
+            height=1,
+            width=len(rec),
+            fields=fields,
+            is_bigendian=False,
+            point_step=rec.dtype.itemsize,
+            row_step=rec.dtype.itemsize * len(rec),
+            data=rec.view(np.uint8).reshape(-1),
+            is_dense=True,
+        )
 
     def _quat(self, R: np.ndarray) -> Any:
         x, y, z, w = Rotation.from_matrix(R).as_quat()
@@ -94,10 +122,14 @@ class RosMessages:
 
     def tf_static(self, ns: int, T_cam_lidar: np.ndarray) -> Any:
         tr = self.T["geometry_msgs/msg/Transform"](
-            translation=self.T["geometry_msgs/msg/Vector3"](x=T_cam_lidar[0, 3], y=T_cam_lidar[1, 3], z=T_cam_lidar[2, 3]),
-            rotation=self._quat(T_cam_lidar[:3, :3]))
-        ts = self.T["geometry_msgs/msg/TransformStamped"](header=self.header(ns, CAMERA_FRAME), child_frame_id=LIDAR_FRAME,
-                                                          transform=tr)
+            translation=self.T["geometry_msgs/msg/Vector3"](
+                x=T_cam_lidar[0, 3], y=T_cam_lidar[1, 3], z=T_cam_lidar[2, 3]
+            ),
+            rotation=self._quat(T_cam_lidar[:3, :3]),
+        )
+        ts = self.T["geometry_msgs/msg/TransformStamped"](
+            header=self.header(ns, CAMERA_FRAME), child_frame_id=LIDAR_FRAME, transform=tr
+        )
         return self.T["tf2_msgs/msg/TFMessage"](transforms=[ts])
 
     def pose(self, ns: int, T: np.ndarray, seq: int) -> Any:
@@ -123,11 +155,13 @@ def open_bag_writer(out: Path, fmt: str) -> Any:
 CLOUD_STAMPS = ("image", "sweep_start", "sweep_end")
 
 
-def write_bag(seq: Sequence, out: str | Path, fmt: str | None = None, progress: bool = True,
-              cloud_stamp: str = "image") -> Path:
+def write_bag(
+    seq: Sequence, out: str | Path, fmt: str | None = None, progress: bool = True, cloud_stamp: str = "image"
+) -> Path:
     """Write `seq` as a bag at `out` (format from its suffix unless `fmt`: mcap, sqlite3, ros1) and return its
     path: `NAME.bag` a ROS 1 file, `NAME.mcap` or `NAME.db3` a ROS 2 bag folder `NAME/` holding that storage
-    file and its metadata.yaml. A bag is written whole or not at all: an interrupted write removes what it began. `cloud_stamp`: a scan with point times is
+    file and its metadata.yaml. A bag is written whole or not at all: an interrupted write removes what it began.
+    `cloud_stamp`: a scan with point times is
     stamped with its image's time (`image`), or at its first (`sweep_start`) or last point (`sweep_end`)."""
     import shutil
 

@@ -44,19 +44,25 @@ def read_run(run: Path) -> RunFolder:
     if not is_finished_run(run):
         if (run / "run.json").is_file():
             missing = [n for n in ("metrics.json", "poses_kitti.txt") if not (run / n).is_file()]
-            raise DataError(run, f"this run did not finish (no {' or '.join(missing)} yet): resume it with its "
-                                 "command and --resume")
+            raise DataError(
+                run, f"this run did not finish (no {' or '.join(missing)} yet): resume it with its command and --resume"
+            )
         raise DataError(run, "not a leovr refine run (no metrics.json and poses_kitti.txt)")
     seq = open_sequence(run_sequence(run))
     poses = read_kitti_poses(run / "poses_kitti.txt")
     progress = read_json_object(run / "progress.json") if (run / "progress.json").is_file() else {}
     indices = sorted(int(k) for k in progress.get("poses", {})) or list(range(len(poses)))
     if len(poses) < len(indices):
-        raise DataError(run / "poses_kitti.txt", f"{len(poses)} poses for the run's {len(indices)} frames "
-                                                 "(progress.json): the run's files disagree")
+        raise DataError(
+            run / "poses_kitti.txt",
+            f"{len(poses)} poses for the run's {len(indices)} frames (progress.json): the run's files disagree",
+        )
     if indices and max(indices) >= len(seq):
-        raise DataError(run, f"the run has frames up to {max(indices)} but its sequence {seq.path} has "
-                             f"{len(seq)} frames: not the recording the run was made from")
+        raise DataError(
+            run,
+            f"the run has frames up to {max(indices)} but its sequence {seq.path} has "
+            f"{len(seq)} frames: not the recording the run was made from",
+        )
     return RunFolder(run, seq, poses[: len(indices)], indices)
 
 

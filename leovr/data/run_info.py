@@ -34,8 +34,11 @@ INPUTS_FILE = "inputs.json"  # the input files' content digests (naming what cha
 
 
 def depth_png_record(scale: float = DEPTH_SCALE) -> dict:
-    return {"scale": scale, "unit": f"uint16 = metres x {scale:g}, 0 = unknown",
-            "max_m": round(format_max_depth(scale), 3)}
+    return {
+        "scale": scale,
+        "unit": f"uint16 = metres x {scale:g}, 0 = unknown",
+        "max_m": round(format_max_depth(scale), 3),
+    }
 
 
 def write_run_info(out: Path, command: str, **extra) -> None:
@@ -71,13 +74,22 @@ def _sha256(path: Path) -> str:
 
 def run_identity(command: str, settings: dict, sequences: list[Path], checkpoint: Path | None = None) -> dict:
     """What made a run: compared field by field when it is resumed."""
-    return plain_json(json.loads(json.dumps({
-        "command": command,
-        "settings": settings,
-        "sequences": [{"path": str(Path(p).resolve()), "contents_sha1": folder_fingerprint(p)} for p in sequences],
-        "checkpoint_sha256": _sha256(checkpoint) if checkpoint is not None else None,
-        "leovr_version": __version__,
-    }, default=str)))
+    return plain_json(
+        json.loads(
+            json.dumps(
+                {
+                    "command": command,
+                    "settings": settings,
+                    "sequences": [
+                        {"path": str(Path(p).resolve()), "contents_sha1": folder_fingerprint(p)} for p in sequences
+                    ],
+                    "checkpoint_sha256": _sha256(checkpoint) if checkpoint is not None else None,
+                    "leovr_version": __version__,
+                },
+                default=str,
+            )
+        )
+    )
 
 
 def differences(old, new, prefix: str = "") -> list[str]:
@@ -104,16 +116,23 @@ def check_identity(out: Path, identity: dict) -> None:
     path = out / RUN_FILE
     if not path.is_file():
         if out.is_dir() and any(out.iterdir()):
-            raise DataError(out, "holds files but no run.json (not a leovr run, or written by an older "
-                                 "version): resume into a new output folder")
+            raise DataError(
+                out,
+                "holds files but no run.json (not a leovr run, or written by an older "
+                "version): resume into a new output folder",
+            )
         return
     old = read_json_object(path).get("identity")
     if old is None:
         raise DataError(path, "records no run identity (written by an older leovr): resume into a new output folder")
     diff = differences(plain_json(old), identity)  # folders written before run.json was strict JSON too
     if diff:
-        raise DataError(out, "was written by another run; --resume refused: " + brief(diff, 6, "; ")
-                        + _changed_inputs(out, old, identity))
+        raise DataError(
+            out,
+            "was written by another run; --resume refused: "
+            + brief(diff, 6, "; ")
+            + _changed_inputs(out, old, identity),
+        )
 
 
 def _changed_inputs(out: Path, old: dict, new: dict) -> str:
@@ -154,7 +173,15 @@ def start_run(out: Path, command: str, identity: dict, resume: bool, **extra) ->
 
 # what a run writes at the top of its folder (besides folders named depth*): a fresh run into the folder
 # removes them first, so that nothing of the earlier run (a frame it had and this one has not) stays
-RUN_OUTPUTS = ("run.json", "inputs.json", "metrics.json", "timing.json", "progress.json", "poses_*.txt", "landmarks*.npy")
+RUN_OUTPUTS = (
+    "run.json",
+    "inputs.json",
+    "metrics.json",
+    "timing.json",
+    "progress.json",
+    "poses_*.txt",
+    "landmarks*.npy",
+)
 
 
 def clear_previous_run(out: Path, command: str) -> None:
@@ -190,8 +217,9 @@ def check_resumable(out: Path) -> None:
     into it would mix two conventions in one folder, so it is refused."""
     out = Path(out)
     if not (out / RUN_FILE).is_file() and any(out.glob("depth*/*.png")):
-        raise DataError(out, "written by an older leovr (millimetre depth PNGs, no run.json): "
-                             "resume into a new output folder")
+        raise DataError(
+            out, "written by an older leovr (millimetre depth PNGs, no run.json): resume into a new output folder"
+        )
 
 
 @lru_cache(maxsize=8)

@@ -68,8 +68,11 @@ class Sequence(ABC):
             self._image_size = (i, size)
         elif seen[1] != size:
             where = self.image_path(i) or f"{self.path} frame {i}"
-            raise DataError(where, f"image is {size[1]}x{size[0]} but frame {seen[0]} of the same sequence is "
-                            f"{seen[1][1]}x{seen[1][0]}; one calibration cannot fit both")
+            raise DataError(
+                where,
+                f"image is {size[1]}x{size[0]} but frame {seen[0]} of the same sequence is "
+                f"{seen[1][1]}x{seen[1][0]}; one calibration cannot fit both",
+            )
 
     def image_path(self, i: int) -> Path | None:
         """The image file of frame `i`, for error messages (None for readers without one file per image)."""
@@ -152,12 +155,21 @@ class FileSequence(Sequence):
             times = start + azimuth_times(points, end - start)
         return self._frame(i, read_image(self.image_files[i]), points, times)
 
-    def _frame(self, i: int, image: np.ndarray, points: np.ndarray | None, point_times: np.ndarray | None = None,
-               **extra) -> Frame:
+    def _frame(
+        self, i: int, image: np.ndarray, points: np.ndarray | None, point_times: np.ndarray | None = None, **extra
+    ) -> Frame:
         """Frame i from its image and scan, with the sequence's calibration, time and pose."""
-        return Frame(index=i, timestamp=float(self._times[i]), image=image, K=self.K, T_cam_lidar=self.T_cam_lidar,
-                     points=points, point_times=point_times,
-                     T_world_cam=None if self._poses is None else self._poses[i], **extra)
+        return Frame(
+            index=i,
+            timestamp=float(self._times[i]),
+            image=image,
+            K=self.K,
+            T_cam_lidar=self.T_cam_lidar,
+            points=points,
+            point_times=point_times,
+            T_world_cam=None if self._poses is None else self._poses[i],
+            **extra,
+        )
 
 
 class SequenceView(Sequence):

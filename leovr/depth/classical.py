@@ -18,9 +18,7 @@ FULL_3 = np.ones((3, 3), np.uint8)
 FULL_5 = np.ones((5, 5), np.uint8)
 FULL_7 = np.ones((7, 7), np.uint8)
 FULL_31 = np.ones((31, 31), np.uint8)
-DIAMOND_5 = np.array(
-    [[0, 0, 1, 0, 0], [0, 1, 1, 1, 0], [1, 1, 1, 1, 1], [0, 1, 1, 1, 0], [0, 0, 1, 0, 0]], np.uint8
-)
+DIAMOND_5 = np.array([[0, 0, 1, 0, 0], [0, 1, 1, 1, 0], [1, 1, 1, 1, 1], [0, 1, 1, 1, 0], [0, 0, 1, 0, 0]], np.uint8)
 
 
 def nearest_fill(sparse: np.ndarray) -> np.ndarray:

@@ -43,9 +43,17 @@ class DepthSamples(Dataset):
     kept. Sampling is seeded by (seed, epoch, index), so runs repeat.
     """
 
-    def __init__(self, sequences: list[Path], ratio: tuple[float, float] = (0.005, 0.30), native_prob: float = 0.5,
-                 max_frames: int | None = None, seed: int = 0, random_input: bool = True, with_prior: bool = False,
-                 image_edges: bool = True) -> None:
+    def __init__(
+        self,
+        sequences: list[Path],
+        ratio: tuple[float, float] = (0.005, 0.30),
+        native_prob: float = 0.5,
+        max_frames: int | None = None,
+        seed: int = 0,
+        random_input: bool = True,
+        with_prior: bool = False,
+        image_edges: bool = True,
+    ) -> None:
         self.seqs = [open_sequence(p) for p in sequences]
         self.index = [(k, i) for k, s in enumerate(self.seqs) for i in range(len(s))]
         if max_frames is not None and len(self.index) > max_frames:

@@ -34,10 +34,17 @@ def load_generator(path: str | Path) -> DepthGenerator:
         model.load_state_dict(state["model"])
     except RuntimeError as exc:
         raise DataError(path, f"checkpoint does not match the network it describes: {str(exc)[:300]}") from exc
-    bad = [k for k, v in state["model"].items() if torch.is_tensor(v) and v.is_floating_point() and not torch.isfinite(v).all()]
+    bad = [
+        k
+        for k, v in state["model"].items()
+        if torch.is_tensor(v) and v.is_floating_point() and not torch.isfinite(v).all()
+    ]
     if bad:
-        raise DataError(path, f"{len(bad)} weight tensors hold NaN or infinite values (first: {bad[0]}); "
-                              "the training that wrote it diverged")
+        raise DataError(
+            path,
+            f"{len(bad)} weight tensors hold NaN or infinite values (first: {bad[0]}); "
+            "the training that wrote it diverged",
+        )
     ranges = state.get("int8_ranges")
     if ranges is not None and not (isinstance(ranges, dict) and isinstance(ranges.get("data"), dict)):
         raise DataError(path, "its int8 calibration table ('int8_ranges') is not one; re-run tools/calibrate_int8.py")
@@ -57,8 +64,13 @@ def _pad32(image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None
     return image, sparse, prior
 
 
-def forward_padded(model: torch.nn.Module, image: torch.Tensor, sparse: torch.Tensor,
-                   prior: torch.Tensor | None = None, image_edges: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+def forward_padded(
+    model: torch.nn.Module,
+    image: torch.Tensor,
+    sparse: torch.Tensor,
+    prior: torch.Tensor | None = None,
+    image_edges: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Run the network on B x 3 x H x W images and B x 1 x H x W sparse depth of any size: edge-pad to
     a multiple of 32 (the encoder's total stride), crop the outputs back. A residual-mode network gets
     the classical prior of the unpadded input (computed when not given; `image_edges`: the image picks
@@ -72,8 +84,9 @@ def forward_padded(model: torch.nn.Module, image: torch.Tensor, sparse: torch.Te
 
 
 @torch.no_grad()
-def predict(model: DepthGenerator, images: np.ndarray, sparse: np.ndarray,
-            image_edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def predict(
+    model: DepthGenerator, images: np.ndarray, sparse: np.ndarray, image_edges: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """Depth (metres) and log-sigma for a batch (B x H x W x 3 uint8 or H x W x 3; sparse B x H x W or
     H x W, metres, 0 = none). Any size: inputs are edge-padded to a multiple of 32 and cropped back.
     `image_edges`: the prior takes the side of each depth edge from the image (leovr.depth.prior)."""
@@ -104,8 +117,14 @@ def rescale_sparse(sparse: np.ndarray, scale: float, shape: tuple[int, int]) -> 
     return out
 
 
-def predict_at_focal(model: DepthGenerator, image: np.ndarray, sparse: np.ndarray, focal_px: float,
-                     model_focal_px: float | None, image_edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def predict_at_focal(
+    model: DepthGenerator,
+    image: np.ndarray,
+    sparse: np.ndarray,
+    focal_px: float,
+    model_focal_px: float | None,
+    image_edges: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
     """Depth and log-sigma of one frame, run at the focal length the model was trained with.
 
     A network trained on one camera learns object sizes in pixels; resampling a frame from `focal_px`
@@ -145,8 +164,9 @@ def sampled_prior(prior_full: np.ndarray, small_sparse: np.ndarray, scale: float
     return out
 
 
-def network_priors(sparse: torch.Tensor, image: torch.Tensor | None, small_sparse: np.ndarray,
-                   scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+def network_priors(
+    sparse: torch.Tensor, image: torch.Tensor | None, small_sparse: np.ndarray, scale: float
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The priors of a frame run at another focal length: the network's input prior (1 x 1 x hs x ws,
     `sampled_prior`) and the full-resolution one it is read from and combined with (1 x 1 x H x W), both
     from one `prior_for` of the full-resolution `sparse` (1 x 1 x H x W) and `image` (or None)."""
@@ -156,8 +176,14 @@ def network_priors(sparse: torch.Tensor, image: torch.Tensor | None, small_spars
 
 
 @torch.no_grad()
-def predict_parts_full(model: DepthGenerator, small_image: np.ndarray, small_sparse: np.ndarray,
-                       sparse: np.ndarray, scale: float, image: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def predict_parts_full(
+    model: DepthGenerator,
+    small_image: np.ndarray,
+    small_sparse: np.ndarray,
+    sparse: np.ndarray,
+    scale: float,
+    image: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """A residual-mode network run on the resampled frame, its residual, fusion uncertainty and sigma
     resized to the full frame and combined there with the full-resolution prior: the prior keeps every
     measured return and its pixel-exact interpolation; the network adds its correction. With the
@@ -165,7 +191,9 @@ def predict_parts_full(model: DepthGenerator, small_image: np.ndarray, small_spa
     img = torch.from_numpy(np.ascontiguousarray(small_image)).permute(2, 0, 1)[None].float() / 255.0
     sp = torch.from_numpy(np.ascontiguousarray(small_sparse, np.float32))[None, None]
     sp_full = torch.from_numpy(np.ascontiguousarray(sparse, np.float32))[None, None]
-    img_full = None if image is None else torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
+    img_full = (
+        None if image is None else torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
+    )
     small_prior, prior_full = network_priors(sp_full, img_full, small_sparse, scale)
     h, w = sparse.shape
     image_p, sparse_p, prior_p = _pad32(img, sp, small_prior)

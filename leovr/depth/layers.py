@@ -108,14 +108,17 @@ def uncertainty_weight(log_sigma: torch.Tensor, alpha: float = 0.8, beta: float 
     return torch.sigmoid(-alpha * (log_sigma - beta))
 
 
-def uncertainty_residual(prior: torch.Tensor, log_sigma: torch.Tensor, residual: torch.Tensor,
-                         alpha: float = 0.8, beta: float = 0.0) -> torch.Tensor:
+def uncertainty_residual(
+    prior: torch.Tensor, log_sigma: torch.Tensor, residual: torch.Tensor, alpha: float = 0.8, beta: float = 0.0
+) -> torch.Tensor:
     """d = lambda(sigma) z_hat + (1 - lambda(sigma)) d_hat (all-day eq. 4)."""
     lam = uncertainty_weight(log_sigma, alpha, beta)
     return lam * prior + (1.0 - lam) * residual
 
 
-def gaussian_nll(pred: torch.Tensor, log_sigma: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+def gaussian_nll(
+    pred: torch.Tensor, log_sigma: torch.Tensor, target: torch.Tensor, valid: torch.Tensor
+) -> torch.Tensor:
     """Mean over valid pixels of 1/2 ((pred - target) / e^sigma)^2 + sigma (all-day eq. 2)."""
     r = (pred - target) * torch.exp(-log_sigma)
     loss = 0.5 * r**2 + log_sigma

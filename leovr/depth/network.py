@@ -143,7 +143,9 @@ class DepthGenerator(nn.Module):
     def uses_prior(self) -> bool:
         return self.cfg.output != "absolute"
 
-    def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def parts(
+        self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """The network's outputs before they are combined with the prior, at the input's resolution:
         `log_depth` (absolute) or `log_residual` (+ `prior_log_sigma` for fusion), and `log_sigma`,
         the uncertainty of the final depth (what the graph uses as a prior)."""
@@ -192,8 +194,9 @@ class DepthGenerator(nn.Module):
             refined = uncertainty_residual(z, s, refined, self.cfg.fusion_alpha, self.cfg.fusion_beta)
         return refined if self.cfg.blend == 1.0 else blend_log_depth(refined, z, self.cfg.blend)
 
-    def forward(self, image: torch.Tensor, sparse: torch.Tensor,
-                prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Depth (metres) and log-sigma at the input's resolution. `prior` (B x 1 x H x W metres) is the
         classical prior of `sparse`; computed here when a residual mode needs it and none is given."""
         if self.uses_prior and prior is None:

@@ -154,8 +154,9 @@ def triangle_map(corners: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     h, w = shape
     out = np.full(h * w, -1, np.int64)
     xy = np.asarray(corners, np.float64)
-    area2 = ((xy[:, 1, 0] - xy[:, 0, 0]) * (xy[:, 2, 1] - xy[:, 0, 1])
-             - (xy[:, 2, 0] - xy[:, 0, 0]) * (xy[:, 1, 1] - xy[:, 0, 1]))
+    area2 = (xy[:, 1, 0] - xy[:, 0, 0]) * (xy[:, 2, 1] - xy[:, 0, 1]) - (xy[:, 2, 0] - xy[:, 0, 0]) * (
+        xy[:, 1, 1] - xy[:, 0, 1]
+    )
     ids = np.nonzero(area2 != 0)[0]  # a flat triangle covers nothing its neighbours do not
     if not len(ids):
         return out.reshape(shape)
@@ -171,8 +172,11 @@ def triangle_map(corners: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     y = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + first[t]
     yf = y.astype(np.float64)
     x_long = xa[t] + (yf - ya[t]) * slope_ac[t]
-    x_short = np.where(yf <= yb[t], np.where(yb[t] > ya[t], xa[t] + (yf - ya[t]) * slope_ab[t], xb[t]),
-                       xb[t] + (yf - yb[t]) * slope_bc[t])
+    x_short = np.where(
+        yf <= yb[t],
+        np.where(yb[t] > ya[t], xa[t] + (yf - ya[t]) * slope_ab[t], xb[t]),
+        xb[t] + (yf - yb[t]) * slope_bc[t],
+    )
     x0 = np.maximum(np.ceil(np.minimum(x_long, x_short) - 1e-9), 0).astype(np.int64)
     x1 = np.minimum(np.floor(np.maximum(x_long, x_short) + 1e-9), w - 1).astype(np.int64)
     m = np.maximum(x1 - x0 + 1, 0)
@@ -196,8 +200,9 @@ class TriangleLookup:
     c: np.ndarray
 
 
-def triangle_lookup(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                    edge_ratio: float = EDGE_RATIO) -> TriangleLookup:
+def triangle_lookup(
+    sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray, edge_ratio: float = EDGE_RATIO
+) -> TriangleLookup:
     """Triangulate the returns of `sparse` (float32, 0 = none, at least one return) and look up the pixels
     (int64 rows, cols): a triangle whose corner depths differ by a factor of `edge_ratio` or more spans a
     depth edge and is not interpolated."""
@@ -253,8 +258,13 @@ def _beside(fn, *args) -> Future:
     return fut
 
 
-def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                    edge_ratio: float = EDGE_RATIO, image: np.ndarray | None = None) -> np.ndarray:
+def interpolated_at(
+    sparse: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    edge_ratio: float = EDGE_RATIO,
+    image: np.ndarray | None = None,
+) -> np.ndarray:
     """The prior of `sparse` at the pixels (rows, cols) only (float32 metres; 0 where the map is empty).
     Triangles whose corner depths differ by a factor of `edge_ratio` or more span a depth edge: their
     pixels take one corner's depth instead of a blend of foreground and background, the one the image
@@ -290,8 +300,9 @@ def interpolated_at(sparse: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     return out
 
 
-def interpolated_fill(sparse: np.ndarray, edge_ratio: float = EDGE_RATIO,
-                      image: np.ndarray | None = None) -> np.ndarray:
+def interpolated_fill(
+    sparse: np.ndarray, edge_ratio: float = EDGE_RATIO, image: np.ndarray | None = None
+) -> np.ndarray:
     """Dense depth (metres, float32) from a sparse map (0 = no return); all zeros when it is empty.
     `image` (the frame, H x W (x 3)) picks the side of depth edges (module docstring)."""
     sparse = np.asarray(sparse, np.float32)
@@ -303,5 +314,6 @@ def interpolated_fill(sparse: np.ndarray, edge_ratio: float = EDGE_RATIO,
 def interpolated_fill_batch(sparse: np.ndarray, images: np.ndarray | None = None) -> np.ndarray:
     """`interpolated_fill` of each map of a B x H x W (or B x 1 x H x W) batch; `images`: B x H x W x 3."""
     maps = sparse.reshape(-1, *sparse.shape[-2:])
-    return np.stack([interpolated_fill(s, image=None if images is None else images[b])
-                     for b, s in enumerate(maps)]).reshape(sparse.shape)
+    return np.stack(
+        [interpolated_fill(s, image=None if images is None else images[b]) for b, s in enumerate(maps)]
+    ).reshape(sparse.shape)

@@ -37,9 +37,16 @@ def export_fp32(parts: nn.Module, keys: tuple[str, ...], h: int, w: int, target:
     args = (torch.zeros(1, 3, h, w), torch.zeros(1, 1, h, w), torch.ones(1, 1, h, w))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation and tracer notes
-        torch.onnx.export(parts, args, target if isinstance(target, io.BytesIO) else str(target), dynamo=False,
-                          opset_version=17, input_names=list(INPUTS), output_names=list(keys),
-                          dynamic_axes={n: {0: "batch"} for n in (*INPUTS, *keys)})
+        torch.onnx.export(
+            parts,
+            args,
+            target if isinstance(target, io.BytesIO) else str(target),
+            dynamo=False,
+            opset_version=17,
+            input_names=list(INPUTS),
+            output_names=list(keys),
+            dynamic_axes={n: {0: "batch"} for n in (*INPUTS, *keys)},
+        )
 
 
 def _prepared(parts: nn.Module, keys: tuple[str, ...], h: int, w: int, folder: Path) -> Path:
@@ -66,10 +73,18 @@ def _quantize(pre: Path, out: Path, cache: Path, reader=None) -> None:
     level = logger.level
     logger.setLevel(logging.ERROR)
     try:
-        quantize_static(str(pre), str(out), reader, quant_format=QuantFormat.QDQ, per_channel=True,
-                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
-                        calibrate_method=CalibrationMethod.MinMax, nodes_to_exclude=_float_nodes(pre),
-                        calibration_cache_path=str(cache))
+        quantize_static(
+            str(pre),
+            str(out),
+            reader,
+            quant_format=QuantFormat.QDQ,
+            per_channel=True,
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
+            calibrate_method=CalibrationMethod.MinMax,
+            nodes_to_exclude=_float_nodes(pre),
+            calibration_cache_path=str(cache),
+        )
     finally:
         logger.setLevel(level)
 

@@ -63,8 +63,9 @@ class _StandIn:
     def combine(self, parts: dict[str, torch.Tensor], prior: torch.Tensor | None, sparse: torch.Tensor) -> torch.Tensor:
         return self.model.combine(parts, prior, sparse)
 
-    def __call__(self, image: torch.Tensor, sparse: torch.Tensor,
-                 prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def __call__(
+        self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         if prior is None:
             prior = prior_for(sparse)
         parts = self.parts(image, sparse, prior)
@@ -129,15 +130,19 @@ class OnnxGenerator(_StandIn):
             self._key = h.hexdigest()
         return self._key
 
-    def parts(self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def parts(
+        self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         h, w = image.shape[-2:]
         if h % 32 or w % 32:
             raise ValueError(f"image size {w}x{h} must be a multiple of 32 in both directions")
         if prior is None:
             raise ValueError("a residual-mode generator needs the classical prior (prior_for)")
-        feed = {"image": image.detach().float().contiguous().numpy(),
-                "sparse": sparse.detach().float().contiguous().numpy(),
-                "prior": prior.detach().float().contiguous().numpy()}
+        feed = {
+            "image": image.detach().float().contiguous().numpy(),
+            "sparse": sparse.detach().float().contiguous().numpy(),
+            "prior": prior.detach().float().contiguous().numpy(),
+        }
         out = self._session(h, w).run(list(self.keys), feed)
         return {k: torch.from_numpy(v) for k, v in zip(self.keys, out)}
 
@@ -180,8 +185,11 @@ def for_inference(model: DepthGenerator, runtime: Runtime = "onnxruntime") -> De
     if runtime == "onnxruntime_int8":
         ranges = getattr(model, "int8_ranges", None)
         if ranges is None:
-            warnings.warn("the checkpoint has no int8 calibration table (tools/calibrate_int8.py writes one); "
-                          "the generator runs in floating point", stacklevel=2)
+            warnings.warn(
+                "the checkpoint has no int8 calibration table (tools/calibrate_int8.py writes one); "
+                "the generator runs in floating point",
+                stacklevel=2,
+            )
     try:
         return OnnxGenerator(model, ranges)
     except ImportError as exc:

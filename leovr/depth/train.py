@@ -29,9 +29,13 @@ from leovr.threads import single_threaded_blas
 
 def generator_config(cfg: TrainConfig | SelfSupConfig) -> GeneratorConfig:
     """The network a training config describes (both trainers share these fields)."""
-    return GeneratorConfig(lidar_encoder=cfg.lidar_encoder, cross_attention=cfg.cross_attention,
-                           channels=tuple(cfg.channels), blocks=tuple(cfg.blocks),
-                           output=getattr(cfg, "output", "absolute"))
+    return GeneratorConfig(
+        lidar_encoder=cfg.lidar_encoder,
+        cross_attention=cfg.cross_attention,
+        channels=tuple(cfg.channels),
+        blocks=tuple(cfg.blocks),
+        output=getattr(cfg, "output", "absolute"),
+    )
 
 
 def run_model(model: DepthGenerator, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -78,7 +82,8 @@ def init_from(model: DepthGenerator, path: Path) -> None:
 
     source = load_generator(path)
     if replace(source.cfg, output=model.cfg.output, blend=model.cfg.blend) != model.cfg or (
-            source.cfg.output != model.cfg.output and source.cfg.output != "absolute"):
+        source.cfg.output != model.cfg.output and source.cfg.output != "absolute"
+    ):
         raise DataError(path, f"init checkpoint describes {source.cfg}, the config asks for {model.cfg}")
     state = source.state_dict()
     if source.cfg.output != model.cfg.output:
@@ -92,8 +97,9 @@ def save_checkpoint(path: Path, state: dict) -> None:
     atomic_write(path, lambda tmp: torch.save(state, tmp))
 
 
-def load_resume(path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer,
-                sched: torch.optim.lr_scheduler.LRScheduler) -> dict:
+def load_resume(
+    path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, sched: torch.optim.lr_scheduler.LRScheduler
+) -> dict:
     """Restore model, optimiser and scheduler from a trainer's `checkpoint_last.pt`; returns the whole
     state (epoch and whatever else the trainer stored)."""
     state = read_resume_state(path, ("model", "optimizer", "scheduler", "epoch"))
@@ -114,8 +120,11 @@ def read_resume_state(path: Path, keys: tuple[str, ...]) -> dict:
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # torch raises many types for corrupt files
-        raise DataError(path, f"unreadable checkpoint (truncated, or not written by leovr): "
-                              f"{(str(exc).strip().splitlines() or [type(exc).__name__])[0]}") from exc
+        raise DataError(
+            path,
+            f"unreadable checkpoint (truncated, or not written by leovr): "
+            f"{(str(exc).strip().splitlines() or [type(exc).__name__])[0]}",
+        ) from exc
     missing = [k for k in keys if not isinstance(state, dict) or k not in state]
     if missing:
         raise DataError(path, f"not a leovr resume checkpoint (no {', '.join(missing)})")
@@ -129,12 +138,27 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     np.random.seed(cfg.seed)
     root = Path(cfg.dataset) if cfg.dataset else default_root() / cfg.recipe
     prior, image_edges = cfg.output != "absolute", cfg.prior_edges == "image"
-    train_set = DepthSamples(split_sequences(root, "train"), (cfg.ratio_min, cfg.ratio_max), cfg.native_prob,
-                             cfg.max_frames, cfg.seed, with_prior=prior, image_edges=image_edges)
-    val_set = DepthSamples(split_sequences(root, "val"), max_frames=max(8, (cfg.max_frames or 64) // 4),
-                           seed=cfg.seed + 1, random_input=False, with_prior=prior, image_edges=image_edges)
+    train_set = DepthSamples(
+        split_sequences(root, "train"),
+        (cfg.ratio_min, cfg.ratio_max),
+        cfg.native_prob,
+        cfg.max_frames,
+        cfg.seed,
+        with_prior=prior,
+        image_edges=image_edges,
+    )
+    val_set = DepthSamples(
+        split_sequences(root, "val"),
+        max_frames=max(8, (cfg.max_frames or 64) // 4),
+        seed=cfg.seed + 1,
+        random_input=False,
+        with_prior=prior,
+        image_edges=image_edges,
+    )
     gen = torch.Generator().manual_seed(cfg.seed)
-    train_loader = DataLoader(train_set, cfg.batch_size, shuffle=True, generator=gen, drop_last=len(train_set) > cfg.batch_size)
+    train_loader = DataLoader(
+        train_set, cfg.batch_size, shuffle=True, generator=gen, drop_last=len(train_set) > cfg.batch_size
+    )
     val_loader = DataLoader(val_set, cfg.batch_size)
     model = DepthGenerator(generator_config(cfg))
     if cfg.init_checkpoint and not resume:
@@ -162,8 +186,12 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
             model.eval()
             model.sigma_head.train()
         t0, losses = time.time(), []
-        bar = tqdm(train_loader, desc=f"epoch {epoch + 1}/{total} ({'depth' if depth_phase else 'sigma'})",
-                   unit="batch", disable=not progress)
+        bar = tqdm(
+            train_loader,
+            desc=f"epoch {epoch + 1}/{total} ({'depth' if depth_phase else 'sigma'})",
+            unit="batch",
+            disable=not progress,
+        )
         for b in bar:
             if depth_phase:
                 depth, _ = run_model(model, b)
@@ -184,19 +212,41 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
         if depth_phase:
             sched.step()
         val_mae = evaluate(model, val_loader)
-        record = {"epoch": epoch + 1, "phase": "depth" if depth_phase else "sigma", "train_loss": float(np.mean(losses)),
-                  "val_mae_m": val_mae, "lr": opt.param_groups[0]["lr"], "seconds": round(time.time() - t0, 1)}
+        record = {
+            "epoch": epoch + 1,
+            "phase": "depth" if depth_phase else "sigma",
+            "train_loss": float(np.mean(losses)),
+            "val_mae_m": val_mae,
+            "lr": opt.param_groups[0]["lr"],
+            "seconds": round(time.time() - t0, 1),
+        }
         with open(out / "log.jsonl", "a") as fh:
             fh.write(json.dumps(record) + "\n")
         # depth phase: keep the lowest validation MAE; sigma phase: depth is frozen, so every epoch improves best.pt
         save_best = not depth_phase or val_mae < best
         if depth_phase and save_best:
             best = val_mae
-        state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                 "sigma_optimizer": sigma_opt.state_dict(), "epoch": epoch, "best_val_mae_m": best,
-                 "generator": gen.get_state(), "config": cfg.model_dump(), "network": generator_config(cfg).__dict__}
+        state = {
+            "model": model.state_dict(),
+            "optimizer": opt.state_dict(),
+            "scheduler": sched.state_dict(),
+            "sigma_optimizer": sigma_opt.state_dict(),
+            "epoch": epoch,
+            "best_val_mae_m": best,
+            "generator": gen.get_state(),
+            "config": cfg.model_dump(),
+            "network": generator_config(cfg).__dict__,
+        }
         save_checkpoint(last, state)
         if save_best:
-            save_checkpoint(out / "best.pt", {"model": model.state_dict(), "config": cfg.model_dump(),
-                                    "network": generator_config(cfg).__dict__, "epoch": epoch + 1, "val_mae_m": val_mae})
+            save_checkpoint(
+                out / "best.pt",
+                {
+                    "model": model.state_dict(),
+                    "config": cfg.model_dump(),
+                    "network": generator_config(cfg).__dict__,
+                    "epoch": epoch + 1,
+                    "val_mae_m": val_mae,
+                },
+            )
     return record

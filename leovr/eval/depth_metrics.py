@@ -40,9 +40,7 @@ def metrics_from_arrays(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     }
 
 
-def depth_metrics(
-    pred: np.ndarray, gt: np.ndarray, bins: Seq[float] = LEOVR_BINS, min_pred: float = 1e-3
-) -> dict:
+def depth_metrics(pred: np.ndarray, gt: np.ndarray, bins: Seq[float] = LEOVR_BINS, min_pred: float = 1e-3) -> dict:
     """Metrics of a predicted depth map against ground truth (0 = unknown) with per-bin breakdown.
 
     Predictions at or below `min_pred` where ground truth exists are clamped to `min_pred` (a

@@ -10,7 +10,9 @@ PARALLAX_REL = 0.15
 
 
 def parallax_filter(
-    heldout: np.ndarray, all_returns: np.ndarray, window: int | tuple[int, int] = PARALLAX_WINDOW,
+    heldout: np.ndarray,
+    all_returns: np.ndarray,
+    window: int | tuple[int, int] = PARALLAX_WINDOW,
     rel: float = PARALLAX_REL,
 ) -> np.ndarray:
     """Drop held-out depths that have a clearly nearer return nearby.

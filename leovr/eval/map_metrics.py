@@ -34,7 +34,9 @@ def map_scores(dist: np.ndarray, near_m: float = NEAR_M, cover_m: float = COVER_
     distances `dist` from a map."""
     dist = np.asarray(dist, np.float64)
     covered = dist <= cover_m
-    return {"n": int(len(dist)),
-            "accuracy_m": float(dist[covered].mean()) if covered.any() else None,
-            "completeness": float((dist <= near_m).mean()) if len(dist) else None,
-            "covered": float(covered.mean()) if len(dist) else None}
+    return {
+        "n": int(len(dist)),
+        "accuracy_m": float(dist[covered].mean()) if covered.any() else None,
+        "completeness": float((dist <= near_m).mean()) if len(dist) else None,
+        "covered": float(covered.mean()) if len(dist) else None,
+    }

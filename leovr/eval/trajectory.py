@@ -17,8 +17,12 @@ KITTI_STEP_FRAMES = 10  # the devkit's spacing of segment starts
 STRETCH_FRAMES = 32  # the ATE of each stretch of this many frames too, each aligned alone: where drift builds up
 
 
-def kitti_relative_errors(estimate: np.ndarray, reference: np.ndarray, lengths: tuple[float, ...] = KITTI_LENGTHS_M,
-                          step: int = KITTI_STEP_FRAMES) -> dict:
+def kitti_relative_errors(
+    estimate: np.ndarray,
+    reference: np.ndarray,
+    lengths: tuple[float, ...] = KITTI_LENGTHS_M,
+    step: int = KITTI_STEP_FRAMES,
+) -> dict:
     """KITTI odometry's drift measure (devkit `evaluate_odometry.cpp`): from every `step`-th frame, the segment
     to the first frame whose distance along the reference path exceeds each length; the error of the estimated
     relative pose over the segment, translation (% of the length) and rotation (deg / m), averaged over every
@@ -38,18 +42,25 @@ def kitti_relative_errors(estimate: np.ndarray, reference: np.ndarray, lengths: 
             cos = np.clip((np.trace(err[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
             t_len.append(float(np.linalg.norm(err[:3, 3])) / length)
             r_len.append(float(np.degrees(np.arccos(cos))) / length)
-        per[f"{length:g}"] = ({"t_err_pct": 100.0 * float(np.mean(t_len)), "r_err_deg_per_m": float(np.mean(r_len)),
-                               "segments": len(t_len)} if t_len else None)
+        per[f"{length:g}"] = (
+            {
+                "t_err_pct": 100.0 * float(np.mean(t_len)),
+                "r_err_deg_per_m": float(np.mean(r_len)),
+                "segments": len(t_len),
+            }
+            if t_len
+            else None
+        )
         t_err += t_len
         r_err += r_len
-    return {"kitti_t_err_pct": 100.0 * float(np.mean(t_err)) if t_err else None,
-            "kitti_r_err_deg_per_m": float(np.mean(r_err)) if r_err else None,
-            "kitti_segments": per}
+    return {
+        "kitti_t_err_pct": 100.0 * float(np.mean(t_err)) if t_err else None,
+        "kitti_r_err_deg_per_m": float(np.mean(r_err)) if r_err else None,
+        "kitti_segments": per,
+    }
 
 
-def trajectory_metrics(
-    estimate: np.ndarray, reference: np.ndarray, align: str = "se3", rpe_delta: int = 1
-) -> dict:
+def trajectory_metrics(estimate: np.ndarray, reference: np.ndarray, align: str = "se3", rpe_delta: int = 1) -> dict:
     """ATE (RMSE of translation after alignment) and RPE (translation, `rpe_delta` frames apart).
 
     `estimate` and `reference` are F x 4 x 4 camera-to-world poses of the same frames. `align` is

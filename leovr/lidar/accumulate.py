@@ -109,8 +109,9 @@ class ScanHistory:
                 if later.index in older.checked or older.index not in poses:
                     continue
                 T = T_later @ poses[older.index]
-                older.dropped |= later.seen.contradicts(older.points_cam @ T[:3, :3].T + T[:3, 3],
-                                                        self.margin_m, self.margin_rel)
+                older.dropped |= later.seen.contradicts(
+                    older.points_cam @ T[:3, :3].T + T[:3, 3], self.margin_m, self.margin_rel
+                )
                 older.checked.add(later.index)
 
     def gather(self, poses: Mapping[int, np.ndarray], T_world_cam: np.ndarray) -> np.ndarray:

@@ -64,8 +64,6 @@ def image_pixels(
     return u[inside], v[inside], z[inside], front[inside]
 
 
-def sparse_depth(
-    points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int]
-) -> np.ndarray:
+def sparse_depth(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """H x W float32 sparse depth map of the points (0 = no return)."""
     return project_points(points, K, T_cam_lidar, shape).to_map()

@@ -27,9 +27,18 @@ if TYPE_CHECKING:
 ACCUMULATED = ("nearest_accumulated", "ipbasic_accumulated")
 
 
-def accumulated_fills(seq: Sequence, indices: list[int], ccfg: CompleteConfig, poses: np.ndarray,
-                      scored: dict[int, "FrameScore"], frames: list[int], reach: int, causal: bool = False,
-                      frame_dt: float = 0.1, progress: bool = False) -> None:
+def accumulated_fills(
+    seq: Sequence,
+    indices: list[int],
+    ccfg: CompleteConfig,
+    poses: np.ndarray,
+    scored: dict[int, "FrameScore"],
+    frames: list[int],
+    reach: int,
+    causal: bool = False,
+    frame_dt: float = 0.1,
+    progress: bool = False,
+) -> None:
     """Add both accumulated fills to the scores of `frames` (frames of the run's `indices`, whose camera
     poses `poses` holds in the same order). Each frame's cheap scan is read once, in order."""
     from leovr.pipeline.refine import frame_sample
@@ -42,8 +51,13 @@ def accumulated_fills(seq: Sequence, indices: list[int], ccfg: CompleteConfig, p
         nonlocal K, shape
         if j not in cache:
             n = position[j]
-            step = (invert_T(poses[n]) @ poses[n + 1] if n + 1 < len(indices)
-                    else invert_T(poses[n - 1]) @ poses[n] if n else None)  # KISS-ICP's motion over the sweep
+            step = (
+                invert_T(poses[n]) @ poses[n + 1]
+                if n + 1 < len(indices)
+                else invert_T(poses[n - 1]) @ poses[n]
+                if n
+                else None
+            )  # KISS-ICP's motion over the sweep
             sample = frame_sample(seq, j, ccfg, step, frame_dt, truth=False)
             K, shape, T_cl = sample.frame.K, sample.frame.shape, sample.frame.T_cam_lidar
             kept = sample.kept_points
@@ -51,10 +65,14 @@ def accumulated_fills(seq: Sequence, indices: list[int], ccfg: CompleteConfig, p
             cache[j] = pts @ T_cl[:3, :3].T + T_cl[:3, 3]
         return cache[j]
 
-    for i in tqdm(sorted(frames, key=position.get), desc="score accumulated fills", unit="frame",
-                  disable=not progress or not frames):
+    for i in tqdm(
+        sorted(frames, key=position.get),
+        desc="score accumulated fills",
+        unit="frame",
+        disable=not progress or not frames,
+    ):
         n = position[i]
-        near = indices[max(0, n - reach): n + 1 if causal else n + reach + 1]
+        near = indices[max(0, n - reach) : n + 1 if causal else n + reach + 1]
         for j in [j for j in cache if j not in near]:
             cache.pop(j)
         T_i = invert_T(poses[n])

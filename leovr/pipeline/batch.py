@@ -34,8 +34,9 @@ ERROR_FILE = "error.json"  # a data error the adaptation met (written by its pro
 LOCAL_SYSTEM_CONFIG = {"enable_metrics_collection": False}
 
 
-def task_settings(job: str, section: dict[str, Any], path: Path | None = None,
-                  map_section: dict[str, Any] | None = None) -> dict[str, Any]:
+def task_settings(
+    job: str, section: dict[str, Any], path: Path | None = None, map_section: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """What a sequence's result depends on (the job, its settings, the map's when one is fused, the sequence's
     files): a re-run with other settings or changed data is refused before any work."""
     files = folder_fingerprint(path) if path is not None and Path(path).exists() else None
@@ -65,8 +66,11 @@ def check_no_other_results(out: Path, items: list[BatchItem], settings: dict[str
             diff = differences(prev, settings[it.name]) if isinstance(prev, dict) else ["no batch.json"]
             stale.append(f"{it.name}: {brief(diff, 2, '; ')}")
     if stale:
-        raise DataError(out, f"holds results of other settings or input files for {brief(stale, 3, ', ')}; "
-                             "use a new --out, or delete those sequences' folders to do them again")
+        raise DataError(
+            out,
+            f"holds results of other settings or input files for {brief(stale, 3, ', ')}; "
+            "use a new --out, or delete those sequences' folders to do them again",
+        )
 
 
 def _set_threads(n: int) -> None:
@@ -77,8 +81,16 @@ def _set_threads(n: int) -> None:
     cv2.setNumThreads(n)
 
 
-def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, threads: int = 1,
-                 settings: dict | None = None, topics: Any = None, map_section: dict[str, Any] | None = None) -> dict:
+def run_sequence(
+    item: BatchItem,
+    job: str,
+    section: dict[str, Any],
+    out: Path,
+    threads: int = 1,
+    settings: dict | None = None,
+    topics: Any = None,
+    map_section: dict[str, Any] | None = None,
+) -> dict:
     """One sequence, in a Ray worker (or in-process): run the job into `out`, resuming what is there.
     `settings`: its `task_settings` when the caller has them; `topics`: the ROS bag topics the command line
     named (a worker process does not share the driver's). Returns the state record; data and config errors
@@ -94,8 +106,15 @@ def run_sequence(item: BatchItem, job: str, section: dict[str, Any], out: Path, 
     out.mkdir(parents=True, exist_ok=True)
     prev = _read_state(out)
     attempts = int(prev.get("attempts", 0)) + 1 if prev.get("settings") == settings else 1
-    state = {"name": item.name, "path": str(item.path), "job": job, "settings": settings, "attempts": attempts,
-             "pid": os.getpid(), "host": os.uname().nodename}
+    state = {
+        "name": item.name,
+        "path": str(item.path),
+        "job": job,
+        "settings": settings,
+        "attempts": attempts,
+        "pid": os.getpid(),
+        "host": os.uname().nodename,
+    }
     write_text(out / STATE_FILE, json.dumps({**state, "status": "running"}, indent=1) + "\n")
     t0 = time.perf_counter()
     resume = (out / "run.json").is_file()
@@ -134,8 +153,10 @@ def job_section(cfg: LeovrConfig, job: str, item: BatchItem, checkpoint: str | N
         opts["checkpoint"] = checkpoint
     unknown = sorted(set(opts) - set(type(base).model_fields))
     if unknown:
-        raise ConfigError(f"{item.path}: unknown option(s) {', '.join(unknown)} for `{job}` "
-                          f"(known: {', '.join(type(base).model_fields)})")
+        raise ConfigError(
+            f"{item.path}: unknown option(s) {', '.join(unknown)} for `{job}` "
+            f"(known: {', '.join(type(base).model_fields)})"
+        )
     return override(base, **opts).model_dump()
 
 
@@ -151,8 +172,13 @@ def _init_ray(bcfg: BatchConfig) -> bool:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private local instance needs no token
         cpus = (bcfg.workers or os.cpu_count() or 1) * bcfg.cpus_per_task
         system = {} if bcfg.dashboard else LOCAL_SYSTEM_CONFIG
-        ray.init(num_cpus=cpus, include_dashboard=bcfg.dashboard, log_to_driver=False, configure_logging=False,
-                 _system_config=system)
+        ray.init(
+            num_cpus=cpus,
+            include_dashboard=bcfg.dashboard,
+            log_to_driver=False,
+            configure_logging=False,
+            _system_config=system,
+        )
     return True
 
 
@@ -215,50 +241,84 @@ def _finish(out: Path, rows: list[dict] | None, stop_ray: bool) -> None:
         summary.result()
 
 
-def _run_tasks(todo: list[BatchItem], job: str, sections: dict[str, dict], settings: dict[str, dict],
-               bcfg: BatchConfig, out: Path, rows: dict[str, dict], items: list[BatchItem], progress: bool,
-               map_section: dict | None = None) -> None:
+def _run_tasks(
+    todo: list[BatchItem],
+    job: str,
+    sections: dict[str, dict],
+    settings: dict[str, dict],
+    bcfg: BatchConfig,
+    out: Path,
+    rows: dict[str, dict],
+    items: list[BatchItem],
+    progress: bool,
+    map_section: dict | None = None,
+) -> None:
     """One Ray task per sequence of `todo`, at most `workers` in flight; the summary after each one."""
     import ray
 
     from leovr.data import rosbag
 
-    task = ray.remote(run_sequence).options(num_cpus=bcfg.cpus_per_task, max_retries=bcfg.max_retries,
-                                            retry_exceptions=False)
+    task = ray.remote(run_sequence).options(
+        num_cpus=bcfg.cpus_per_task, max_retries=bcfg.max_retries, retry_exceptions=False
+    )
     limit = bcfg.workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // bcfg.cpus_per_task)
     todo = list(todo)
     inflight: dict[Any, BatchItem] = {}
-    bar = tqdm(total=len(items), initial=len(items) - len(todo), desc=f"batch {bcfg.job}", unit="seq",
-               disable=not progress)
+    bar = tqdm(
+        total=len(items), initial=len(items) - len(todo), desc=f"batch {bcfg.job}", unit="seq", disable=not progress
+    )
     while todo or inflight:
         while todo and len(inflight) < limit:
             it = todo.pop(0)
-            inflight[task.remote(it, job, sections[it.name], out / it.name, bcfg.cpus_per_task, settings[it.name],
-                                 rosbag.CHOICE, map_section)] = it
+            inflight[
+                task.remote(
+                    it,
+                    job,
+                    sections[it.name],
+                    out / it.name,
+                    bcfg.cpus_per_task,
+                    settings[it.name],
+                    rosbag.CHOICE,
+                    map_section,
+                )
+            ] = it
         ready, _ = ray.wait(list(inflight), num_returns=1)
         it = inflight.pop(ready[0])
         try:
             rows[it.name] = ray.get(ready[0])
         except ray.exceptions.RayError as exc:  # the worker died more often than max_retries allows
-            rows[it.name] = {"name": it.name, "path": str(it.path), "status": "failed",
-                             "error": f"{type(exc).__name__}: {str(exc).splitlines()[0]}"}
+            rows[it.name] = {
+                "name": it.name,
+                "path": str(it.path),
+                "status": "failed",
+                "error": f"{type(exc).__name__}: {str(exc).splitlines()[0]}",
+            }
         bar.update(1)
         bar.set_postfix_str(f"{it.name}: {rows[it.name]['status']}")
-        write_summary(out, [rows.get(i.name) or {"name": i.name, "path": str(i.path), "status": "pending"}
-                            for i in items], plot=False)
+        write_summary(
+            out,
+            [rows.get(i.name) or {"name": i.name, "path": str(i.path), "status": "pending"} for i in items],
+            plot=False,
+        )
     bar.close()
 
 
 def _adapt_settings(items: list[BatchItem], cfg: LeovrConfig) -> dict:
-    return task_settings("adapt", {"sequences": {str(it.path): folder_fingerprint(it.path) for it in items},
-                                   "adapt": cfg.adapt.model_dump()})
+    return task_settings(
+        "adapt",
+        {"sequences": {str(it.path): folder_fingerprint(it.path) for it in items}, "adapt": cfg.adapt.model_dump()},
+    )
 
 
 def adapt_done(items: list[BatchItem], cfg: LeovrConfig, out: Path) -> str | None:
     """The adapted checkpoint of an earlier run of the same batch and settings, if it finished."""
     out = Path(out).resolve()
     st = _read_state(out)
-    if (out / "generator.pt").is_file() and st.get("status") == "done" and st.get("settings") == _adapt_settings(items, cfg):
+    if (
+        (out / "generator.pt").is_file()
+        and st.get("status") == "done"
+        and st.get("settings") == _adapt_settings(items, cfg)
+    ):
         return str(out / "generator.pt")
     return None
 
@@ -276,8 +336,13 @@ def _adapt_loop(config: dict) -> None:
     folder = Path(config["folder"])
     resume = (folder / "checkpoint_last.pt").is_file()
     try:
-        adapt([open_sequence(p) for p in config["paths"]], AdaptConfig.model_validate(config["adapt"]), folder,
-              resume=resume, progress=False)
+        adapt(
+            [open_sequence(p) for p in config["paths"]],
+            AdaptConfig.model_validate(config["adapt"]),
+            folder,
+            resume=resume,
+            progress=False,
+        )
     except LeovrError as exc:
         if distributed()[0] == 0:
             write_text(folder / ERROR_FILE, json.dumps({"error": str(exc)}) + "\n")
@@ -306,22 +371,31 @@ def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: b
     if bcfg.adapt_processes:
         n, per = bcfg.adapt_processes, bcfg.cpus_per_task
     else:  # one process per node with that node's CPUs: threads within a node, data-parallel across nodes
-        cpus = [int(nd["Resources"]["CPU"]) for nd in ray.nodes() if nd.get("Alive") and nd["Resources"].get("CPU", 0) >= 1]
+        cpus = [
+            int(nd["Resources"]["CPU"]) for nd in ray.nodes() if nd.get("Alive") and nd["Resources"].get("CPU", 0) >= 1
+        ]
         n, per = max(1, len(cpus)), max(1, min(cpus, default=1))
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     (out / ERROR_FILE).unlink(missing_ok=True)
     if progress:
-        tqdm.write(f"adapting the generator on {len(items)} sequence(s): {n} data-parallel process(es) on Ray Train "
-                   f"-> {out}")
+        tqdm.write(
+            f"adapting the generator on {len(items)} sequence(s): {n} data-parallel process(es) on Ray Train -> {out}"
+        )
     trainer = TorchTrainer(
         _adapt_loop,
         # absolute paths: Ray Train runs each process in a folder of its own
-        train_loop_config={"paths": [str(Path(it.path).resolve()) for it in items], "adapt": _resolved(cfg.adapt),
-                           "folder": str(out), "threads": per},
+        train_loop_config={
+            "paths": [str(Path(it.path).resolve()) for it in items],
+            "adapt": _resolved(cfg.adapt),
+            "folder": str(out),
+            "threads": per,
+        },
         scaling_config=ScalingConfig(num_workers=n, use_gpu=False, resources_per_worker={"CPU": per}),
-        run_config=RunConfig(name="ray_train", storage_path=str(out),
-                             failure_config=FailureConfig(max_failures=bcfg.max_retries)))
+        run_config=RunConfig(
+            name="ray_train", storage_path=str(out), failure_config=FailureConfig(max_failures=bcfg.max_retries)
+        ),
+    )
     try:
         trainer.fit()
     except Exception as exc:  # Ray Train's failure after its retries (a worker died too often)
@@ -330,6 +404,9 @@ def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: b
     if err:
         raise DataError(out, f"adaptation on the batch's sequences failed, nothing refined: {err}")
     path = str(out / "generator.pt")
-    write_text(out / STATE_FILE, json.dumps({"status": "done", "settings": _adapt_settings(items, cfg),
-                                             "checkpoint": path, "processes": n}) + "\n")
+    write_text(
+        out / STATE_FILE,
+        json.dumps({"status": "done", "settings": _adapt_settings(items, cfg), "checkpoint": path, "processes": n})
+        + "\n",
+    )
     return path

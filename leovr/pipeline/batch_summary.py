@@ -10,8 +10,25 @@ from pathlib import Path
 from leovr.data.io import atomic_write, read_json_object, write_text
 from leovr.errors import DataError
 
-COLUMNS = ("name", "status", "frames", "attempts", "wall_s", "generator_ms", "frontend_ms", "graph_ms", "output_ms",
-           "mae_nearest_m", "mae_ipbasic_m", "mae_generator_m", "mae_refined_m", "mae_m", "ate_m", "error", "path")
+COLUMNS = (
+    "name",
+    "status",
+    "frames",
+    "attempts",
+    "wall_s",
+    "generator_ms",
+    "frontend_ms",
+    "graph_ms",
+    "output_ms",
+    "mae_nearest_m",
+    "mae_ipbasic_m",
+    "mae_generator_m",
+    "mae_refined_m",
+    "mae_m",
+    "ate_m",
+    "error",
+    "path",
+)
 METHODS = ("nearest", "ipbasic", "generator", "refined")
 
 
@@ -26,7 +43,11 @@ def read_json_or_empty(path: Path) -> dict:
 def summary_row(out: Path, state: dict) -> dict:
     """A state record of `run_sequence` with the figures of the sequence's metrics.json."""
     row = {k: state.get(k, "") for k in COLUMNS}
-    m = read_json_or_empty(out / str(state.get("name", "")) / "metrics.json") if state.get("status") in ("done", "skipped") else {}
+    m = (
+        read_json_or_empty(out / str(state.get("name", "")) / "metrics.json")
+        if state.get("status") in ("done", "skipped")
+        else {}
+    )
     row["frames"] = m.get("frames", "")
     for stage in ("generator_ms", "frontend_ms", "graph_ms", "output_ms"):
         v = m.get("timing", {}).get(stage)
@@ -53,8 +74,12 @@ def _markdown(rows: list[dict]) -> str:
     counts = {s: sum(r["status"] == s for r in rows) for s in ("done", "skipped", "failed", "pending", "running")}
     head = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
     cols = [c for c in COLUMNS if c != "path" and any(r[c] not in ("", None) for r in rows)]
-    lines = [f"# Batch summary ({len(rows)} sequences: {head})", "", "| " + " | ".join(cols) + " |",
-             "|" + "---|" * len(cols)]
+    lines = [
+        f"# Batch summary ({len(rows)} sequences: {head})",
+        "",
+        "| " + " | ".join(cols) + " |",
+        "|" + "---|" * len(cols),
+    ]
     lines += ["| " + " | ".join(str(r[c]).replace("|", "/") for c in cols) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
@@ -66,8 +91,11 @@ def _plot(path: Path, rows: list[dict]) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    keys = [k for k in ("mae_nearest_m", "mae_ipbasic_m", "mae_generator_m", "mae_refined_m", "mae_m")
-            if any(r[k] != "" for r in rows)]
+    keys = [
+        k
+        for k in ("mae_nearest_m", "mae_ipbasic_m", "mae_generator_m", "mae_refined_m", "mae_m")
+        if any(r[k] != "" for r in rows)
+    ]
     fig, ax = plt.subplots(figsize=(max(4.0, 0.9 * len(rows) + 2), 3.2))
     x = np.arange(len(rows))
     width = 0.8 / max(len(keys), 1)

@@ -51,8 +51,7 @@ class TruthScan:
     heldout_index: np.ndarray
 
 
-def heldout_truth(frame: Frame, heldout: np.ndarray, cfg: CompleteConfig, scan: np.ndarray | None = None
-                  ) -> np.ndarray:
+def heldout_truth(frame: Frame, heldout: np.ndarray, cfg: CompleteConfig, scan: np.ndarray | None = None) -> np.ndarray:
     """The held-out returns as a depth map, each dropped where a nearer return of the scan (default the
     frame's) lies within the parallax window (the LiDAR sees background beside an edge that the camera cannot:
     shared data README)."""
@@ -72,9 +71,13 @@ def with_truth(sample: EvalSample, cfg: CompleteConfig) -> EvalSample:
     return replace(sample, gt=heldout_truth(sample.frame, held, cfg, scan), gt_kind="heldout", heldout_points=None)
 
 
-def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True,
-                   truth_scan: Callable[[], np.ndarray] | None = None, recorded: np.ndarray | None = None
-                   ) -> EvalSample:
+def prepare_sample(
+    frame: Frame,
+    cfg: CompleteConfig,
+    truth: bool = True,
+    truth_scan: Callable[[], np.ndarray] | None = None,
+    recorded: np.ndarray | None = None,
+) -> EvalSample:
     """Split the frame's scan into the cheap input and the held-out rest; build the ground truth (with
     `truth=False` a held-out truth is left "deferred": `with_truth` builds it, e.g. off a run's critical path).
     `truth_scan`: gives the same scan deskewed with the ground-truth motion; the held-out returns are taken
@@ -83,8 +86,13 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True,
     if frame.points is None:
         raise DataError(f"frame {frame.index}", "has no LiDAR scan; depth completion needs a range sensor input")
     split = simulate_cheap_sensor(
-        frame.points if recorded is None else recorded, parse_input(cfg.input), frame.index, cfg.seed, frame.K,
-        frame.T_cam_lidar, frame.shape
+        frame.points if recorded is None else recorded,
+        parse_input(cfg.input),
+        frame.index,
+        cfg.seed,
+        frame.K,
+        frame.T_cam_lidar,
+        frame.shape,
     )
     if recorded is not None:
         split = replace(split, kept=frame.points[split.kept_index], heldout=frame.points[split.heldout_index])
@@ -102,9 +110,12 @@ def prepare_sample(frame: Frame, cfg: CompleteConfig, truth: bool = True,
 def warn_empty_input(seq: Sequence, frames: list[int]) -> None:
     """Say which frames had no LiDAR return inside the image (no scan paired with the image, points behind
     the camera, or a calibration that does not match the recording)."""
-    warnings.warn(f"{seq.path}: {len(frames)} frame(s) have no LiDAR return inside the image ({brief(frames)}); "
-                  "check which scan each image is paired with (`leovr info`), the scans and the LiDAR-camera "
-                  "calibration", stacklevel=2)
+    warnings.warn(
+        f"{seq.path}: {len(frames)} frame(s) have no LiDAR return inside the image ({brief(frames)}); "
+        "check which scan each image is paired with (`leovr info`), the scans and the LiDAR-camera "
+        "calibration",
+        stacklevel=2,
+    )
 
 
 def generator_checkpoint(cfg: CompleteConfig) -> Path:
@@ -121,8 +132,9 @@ def generator_method(cfg: CompleteConfig):
 
     def run(sample: EvalSample) -> tuple[np.ndarray, np.ndarray]:
         f = sample.frame
-        return predict_at_focal(model, f.image, sample.sparse, float(f.K[0, 0]), cfg.generator_focal_px,
-                                cfg.prior_edges == "image")
+        return predict_at_focal(
+            model, f.image, sample.sparse, float(f.K[0, 0]), cfg.generator_focal_px, cfg.prior_edges == "image"
+        )
 
     return run
 
@@ -179,9 +191,16 @@ def run_completion(
     names = seq.frame_numbers()
     if out is not None:
         checkpoint = generator_checkpoint(cfg) if cfg.method == "generator" else None
-        start_run(out, "complete", run_identity("complete", cfg.model_dump(), [seq.path], checkpoint), resume,
-                  method=cfg.method, input=cfg.input, sequence=str(Path(seq.path).resolve()),
-                  frame_numbers=names)
+        start_run(
+            out,
+            "complete",
+            run_identity("complete", cfg.model_dump(), [seq.path], checkpoint),
+            resume,
+            method=cfg.method,
+            input=cfg.input,
+            sequence=str(Path(seq.path).resolve()),
+            frame_numbers=names,
+        )
     for i in tqdm(indices, desc=f"complete {cfg.method}/{cfg.input}", unit="frame", disable=not progress):
         sample = prepare_sample(seq[i], cfg)
         kinds.add(sample.gt_kind)

@@ -24,7 +24,14 @@ from leovr.pipeline.tsdf_map import map_run
 from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording
 
-METHODS = ("raw", "nearest", "ipbasic", "generator_frame", "generator", "refined")  # generator_frame: own scan alone (Mid-40)
+METHODS = (
+    "raw",
+    "nearest",
+    "ipbasic",
+    "generator_frame",
+    "generator",
+    "refined",
+)  # generator_frame: own scan alone (Mid-40)
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
@@ -96,11 +103,14 @@ def run_demo(out: Path, cfg: DemoConfig, progress: bool = True) -> dict:
         simulate(sim, out / "sequence", preview=True, progress=progress)
         seq = open_sequence(out / "sequence")
         inp = cfg.input or "full"
-        source = (f"generated `{cfg.scenario}` sequence, {cfg.lidar} LiDAR, seed {cfg.seed} "
-                  f"(`{out / 'sequence'}`, preview in `sequence/preview.png`)")
+        source = (
+            f"generated `{cfg.scenario}` sequence, {cfg.lidar} LiDAR, seed {cfg.seed} "
+            f"(`{out / 'sequence'}`, preview in `sequence/preview.png`)"
+        )
     # loop closure where the scenario has loops (a lap of the city loop takes about 290 frames at 30 km/h)
-    rcfg = RefineConfig(input=inp, end=min(cfg.frames, len(seq)),
-                        loop=LoopConfig(enabled=not cfg.data and cfg.scenario == "city_loop"))
+    rcfg = RefineConfig(
+        input=inp, end=min(cfg.frames, len(seq)), loop=LoopConfig(enabled=not cfg.data and cfg.scenario == "city_loop")
+    )
     m = run_refine(seq, rcfg, out / "refine", progress=progress)
     indices = list(range(rcfg.end))
     if seq.has_lidar:
@@ -152,38 +162,63 @@ def report(m: dict, source: str, inp: str) -> str:
         "",
         f"Input: {source}; {m['frames']} frames; LiDAR input `{inp}`; {m['mode']}; window {m['window']}.",
         f"Ground truth: {m['ground_truth'] or 'none'}. `raw` is the LiDAR input scored where it has a return.",
-        *(["`generator_frame` is the generator on each frame's own scan; `generator` had the returns of the earlier "
-           "frames added (a Mid-40 cone: `refine.accumulation.frames`) and was moved towards image corners triangulated over "
-           "the frames around it (`refine.motion_stereo.enabled`, on for a cone by default), as the graph used it; `refined` "
-           "is also moved, where no return lies, by a photometric plane sweep against the frames +-1..3 when the "
-           "poses pass its check (`refine.photometric.enabled`). `nearest_accumulated` and `ipbasic_accumulated` fill the "
-           "cheap returns of the same frames (16 before and after), placed with KISS-ICP's poses: the fair yardstick for "
-           "a refinement that sees several frames."] if "generator_frame" in depth else []),
+        *(
+            [
+                "`generator_frame` is the generator on each frame's own scan; `generator` had the returns of the "
+                "earlier frames added (a Mid-40 cone: `refine.accumulation.frames`) and was moved towards image "
+                "corners triangulated over the frames around it (`refine.motion_stereo.enabled`, on for a cone by "
+                "default), as the graph used it; `refined` is also moved, where no return lies, by a photometric "
+                "plane sweep against the frames +-1..3 when the poses pass its check (`refine.photometric.enabled`). "
+                "`nearest_accumulated` and `ipbasic_accumulated` fill the cheap returns of the same frames (16 before "
+                "and after), placed with KISS-ICP's poses: the fair yardstick for "
+                "a refinement that sees several frames."
+            ]
+            if "generator_frame" in depth
+            else []
+        ),
         "",
         "| method | MAE (m) | RMSE (m) | AbsRel | delta<1.25 | " + " | ".join(f"MAE {b} m" for b in bins) + " |",
         "|---" * (5 + len(bins)) + "|",
     ]
     for method, r in depth.items():
         per_bin = " | ".join(_fmt(r["bins"][b].get("mae_m")) for b in bins)
-        lines.append(f"| {method} | {_fmt(r['mae_m'])} | {_fmt(r['rmse_m'])} | {_fmt(r['absrel'])} | {_fmt(r['delta1'])} | {per_bin} |")
+        lines.append(
+            f"| {method} | {_fmt(r['mae_m'])} | {_fmt(r['rmse_m'])} | {_fmt(r['absrel'])} | {_fmt(r['delta1'])} "
+            f"| {per_bin} |"
+        )
     if "trajectory" in m:
         lines += ["", "| trajectory | ATE (m) | RPE (m/frame) | alignment |", "|---|---|---|---|"]
         for name, t in m["trajectory"].items():
             lines.append(f"| {name} | {t['ate_m']:.3f} | {t['rpe_m']:.3f} | {t['align']} |")
         if "kiss_icp" in m["trajectory"]:
-            lines += ["", "`kiss_icp` is KISS-ICP alone on the same LiDAR input, deskewing the raw scans itself from their "
-                          "point times (`refine/poses_kiss_icp_kitti.txt`); a Mid-40's 38-degree cone constrains it poorly."
-                          + (" `kiss_icp_no_deskew`: the same without its deskew." if "kiss_icp_no_deskew" in m["trajectory"] else "")]
+            lines += [
+                "",
+                "`kiss_icp` is KISS-ICP alone on the same LiDAR input, deskewing the raw scans itself from their "
+                "point times (`refine/poses_kiss_icp_kitti.txt`); a Mid-40's 38-degree cone constrains it poorly."
+                + (
+                    " `kiss_icp_no_deskew`: the same without its deskew."
+                    if "kiss_icp_no_deskew" in m["trajectory"]
+                    else ""
+                ),
+            ]
     if (Path(m["sequence"]).parent / "refine" / "loops.json").is_file():
         loops = json.loads((Path(m["sequence"]).parent / "refine" / "loops.json").read_text())["loops"]
-        lines += ["", f"Loop closure: {sum(r['accepted'] for r in loops)} loops accepted of {len(loops)} candidates "
-                      "(`refine/loops.json`; a lap of the city loop needs about 290 frames at 30 km/h)."]
+        lines += [
+            "",
+            f"Loop closure: {sum(r['accepted'] for r in loops)} loops accepted of {len(loops)} candidates "
+            "(`refine/loops.json`; a lap of the city loop needs about 290 frames at 30 km/h).",
+        ]
     t = m["timing"]
     lines += [
         "",
-        f"Time per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, graph {t['graph_ms']:.0f} ms"
-        + (f", {t['stats']['wall_ms']['median']:.0f} ms end to end (median; the generator runs beside the graph)"
-           if "wall_ms" in t.get("stats", {}) else "") + "; "
+        f"Time per frame: generator {t['generator_ms']:.0f} ms, front end {t['frontend_ms']:.0f} ms, "
+        f"graph {t['graph_ms']:.0f} ms"
+        + (
+            f", {t['stats']['wall_ms']['median']:.0f} ms end to end (median; the generator runs beside the graph)"
+            if "wall_ms" in t.get("stats", {})
+            else ""
+        )
+        + "; "
         f"initial poses: {t['initial_pose_sources']}.",
         "",
         f"Map: {m['map']['frames']} frames fused into {m['map']['triangles']} triangles "

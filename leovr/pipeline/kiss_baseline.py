@@ -19,16 +19,18 @@ from leovr.geometry import invert_T
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 
 
-def kiss_icp_trajectory(seq: Sequence, indices: list[int], ccfg: CompleteConfig, progress: bool = False,
-                        deskew: bool = True) -> np.ndarray | None:
+def kiss_icp_trajectory(
+    seq: Sequence, indices: list[int], ccfg: CompleteConfig, progress: bool = False, deskew: bool = True
+) -> np.ndarray | None:
     """Camera poses (N x 4 x 4, in the first frame's camera) from KISS-ICP on each frame's cheap input;
     None when the sequence has no LiDAR. `deskew`: KISS-ICP deskews scans that carry point times."""
     runs = kiss_icp_trajectories(seq, indices, ccfg, (deskew,), progress)
     return None if runs is None else runs[deskew]
 
 
-def kiss_icp_trajectories(seq: Sequence, indices: list[int], ccfg: CompleteConfig, deskews: tuple[bool, ...],
-                          progress: bool = False) -> dict[bool, np.ndarray] | None:
+def kiss_icp_trajectories(
+    seq: Sequence, indices: list[int], ccfg: CompleteConfig, deskews: tuple[bool, ...], progress: bool = False
+) -> dict[bool, np.ndarray] | None:
     """`kiss_icp_trajectory` for each deskew setting in `deskews`, every frame read and its cheap input
     simulated once for all of them; None when the sequence has no LiDAR. A scan too sparse to register keeps
     the constant-velocity prediction."""
@@ -38,7 +40,8 @@ def kiss_icp_trajectories(seq: Sequence, indices: list[int], ccfg: CompleteConfi
     odos: dict[bool, LidarOdometry] = {}
     poses: dict[bool, list[np.ndarray]] = {d: [] for d in deskews}
     desc = {(True,): "kiss_icp baseline", (False,): "kiss_icp baseline (no deskew)"}.get(
-        deskews, "kiss_icp baselines (with and without its deskew)")
+        deskews, "kiss_icp baselines (with and without its deskew)"
+    )
     for i in tqdm(indices, desc=desc, unit="frame", disable=not progress):
         f = seq[i]
         if f.points is None:

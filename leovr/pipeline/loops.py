@@ -35,8 +35,15 @@ def feature_points(feats, depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return back_project(feats.uv, z, K)
 
 
-def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, min_gap: int = 30,
-              vocabulary: str | Path | None = None, odo_cauchy: float = 1.0) -> tuple[np.ndarray, list[dict], float]:
+def loop_pass(
+    seq: Sequence,
+    run: Path,
+    indices: list[int],
+    poses: np.ndarray,
+    min_gap: int = 30,
+    vocabulary: str | Path | None = None,
+    odo_cauchy: float = 1.0,
+) -> tuple[np.ndarray, list[dict], float]:
     """Detect, validate and close loops; returns (corrected poses, loop records, ms per query)."""
     voc = Vocabulary.load(vocabulary or shipped_vocabulary())
     det = LoopDetector(min_gap=min_gap)
@@ -53,11 +60,19 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
             continue
         j, s = cand
         check = validate_loop(feats[n], pts[n], feats[j], pts[j], f.K)
-        records.append({"frame": i, "candidate": indices[j], "score": round(float(s), 4), "inliers": check.inliers,
-                        "reprojection_px": round(float(check.reprojection_px), 3),
-                        "pnp_disagreement_m": round(check.disagree_m, 3), "pnp_disagreement_deg": round(check.disagree_deg, 3),
-                        "accepted": check.accepted,
-                        "T_j_i": None if check.T_j_i is None else np.round(check.T_j_i, 6).tolist()})
+        records.append(
+            {
+                "frame": i,
+                "candidate": indices[j],
+                "score": round(float(s), 4),
+                "inliers": check.inliers,
+                "reprojection_px": round(float(check.reprojection_px), 3),
+                "pnp_disagreement_m": round(check.disagree_m, 3),
+                "pnp_disagreement_deg": round(check.disagree_deg, 3),
+                "accepted": check.accepted,
+                "T_j_i": None if check.T_j_i is None else np.round(check.T_j_i, 6).tolist(),
+            }
+        )
         records[-1]["consistent"] = None
         if check.accepted:
             loops.append((n, j, check.T_j_i))
@@ -68,5 +83,8 @@ def loop_pass(seq: Sequence, run: Path, indices: list[int], poses: np.ndarray, m
     loops = [lp for lp, ok in zip(loops, keep) if ok]
     corrected = optimise_pose_graph(poses, loops, odo_cauchy=odo_cauchy) if loops else poses
     ms = 1000.0 * float(np.mean(t_query)) if t_query else 0.0
-    write_text(run / "loops.json", json.dumps({"ms_per_query": ms, "vocabulary_words": voc.words, "loops": records}, indent=2) + "\n")
+    write_text(
+        run / "loops.json",
+        json.dumps({"ms_per_query": ms, "vocabulary_words": voc.words, "loops": records}, indent=2) + "\n",
+    )
     return corrected, records, ms

@@ -4,10 +4,15 @@ frame by frame as a live system would see them; refined depth, poses, metrics an
 Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 256, the KITTI
 depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
 `depth_ipbasic/` (IP-Basic on the same input), `sigma/` (the generator's predicted uncertainty of the refined depth,
-one standard deviation, uint16 metres x 256), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP alone on the same input, with
-ground-truth poses or `--compare`; `poses_kiss_icp_no_deskew_kitti.txt` beside it when the scans carry point times), `poses_mono_vo_kitti.txt` (`--compare`), `step_ratio.png` (each trajectory's step lengths over the ground truth's, with poses), `metrics.json` (when the sequence has ground
+one standard deviation, uint16 metres x 256), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP
+alone on the same input, with
+ground-truth poses or `--compare`; `poses_kiss_icp_no_deskew_kitti.txt` beside it when the scans carry point times),
+`poses_mono_vo_kitti.txt` (`--compare`), `step_ratio.png` (each trajectory's step lengths over the ground truth's, with
+poses), `metrics.json` (when the sequence has ground
 truth depth or LiDAR to hold out, and poses; with a cone LiDAR also `nearest_accumulated` / `ipbasic_accumulated`,
-the fills of the same frames' returns placed with KISS-ICP's poses), `timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume`
+the fills of the same frames' returns placed with KISS-ICP's poses), `timing.json`, `landmarks.npy` (world points),
+`landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and
+`progress.json`, the state `--resume`
 continues from. A resumed run replays its finished frames through the front end and the window without
 rewriting their outputs, so that it ends as the uninterrupted run would: resuming saves the writing and
 scoring of finished frames, not their computation.
@@ -38,16 +43,41 @@ from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.geometry import invert_T
 from leovr.lidar.accumulate import ScanHistory
 from leovr.pipeline.accumulated_baseline import accumulated_fills
-from leovr.pipeline.completion import (EvalSample, frame_indices, generator_checkpoint, generator_method, warn_empty_input,
-                                       with_truth)
+from leovr.pipeline.completion import (
+    EvalSample,
+    frame_indices,
+    generator_checkpoint,
+    generator_method,
+    warn_empty_input,
+    with_truth,
+)
 from leovr.pipeline.frame_writer import FrameWriter
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectories
 from leovr.pipeline.lookahead import Lookahead
-from leovr.pipeline.refine_input import (camera_only_config, classical_source, completion_config, frame_sample,
-                                         road_height, stereo_image)
-from leovr.pipeline.refine_outputs import (CPU, PNG_FOLDER, SCORED, TIMED, WALL, FrameScore, Progress, check_replay,
-                                           frame_score, input_label, single_frame_generator, timing_record,
-                                           write_frame_files, write_outputs)
+from leovr.pipeline.refine_input import (
+    camera_only_config,
+    classical_source,
+    completion_config,
+    frame_sample,
+    road_height,
+    stereo_image,
+)
+from leovr.pipeline.refine_outputs import (
+    CPU,
+    PNG_FOLDER,
+    SCORED,
+    TIMED,
+    WALL,
+    FrameScore,
+    Progress,
+    check_replay,
+    frame_score,
+    input_label,
+    single_frame_generator,
+    timing_record,
+    write_frame_files,
+    write_outputs,
+)
 from leovr.pipeline.refine_passes import whole_recording_passes
 from leovr.pipeline.refine_prepare import ConeSteps, PreparedFrame, PrepareStage
 from leovr.threads import single_threaded_blas
@@ -56,10 +86,28 @@ if TYPE_CHECKING:
     from odometry.window_graph import FrameInput, FrameResult
 
 __all__ = [  # the names other modules import from here
-    "run_refine", "RefineRun", "FrameScore", "Progress", "frame_sample", "completion_config", "classical_source",
-    "stereo_image", "TIMED", "WALL", "CPU", "SCORED", "PNG_FOLDER", "write_outputs", "timing_record", "frame_score",
-    "input_label", "check_replay", "road_height", "camera_only_config",
-    "single_frame_generator", "torch_threads",
+    "run_refine",
+    "RefineRun",
+    "FrameScore",
+    "Progress",
+    "frame_sample",
+    "completion_config",
+    "classical_source",
+    "stereo_image",
+    "TIMED",
+    "WALL",
+    "CPU",
+    "SCORED",
+    "PNG_FOLDER",
+    "write_outputs",
+    "timing_record",
+    "frame_score",
+    "input_label",
+    "check_replay",
+    "road_height",
+    "camera_only_config",
+    "single_frame_generator",
+    "torch_threads",
 ]
 
 
@@ -70,9 +118,16 @@ def torch_threads() -> int:
 
 
 @single_threaded_blas
-def run_refine(seq: Sequence, cfg: RefineConfig, out: Path, resume: bool = False, progress: bool = True,
-               pool: dict[str, DepthMetricAccumulator] | None = None, score: bool = True,
-               collect: dict[int, FrameScore] | None = None) -> dict:
+def run_refine(
+    seq: Sequence,
+    cfg: RefineConfig,
+    out: Path,
+    resume: bool = False,
+    progress: bool = True,
+    pool: dict[str, DepthMetricAccumulator] | None = None,
+    score: bool = True,
+    collect: dict[int, FrameScore] | None = None,
+) -> dict:
     """Refine every selected frame; returns the metrics dictionary (also written to metrics.json).
     `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences;
     `collect` receives each frame's FrameScore (benchmarks that score subsets of frames).
@@ -98,16 +153,28 @@ class RefineRun:
         # a resumed run replays its finished frames through the front end and the window (their outputs are
         # kept, not rewritten) so that the window, the landmarks and KISS-ICP's map are the uninterrupted run's
         self.names = seq.frame_numbers()
-        self.done = {i for i in indices if i in self.state.poses and (self.out / "depth" / png_name(self.names, i)).is_file()}
+        self.done = {
+            i for i in indices if i in self.state.poses and (self.out / "depth" / png_name(self.names, i)).is_file()
+        }
         self.has_lidar = has_lidar = seq.has_lidar and cfg.input != "none"
         self.generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
         self.first = first = seq[indices[0]]
         self.K = first.K
         ocfg = cfg if has_lidar else camera_only_config(cfg)  # the odometry's settings
-        self.front = FrontEnd(ocfg, first.K, first.shape, first.T_cam_lidar, use_lidar=has_lidar,
-                              camera_height=None if has_lidar else road_height(seq, cfg))
-        self.textbook = MonoVO(first.K) if cfg.compare else None  # the `mono_vo` baseline on the same images (--compare)
-        self.graph = WindowGraph(ocfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar)
+        self.front = FrontEnd(
+            ocfg,
+            first.K,
+            first.shape,
+            first.T_cam_lidar,
+            use_lidar=has_lidar,
+            camera_height=None if has_lidar else road_height(seq, cfg),
+        )
+        self.textbook = (
+            MonoVO(first.K) if cfg.compare else None
+        )  # the `mono_vo` baseline on the same images (--compare)
+        self.graph = WindowGraph(
+            ocfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar
+        )
         # generator depth, its log uncertainty, and the road's scale for it (camera only)
         self.pending: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
         self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
@@ -116,18 +183,28 @@ class RefineRun:
         self.scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
         stamps = seq.timestamps()
         checkpoint = generator_checkpoint(ccfg) if cfg.depth_source == "generator" else None
-        start_run(self.out, "refine", run_identity("refine", cfg.model_dump(), [seq.path], checkpoint), resume,
-                  input=cfg.input if has_lidar else "none", sequence=str(Path(seq.path).resolve()),
-                  frame_numbers=self.names, **({} if has_lidar else {"camera_height_m": self.front.camera_height}))
+        start_run(
+            self.out,
+            "refine",
+            run_identity("refine", cfg.model_dump(), [seq.path], checkpoint),
+            resume,
+            input=cfg.input if has_lidar else "none",
+            sequence=str(Path(seq.path).resolve()),
+            frame_numbers=self.names,
+            **({} if has_lidar else {"camera_height_m": self.front.camera_height}),
+        )
         self.frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
         # a narrow-cone LiDAR's last scans, placed by the graph's poses, join the generator's input (spinning: off)
-        self.history = ScanHistory(cfg.accumulation.frames if has_lidar else 0, first.T_cam_lidar, cfg.accumulation.check)
+        self.history = ScanHistory(
+            cfg.accumulation.frames if has_lidar else 0, first.T_cam_lidar, cfg.accumulation.check
+        )
         self.cone = ConeSteps(has_lidar)  # whether the `auto` cone-LiDAR steps run; the sensor is judged once
         # the photometric correction of a leaving frame: its neighbours' images and the nodes free to move
         self.position = {j: n for n, j in enumerate(indices)}
         self.photo = cfg.photometric
-        self.photo_images = GrayImages(lambda j: stereo_image(seq, j),
-                                       keep=cfg.window + 2 * max(cfg.photometric.offsets, default=0) + 3)
+        self.photo_images = GrayImages(
+            lambda j: stereo_image(seq, j), keep=cfg.window + 2 * max(cfg.photometric.offsets, default=0) + 3
+        )
         self.photo_free: dict[int, np.ndarray] = {}
         self.t_end = time.perf_counter()  # the end of the last frame's turn on the run's clock
         self.c_end = time.process_time()  # ... and on the process's CPU clock (every thread, user + system)
@@ -145,8 +222,18 @@ class RefineRun:
         # and each frame's files are compressed and written in a third thread while the next frame runs
         with FrameWriter(threaded=torch_threads() > 1) as self.writer:
             with Lookahead(self.seq.__getitem__, threaded=torch_threads() > 1) as ahead:
-                self.stage = PrepareStage(self.seq, self.cfg, self.ccfg, self.indices, self.has_lidar, self.frame_dt,
-                                          self.generator, self.history, self.cone, ahead)
+                self.stage = PrepareStage(
+                    self.seq,
+                    self.cfg,
+                    self.ccfg,
+                    self.indices,
+                    self.has_lidar,
+                    self.frame_dt,
+                    self.generator,
+                    self.history,
+                    self.cone,
+                    ahead,
+                )
                 self.t_end, self.c_end = time.perf_counter(), time.process_time()
                 try:
                     for n, i in enumerate(tqdm(self.indices, desc=desc, unit="frame", disable=not self.progress)):
@@ -196,7 +283,9 @@ class RefineRun:
         t2b, c2b = time.perf_counter(), time.process_time()
         left = self.graph.add_frame(fi)
         t3 = time.perf_counter()
-        self.finish([self.graph.current(i)] if self.cfg.causal else left)  # causal: the newest frame's estimate is its output
+        self.finish(
+            [self.graph.current(i)] if self.cfg.causal else left
+        )  # causal: the newest frame's estimate is its output
         t4, c4 = time.perf_counter(), time.process_time()
         if self.textbook is not None:
             self.textbook.add(p.sample.frame.image)
@@ -208,7 +297,14 @@ class RefineRun:
             self.state.sources[i] = self.front.sources[-1]
             if self.front.prev is not None and self.front.prev.T_icp is not None:
                 self.state.icp_poses[i] = self.front.prev.T_icp.ravel().tolist()
-            self.state.times[i] = [p.generator_ms, 1000.0 * (t2 - t1), 1000.0 * (t3 - t2b), 1000.0 * (t4 - t3), wall, cpu]
+            self.state.times[i] = [
+                p.generator_ms,
+                1000.0 * (t2 - t1),
+                1000.0 * (t3 - t2b),
+                1000.0 * (t4 - t3),
+                wall,
+                cpu,
+            ]
         self.write_finished()  # after the frame's record: a causal frame is finished in its own step
 
     def front_end(self, n: int, i: int, p: PreparedFrame) -> FrameInput:
@@ -218,14 +314,24 @@ class RefineRun:
 
         sample = p.sample
         prev_i = self.indices[n - 1] if n else None
-        guess = self.stage.sweep_of.pop(prev_i, None)  # the previous sweep's motion, read from its images: to this frame
+        guess = self.stage.sweep_of.pop(
+            prev_i, None
+        )  # the previous sweep's motion, read from its images: to this frame
         # spinning LiDARs only: measured there
         spinning_now = self.cone.spinning is True
         guess = guess if spinning_now else None
         if p.first_scan is not None and self.front.icp is not None:
             self.front.icp.restart(p.first_scan)
-        fi = self.front.process(i, sample.frame.image, p.depth, p.log_sigma, sample.sparse if self.has_lidar else None,
-                                sample.kept_points, self.graph, icp_guess=guess)
+        fi = self.front.process(
+            i,
+            sample.frame.image,
+            p.depth,
+            p.log_sigma,
+            sample.sparse if self.has_lidar else None,
+            sample.kept_points,
+            self.graph,
+            icp_guess=guess,
+        )
         fi.pair_motions = p.pairs
         if i not in self.done and self.cone.runs(self.cfg.photometric.enabled, sample):
             self.photo_images.put(i, sample.frame.image)
@@ -293,8 +399,9 @@ class RefineRun:
             # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
             sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
             self.state.poses[r.index] = r.T_world_cam.ravel().tolist()
-            self.unwritten.append((png_name(self.names, r.index), {"depth_generator": gen_depth, "depth": refined,
-                                                                   "sigma": sigma}))
+            self.unwritten.append(
+                (png_name(self.names, r.index), {"depth_generator": gen_depth, "depth": refined, "sigma": sigma})
+            )
 
     def write_finished(self) -> None:
         """The finished frames' files, each followed by the progress record as it stands now (a resume never
@@ -315,7 +422,9 @@ class RefineRun:
                 out[j] = np.array(self.state.poses[j]).reshape(4, 4)
         return out
 
-    def photometric_step(self, i: int, T_i: np.ndarray, depth: np.ndarray, leaving: dict[int, np.ndarray]) -> np.ndarray:
+    def photometric_step(
+        self, i: int, T_i: np.ndarray, depth: np.ndarray, leaving: dict[int, np.ndarray]
+    ) -> np.ndarray:
         """Frame i's refined depth after the plane sweep against the selected frames `photometric.offsets`
         before and after it (the poses they have now: final before i, the window's after it; `leaving`: the
         poses of the frames leaving with i)."""
@@ -331,13 +440,17 @@ class RefineRun:
         pairs = [(im, T) for im, T in pairs if im is not None and im.shape == depth.shape]
         if gray is None or not pairs:
             return depth
-        return photometric_correction(depth, photometric_offsets(depth, gray, pairs, self.K, free, self.photo), self.photo)
+        return photometric_correction(
+            depth, photometric_offsets(depth, gray, pairs, self.K, free, self.photo), self.photo
+        )
 
     def conclude(self, pool: dict[str, DepthMetricAccumulator] | None, collect: dict[int, FrameScore] | None) -> dict:
         """After the last frame: the single-frame generator's scores, warnings, the whole-recording passes,
         the landmarks, the pose baselines and the accumulated fills, then the outputs and metrics."""
         seq, cfg, indices, state = self.seq, self.cfg, self.indices, self.state
-        several = [i for i, fs in self.scored.items() if fs.own_input is not None]  # earlier scans joined the generator's input
+        several = [
+            i for i, fs in self.scored.items() if fs.own_input is not None
+        ]  # earlier scans joined the generator's input
         single_frame_generator(seq, self.scored, self.generator, self.progress)
         if self.empty:
             warn_empty_input(seq, self.empty)
@@ -352,10 +465,34 @@ class RefineRun:
         atomic_write(self.out / "landmarks_lidar.npy", lambda tmp: np.save(tmp, lidar_backed))
         baselines, icp = self.pose_baselines(bool(several))
         if several and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
-            accumulated_fills(seq, indices, self.ccfg, icp, self.scored, several, cfg.accumulation.frames,
-                              causal=cfg.causal, frame_dt=self.frame_dt, progress=self.progress)
-        return write_outputs(seq, cfg, self.ccfg, indices, state, self.out, self.has_lidar, self.progress, pool,
-                             self.score, self.scored, collect, baselines, no_returns=len(self.empty) == len(indices))
+            accumulated_fills(
+                seq,
+                indices,
+                self.ccfg,
+                icp,
+                self.scored,
+                several,
+                cfg.accumulation.frames,
+                causal=cfg.causal,
+                frame_dt=self.frame_dt,
+                progress=self.progress,
+            )
+        return write_outputs(
+            seq,
+            cfg,
+            self.ccfg,
+            indices,
+            state,
+            self.out,
+            self.has_lidar,
+            self.progress,
+            pool,
+            self.score,
+            self.scored,
+            collect,
+            baselines,
+            no_returns=len(self.empty) == len(indices),
+        )
 
     def pose_baselines(self, several: bool) -> tuple[dict[str, tuple[np.ndarray, str]], np.ndarray | None]:
         """The trajectories scored beside leovr's (name -> poses, alignment), their pose files written, and
@@ -369,8 +506,9 @@ class RefineRun:
         icp = None
         if self.has_lidar and (cfg.compare or several or self.score and self.first.T_world_cam is not None):
             # without its deskew too where scans carry point times: the other way to run it
-            runs = kiss_icp_trajectories(seq, indices, self.ccfg, (True, False) if self.first.point_times is not None
-                                         else (True,), self.progress)
+            runs = kiss_icp_trajectories(
+                seq, indices, self.ccfg, (True, False) if self.first.point_times is not None else (True,), self.progress
+            )
             for deskew, name in ((True, "kiss_icp"), (False, "kiss_icp_no_deskew")):
                 if runs is not None and deskew in runs:
                     baselines[name] = runs[deskew], "se3"

@@ -85,8 +85,10 @@ def ground_truth_motion(seq: Sequence, i: int) -> tuple[np.ndarray, float] | Non
     return np.linalg.inv(Ta) @ Tb, dt
 
 
-TRUTH_DESKEW_NOTE = ("scans with point times deskewed with the ground-truth motion where the recording has poses, "
-                     "else with the run's own")
+TRUTH_DESKEW_NOTE = (
+    "scans with point times deskewed with the ground-truth motion where the recording has poses, "
+    "else with the run's own"
+)
 
 
 def truth_scan(seq: Sequence, i: int, frame: Frame) -> Callable[[], np.ndarray] | None:
@@ -99,9 +101,16 @@ def truth_scan(seq: Sequence, i: int, frame: Frame) -> Callable[[], np.ndarray] 
     return None if motion is None else (lambda: deskew_frame(frame, *motion).points)
 
 
-def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.ndarray | None = None,
-                 frame_dt: float = 0.1, camera_only: bool = False, truth: bool = True,
-                 frame: Frame | None = None) -> EvalSample:
+def frame_sample(
+    seq: Sequence,
+    i: int,
+    ccfg: CompleteConfig,
+    motion_cam: np.ndarray | None = None,
+    frame_dt: float = 0.1,
+    camera_only: bool = False,
+    truth: bool = True,
+    frame: Frame | None = None,
+) -> EvalSample:
     """The frame with its cheap LiDAR input (deskewed when a motion is given) and ground truth; without
     LiDAR (or `camera_only`, `--input none`) an empty input, and the whole scan, if any, held out.
     `truth=False`: a held-out truth is left for `with_truth` (prepare_sample). `frame`: seq[i], read already."""
@@ -116,5 +125,7 @@ def frame_sample(seq: Sequence, i: int, ccfg: CompleteConfig, motion_cam: np.nda
     if has_points:
         scan = truth_scan(seq, i, raw)
         every = sparse_depth(f.points if scan is None else scan(), f.K, f.T_cam_lidar, f.shape)
-        return EvalSample(f, empty, parallax_filter(every, every, ccfg.parallax_window, ccfg.parallax_rel), "heldout", None)
+        return EvalSample(
+            f, empty, parallax_filter(every, every, ccfg.parallax_window, ccfg.parallax_rel), "heldout", None
+        )
     return EvalSample(f, empty, empty, "none", None)

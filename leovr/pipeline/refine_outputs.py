@@ -34,8 +34,16 @@ from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE, frame_sample
 TIMED = ("generator_ms", "frontend_ms", "graph_ms", "output_ms")
 WALL = "wall_ms"  # a frame's time on the run's clock (the next frame's generator overlapping this one's graph)
 CPU = "cpu_ms"  # the CPU time of every thread of the process over that span (user + system)
-SCORED = ("nearest", "ipbasic", *ACCUMULATED, "generator", "generator_frame", "refined")  # depth methods in metrics.json, same pixels
-# generator: as it ran in the graph (with earlier scans for a cone LiDAR); generator_frame: on the frame's own scan alone;
+SCORED = (
+    "nearest",
+    "ipbasic",
+    *ACCUMULATED,
+    "generator",
+    "generator_frame",
+    "refined",
+)  # depth methods in metrics.json, same pixels
+# generator: as it ran in the graph (with earlier scans for a cone LiDAR); generator_frame: on the frame's own scan
+# alone;
 # nearest / ipbasic_accumulated: the fills of the same frames' returns placed with KISS-ICP's poses (cone LiDAR only)
 PNG_FOLDER = {"ipbasic": "depth_ipbasic", "generator": "depth_generator", "refined": "depth"}
 
@@ -83,11 +91,16 @@ class Progress:
             if not isinstance(d, dict):
                 raise ValueError("not a JSON object")
             d.setdefault("poses_no_loop", {})  # only runs with loop closure have it
-            keyed = {name: {int(k): v for k, v in d[name].items()}
-                     for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times")}
+            keyed = {
+                name: {int(k): v for k, v in d[name].items()}
+                for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times")
+            }
             for name in ("poses", "icp_poses", "poses_no_loop"):  # 16 finite numbers each (a 4 x 4 pose)
-                bad = [i for i, T in keyed[name].items()
-                       if not isinstance(T, list) or len(T) != 16 or not np.isfinite(np.asarray(T, float)).all()]
+                bad = [
+                    i
+                    for i, T in keyed[name].items()
+                    if not isinstance(T, list) or len(T) != 16 or not np.isfinite(np.asarray(T, float)).all()
+                ]
                 if bad:
                     raise ValueError(f"{name} of frame {bad[0]} is not 16 finite numbers")
             return cls(**keyed)
@@ -128,15 +141,20 @@ def check_replay(out: Path, state: Progress, replayed: dict[int, np.ndarray], to
     """Warn when replaying the finished frames of a resumed run did not give back the poses written
     before the interruption (another leovr version, or the recording changed in between)."""
     written = state.poses_no_loop or state.poses  # as the window pass left them
-    gap = {i: float(np.linalg.norm(T[:3, 3] - np.array(written[i]).reshape(4, 4)[:3, 3])) for i, T in replayed.items()
-           if i in written}
+    gap = {
+        i: float(np.linalg.norm(T[:3, 3] - np.array(written[i]).reshape(4, 4)[:3, 3]))
+        for i, T in replayed.items()
+        if i in written
+    }
     if not gap:
         return
     worst = max(gap, key=gap.get)
     if gap[worst] > tol_m:
-        warnings.warn(f"{out}: resuming replayed the finished frames but frame {worst}'s pose moved {gap[worst]:.2f} m "
-                      "from the one written before the interruption; the outputs mix two runs: rerun without --resume",
-                      stacklevel=2)
+        warnings.warn(
+            f"{out}: resuming replayed the finished frames but frame {worst}'s pose moved {gap[worst]:.2f} m "
+            "from the one written before the interruption; the outputs mix two runs: rerun without --resume",
+            stacklevel=2,
+        )
 
 
 def input_label(name: str, has_lidar: bool) -> str:
@@ -182,21 +200,38 @@ def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
     time. Runs from before a figure was recorded have none for it: null in the series, left out of the stats."""
     timed = [i for i in indices if i in times]
     width = len(TIMED) + 2
-    ms = np.array([list(times[i])[:width] + [np.nan] * (width - len(times[i])) for i in timed], float).reshape(-1, width)
-    stages = ({k: np.nan_to_num(ms[:, n]) for n, k in enumerate(TIMED)}
-              | {"total_ms": np.nansum(ms[:, :len(TIMED)], axis=1), WALL: ms[:, len(TIMED)], CPU: ms[:, len(TIMED) + 1]})
+    ms = np.array([list(times[i])[:width] + [np.nan] * (width - len(times[i])) for i in timed], float).reshape(
+        -1, width
+    )
+    stages = {k: np.nan_to_num(ms[:, n]) for n, k in enumerate(TIMED)} | {
+        "total_ms": np.nansum(ms[:, : len(TIMED)], axis=1),
+        WALL: ms[:, len(TIMED)],
+        CPU: ms[:, len(TIMED) + 1],
+    }
     record: dict = {k: float(np.mean(v)) if len(v) and np.isfinite(v).all() else None for k, v in stages.items()}
     record["frames_timed"] = len(timed)
-    record["stats"] = {k: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
-                       for k, v in stages.items() if len(v) and np.isfinite(v).all()}
-    record["series"] = {"frame": timed} | {k: [None if not np.isfinite(x) else round(float(x), 2) for x in v]
-                                           for k, v in stages.items()}
+    record["stats"] = {
+        k: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+        for k, v in stages.items()
+        if len(v) and np.isfinite(v).all()
+    }
+    record["series"] = {"frame": timed} | {
+        k: [None if not np.isfinite(x) else round(float(x), 2) for x in v] for k, v in stages.items()
+    }
     return record
 
 
-def frame_scores(seq: Sequence, ccfg: CompleteConfig, indices: list[int], out: Path, has_lidar: bool, progress: bool,
-                 score: bool, scored: dict[int, FrameScore], collect: dict[int, FrameScore] | None
-                 ) -> tuple[list[FrameScore], list[np.ndarray | None]]:
+def frame_scores(
+    seq: Sequence,
+    ccfg: CompleteConfig,
+    indices: list[int],
+    out: Path,
+    has_lidar: bool,
+    progress: bool,
+    score: bool,
+    scored: dict[int, FrameScore],
+    collect: dict[int, FrameScore] | None,
+) -> tuple[list[FrameScore], list[np.ndarray | None]]:
     """Every selected frame's score (none with `score=False`) and ground-truth pose; the frames this process
     did not score (finished before a resume) read back from their PNGs."""
     gt_poses, scores = [], []
@@ -210,8 +245,9 @@ def frame_scores(seq: Sequence, ccfg: CompleteConfig, indices: list[int], out: P
     return scores, gt_poses
 
 
-def pooled_depth(scores: list[FrameScore], accs: dict[str, DepthMetricAccumulator],
-                 pool: dict[str, DepthMetricAccumulator] | None) -> set[str]:
+def pooled_depth(
+    scores: list[FrameScore], accs: dict[str, DepthMetricAccumulator], pool: dict[str, DepthMetricAccumulator] | None
+) -> set[str]:
     """Adds every frame's scored pixels to `accs` and `pool`; returns the kinds of ground truth met."""
     kinds = set()
     partial = {m for m in SCORED if 0 < sum(m in fs.pred for fs in scores) < len(scores)}
@@ -226,8 +262,14 @@ def pooled_depth(scores: list[FrameScore], accs: dict[str, DepthMetricAccumulato
     return kinds
 
 
-def trajectory_record(poses: np.ndarray, gt_poses: list[np.ndarray], has_lidar: bool, state: Progress,
-                      indices: list[int], baselines: dict[str, tuple[np.ndarray, str]] | None) -> dict:
+def trajectory_record(
+    poses: np.ndarray,
+    gt_poses: list[np.ndarray],
+    has_lidar: bool,
+    state: Progress,
+    indices: list[int],
+    baselines: dict[str, tuple[np.ndarray, str]] | None,
+) -> dict:
     """leovr's trajectory against the ground truth, before loop closure moved it when it ran, and the
     baselines' beside it."""
     ref = np.stack([invert_T(gt_poses[0]) @ T for T in gt_poses])
@@ -241,8 +283,13 @@ def trajectory_record(poses: np.ndarray, gt_poses: list[np.ndarray], has_lidar: 
     return record
 
 
-def plot_steps(poses: np.ndarray, gt_poses: list[np.ndarray], record: dict,
-               baselines: dict[str, tuple[np.ndarray, str]] | None, path: Path) -> None:
+def plot_steps(
+    poses: np.ndarray,
+    gt_poses: list[np.ndarray],
+    record: dict,
+    baselines: dict[str, tuple[np.ndarray, str]] | None,
+    path: Path,
+) -> None:
     """`step_ratio.png`: each trajectory's step lengths over the ground truth's along the run (at the scale it is
     scored at: a Sim(3)-aligned one times its alignment's scale)."""
     from leovr.viz.step_plot import plot_step_ratios
@@ -256,10 +303,22 @@ def plot_steps(poses: np.ndarray, gt_poses: list[np.ndarray], record: dict,
     plot_step_ratios(scaled, np.stack(gt_poses), path)
 
 
-def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], state: Progress,
-                  out: Path, has_lidar: bool, progress: bool, pool: dict | None = None, score: bool = True,
-                  scored: dict[int, FrameScore] | None = None, collect: dict[int, FrameScore] | None = None,
-                  baselines: dict[str, tuple[np.ndarray, str]] | None = None, no_returns: bool = False) -> dict:
+def write_outputs(
+    seq: Sequence,
+    cfg: RefineConfig,
+    ccfg: CompleteConfig,
+    indices: list[int],
+    state: Progress,
+    out: Path,
+    has_lidar: bool,
+    progress: bool,
+    pool: dict | None = None,
+    score: bool = True,
+    scored: dict[int, FrameScore] | None = None,
+    collect: dict[int, FrameScore] | None = None,
+    baselines: dict[str, tuple[np.ndarray, str]] | None = None,
+    no_returns: bool = False,
+) -> dict:
     """Poses in KITTI and TUM form, timing, and depth / trajectory metrics (`no_returns`: a LiDAR run in
     which no frame had a return inside its image, said in its `mode`). Depth is scored from the
     arrays the run produced (`scored`); frames finished before a resume are read back from their PNGs.
@@ -277,11 +336,20 @@ def write_outputs(seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indice
     scores, gt_poses = frame_scores(seq, ccfg, indices, out, has_lidar, progress, score, scored or {}, collect)
     kinds = pooled_depth(scores, accs, pool)
     metrics: dict = {
-        "sequence": str(Path(seq.path).resolve()), "reader": seq.name, "input": cfg.input if seq.has_lidar else "none (no LiDAR)",
+        "sequence": str(Path(seq.path).resolve()),
+        "reader": seq.name,
+        "input": cfg.input if seq.has_lidar else "none (no LiDAR)",
         "input_note": input_label(cfg.input, has_lidar),
-        "frames": len(indices), "window": cfg.window, "causal": cfg.causal,
-        "mode": (input_label(cfg.input, has_lidar) if not has_lidar else "visual-LiDAR" if not no_returns else
-                 "visual-LiDAR input without a LiDAR return inside any image: depth and poses from the images alone"),
+        "frames": len(indices),
+        "window": cfg.window,
+        "causal": cfg.causal,
+        "mode": (
+            input_label(cfg.input, has_lidar)
+            if not has_lidar
+            else "visual-LiDAR"
+            if not no_returns
+            else "visual-LiDAR input without a LiDAR return inside any image: depth and poses from the images alone"
+        ),
         "ground_truth": "; ".join(ground_truth_note(k, ccfg) for k in sorted(kinds))
         + ("; " + TRUTH_DESKEW_NOTE if "heldout" in kinds else ""),
         "depth": {m: a.result() for m, a in accs.items() if not a.empty},

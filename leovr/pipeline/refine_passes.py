@@ -13,8 +13,14 @@ from leovr.geometry import invert_T
 from leovr.pipeline.refine_outputs import Progress
 
 
-def move_poses(state: Progress, indices: list[int], before: np.ndarray, after: np.ndarray, landmarks: np.ndarray,
-               seen_by: np.ndarray) -> None:
+def move_poses(
+    state: Progress,
+    indices: list[int],
+    before: np.ndarray,
+    after: np.ndarray,
+    landmarks: np.ndarray,
+    seen_by: np.ndarray,
+) -> None:
     """A whole-recording pass moved the poses: keep them, and move each landmark (in place) with the frame
     that last observed it."""
     state.poses = {i: T.ravel().tolist() for i, T in zip(indices, after)}
@@ -27,8 +33,15 @@ def move_poses(state: Progress, indices: list[int], before: np.ndarray, after: n
     landmarks[mine] = np.einsum("nij,nj->ni", D[:, :3, :3], landmarks[mine]) + D[:, :3, 3]
 
 
-def whole_recording_passes(seq: Sequence, cfg: RefineConfig, out: Path, indices: list[int], state: Progress,
-                           landmarks: np.ndarray, seen_by: np.ndarray) -> None:
+def whole_recording_passes(
+    seq: Sequence,
+    cfg: RefineConfig,
+    out: Path,
+    indices: list[int],
+    state: Progress,
+    landmarks: np.ndarray,
+    seen_by: np.ndarray,
+) -> None:
     """Loop closure (`cfg.loop.enabled`), keeping the poses it started from in `state`."""
     if cfg.loop.enabled:
         from leovr.pipeline.loops import loop_pass

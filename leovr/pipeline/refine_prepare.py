@@ -77,9 +77,19 @@ class PrepareStage:
     """`prepare` a frame: its input, then its generator depth. The main thread reads back `start` (the first
     step's motion) and `sweep_of` (a sweep's motion read from the images) once the frame is prepared."""
 
-    def __init__(self, seq: Sequence, cfg: RefineConfig, ccfg: CompleteConfig, indices: list[int], has_lidar: bool,
-                 frame_dt: float, generator: Generator, history: ScanHistory, cone: ConeSteps,
-                 frames: Lookahead) -> None:
+    def __init__(
+        self,
+        seq: Sequence,
+        cfg: RefineConfig,
+        ccfg: CompleteConfig,
+        indices: list[int],
+        has_lidar: bool,
+        frame_dt: float,
+        generator: Generator,
+        history: ScanHistory,
+        cone: ConeSteps,
+        frames: Lookahead,
+    ) -> None:
         from odometry.motion_stereo import GrayImages
         from odometry.sweep_motion import SweepMotion
 
@@ -90,8 +100,9 @@ class PrepareStage:
         self.selected = set(indices)
         # motion stereo: image corners outside a cone LiDAR's reach, triangulated over neighbouring frames
         self.stereo = cfg.motion_stereo
-        self.stereo_images = GrayImages(lambda j: stereo_image(seq, j),
-                                        keep=2 * max([*self.stereo.offsets, *cfg.graph.pair_offsets]) + 3)
+        self.stereo_images = GrayImages(
+            lambda j: stereo_image(seq, j), keep=2 * max([*self.stereo.offsets, *cfg.graph.pair_offsets]) + 3
+        )
         self.sweep_images = SweepMotion()
         # a sweep's images' motion (ORB matching, essential matrix) needs only the two images: it runs in its own
         # thread while the main thread's front end runs and this stage's thread would wait
@@ -118,11 +129,17 @@ class PrepareStage:
         """Start frame i's sweep's images' motion (images i and i + 1, read ahead) in the sweep thread, when
         frame i's scan will be deskewed with it. Called by the main thread before frame i is prepared."""
         cfg = self.cfg
-        if (self.sweeper is None or i in self.images_ahead or not (cfg.deskew and self.has_lidar)
-                or cfg.causal or self.following.get(i) != i + 1):
+        if (
+            self.sweeper is None
+            or i in self.images_ahead
+            or not (cfg.deskew and self.has_lidar)
+            or cfg.causal
+            or self.following.get(i) != i + 1
+        ):
             return
-        self.images_ahead[i] = self.sweeper.submit(self._images_motion, i, self.frames.future(i),
-                                                   self.frames.future(i + 1))
+        self.images_ahead[i] = self.sweeper.submit(
+            self._images_motion, i, self.frames.future(i), self.frames.future(i + 1)
+        )
 
     def _images_motion(self, i: int, this: Future, nxt: Future) -> ImagesMotion | None:
         frame = this.result()
@@ -140,8 +157,9 @@ class PrepareStage:
         from odometry.sweep_motion import sweep_motion
 
         # not started ahead (the first frame, before any sweep thread work; or no sweep thread): read here
-        seen = (ahead.result() if ahead is not None
-                else self._images_motion(i, done_future(frame), done_future(nxt_frame)))
+        seen = (
+            ahead.result() if ahead is not None else self._images_motion(i, done_future(frame), done_future(nxt_frame))
+        )
         return sweep_motion(seen, frame.K, motion)
 
     def close(self) -> None:
@@ -161,8 +179,12 @@ class PrepareStage:
         """The motion between two frames from their cheap scans as they are (KISS-ICP)."""
         from odometry.initial_pose import first_step
 
-        scans = [frame_sample(self.seq, f.index, self.ccfg, None, self.frame_dt, self.camera_only, truth=False,
-                              frame=f).kept_points for f in (first, second)]
+        scans = [
+            frame_sample(
+                self.seq, f.index, self.ccfg, None, self.frame_dt, self.camera_only, truth=False, frame=f
+            ).kept_points
+            for f in (first, second)
+        ]
         return first_step(*scans, first.T_cam_lidar)
 
     def causal_start(self, frame: Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -174,8 +196,9 @@ class PrepareStage:
         motion = self.start = self._first_step(first, frame)
         if motion is None:
             return None, None
-        scan = frame_sample(self.seq, first.index, self.ccfg, motion, self.frame_dt, self.camera_only, truth=False,
-                            frame=first).kept_points
+        scan = frame_sample(
+            self.seq, first.index, self.ccfg, motion, self.frame_dt, self.camera_only, truth=False, frame=first
+        ).kept_points
         return motion, scan
 
     def read_input(self, i: int, motion: np.ndarray | None) -> tuple[Frame, EvalSample, float, np.ndarray | None]:
@@ -212,11 +235,11 @@ class PrepareStage:
         frame, sample, sweep_s, first_scan = self.read_input(i, motion)
         t0 = time.perf_counter() - sweep_s
         depth, log_sigma, pairs, corners = self.generate(i, frame, sample, earlier)
-        return PreparedFrame(sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners,
-                             first_scan)
+        return PreparedFrame(sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners, first_scan)
 
-    def generate(self, i: int, frame: Frame, sample: EvalSample, earlier: np.ndarray | None
-                 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray], np.ndarray | None]:
+    def generate(
+        self, i: int, frame: Frame, sample: EvalSample, earlier: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray], np.ndarray | None]:
         """The generator's depth and log sigma on the sample (with the earlier scans that agree with it),
         moved towards the motion-stereo corners, the pair motions, and the corners."""
         from odometry.motion_stereo import corrected_depth
@@ -230,14 +253,18 @@ class PrepareStage:
         ahead = self.tracks_ahead.pop(i, None)
         if with_stereo or with_pairs:
             args = i, frame.image, K, sample.sparse, seen.sparse, with_stereo, with_pairs, ahead
-            tracked = (self.tracker.submit(self._tracked, *args) if self.tracker is not None
-                       else done_future(self._tracked(*args)))
+            tracked = (
+                self.tracker.submit(self._tracked, *args)
+                if self.tracker is not None
+                else done_future(self._tracked(*args))
+            )
             self.track_ahead(i, K)
         depth, log_sigma = self.generator(seen)
         corners, pairs = tracked.result()
         if corners is not None:  # the generator's depth moved towards the corners around them
-            depth = corrected_depth(depth, corners, stereo.spread * float(K[0, 0]), stereo.support,
-                                    stereo.range_log, stereo.edge_px)
+            depth = corrected_depth(
+                depth, corners, stereo.spread * float(K[0, 0]), stereo.support, stereo.range_log, stereo.edge_px
+            )
         return depth, log_sigma, pairs, corners
 
     def _neighbours(self, i: int, with_stereo: bool, with_pairs: bool) -> tuple[list[int], list[int]]:
@@ -258,8 +285,9 @@ class PrepareStage:
         with_stereo, with_pairs = self.cone.known(self.stereo.enabled), self.cone.known(self.cfg.graph.pair_factors)
         if self.tracker is None or k is None or not (with_stereo or with_pairs):
             return
-        self.tracks_ahead[k] = self.tracker.submit(self._images_tracks, k, K, *self._neighbours(k, bool(with_stereo),
-                                                                                                 bool(with_pairs)))
+        self.tracks_ahead[k] = self.tracker.submit(
+            self._images_tracks, k, K, *self._neighbours(k, bool(with_stereo), bool(with_pairs))
+        )
 
     def _images_tracks(self, i: int, K: np.ndarray, neighbours: list[int], earlier: list[int]) -> FrameTracks | None:
         """Frame i's corners tracked into its neighbours with each pair's rotation and direction, or None where its
@@ -273,8 +301,17 @@ class PrepareStage:
         tracks.track_into([*neighbours, *earlier])
         return tracks
 
-    def _tracked(self, i: int, image: np.ndarray, K: np.ndarray, own: np.ndarray, seen: np.ndarray, with_stereo: bool,
-                 with_pairs: bool, ahead: Future | None) -> tuple[np.ndarray | None, dict[int, np.ndarray]]:
+    def _tracked(
+        self,
+        i: int,
+        image: np.ndarray,
+        K: np.ndarray,
+        own: np.ndarray,
+        seen: np.ndarray,
+        with_stereo: bool,
+        with_pairs: bool,
+        ahead: Future | None,
+    ) -> tuple[np.ndarray | None, dict[int, np.ndarray]]:
         """Frame i's motion-stereo corners (a sparse depth map, or None) and its pair motions to the window's
         earlier frames, from one set of corner tracks (`ahead`: started by `track_ahead`, used when it tracked
         the same neighbours). `own`: the frame's returns (each pair's length); `seen`: with the earlier scans

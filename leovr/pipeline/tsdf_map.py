@@ -3,7 +3,8 @@
 Each frame's depth is integrated into a truncated signed distance volume: Open3D's voxel-block grid (a hash
 map of 8^3-voxel blocks, allocated only near observed surfaces, so memory grows with the area driven, not
 with the frame count). Pixels beyond `max_depth_m`, on depth edges (`edge_jump`), and, when asked, pixels whose
-predicted uncertainty (the generator's sigma over the depth, `sigma/`) is above `sigma_max`, are left out. The zero level set is written as a
+predicted uncertainty (the generator's sigma over the depth, `sigma/`) is above `sigma_max`, are left out. The zero
+level set is written as a
 coloured triangle mesh (`map.ply`) and its vertices as a coloured point cloud (`map_points.ply`).
 """
 
@@ -51,9 +52,14 @@ class TsdfMap:
         # weight and colour as uint16: the same surface (812k vertices of a rendered drive's first 40 frames, mean
         # position within 0.5 mm, colour within 0.3 %) in 12 bytes a voxel instead of 20
         return o3d.t.geometry.VoxelBlockGrid(
-            attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.uint16, o3c.uint16),
-            attr_channels=((1), (1), (3)), voxel_size=self.s.voxel_m, block_resolution=8, block_count=20000,
-            device=o3c.Device("CPU:0"))
+            attr_names=("tsdf", "weight", "color"),
+            attr_dtypes=(o3c.float32, o3c.uint16, o3c.uint16),
+            attr_channels=((1), (1), (3)),
+            voxel_size=self.s.voxel_m,
+            block_resolution=8,
+            block_count=20000,
+            device=o3c.Device("CPU:0"),
+        )
 
     def add(self, image: np.ndarray, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray) -> None:
         """Integrate one frame: RGB (or gray) uint8 image, depth in metres (0 = none), camera pose."""
@@ -103,8 +109,9 @@ class TsdfMap:
 EDGE_FOCAL_PX = 720.0  # `edge_jump` is the jump between neighbouring pixels of a camera of this focal length
 
 
-def map_depth(depth: np.ndarray, sigma: np.ndarray | None, settings: MapConfig, focal_px: float = EDGE_FOCAL_PX
-              ) -> np.ndarray:
+def map_depth(
+    depth: np.ndarray, sigma: np.ndarray | None, settings: MapConfig, focal_px: float = EDGE_FOCAL_PX
+) -> np.ndarray:
     """The depth the map takes from a frame: 0 beyond the farthest depth, where sigma / depth is above
     `sigma_max` (sigma in metres, as written by `leovr refine`), and on depth edges: a pixel whose 3 x 3
     neighbourhood spans more than a factor 1 + `edge_jump` (for a camera of EDGE_FOCAL_PX; a coarser camera's
@@ -148,7 +155,9 @@ def write_map(vol: TsdfMap, out: Path) -> dict:
     cloud = o3d.geometry.PointCloud(mesh.vertices)
     cloud.colors = mesh.vertex_colors
     atomic_write(out / "map.ply", lambda tmp: _check(o3d.io.write_triangle_mesh(str(tmp), mesh), out / "map.ply"))
-    atomic_write(out / "map_points.ply", lambda tmp: _check(o3d.io.write_point_cloud(str(tmp), cloud), out / "map_points.ply"))
+    atomic_write(
+        out / "map_points.ply", lambda tmp: _check(o3d.io.write_point_cloud(str(tmp), cloud), out / "map_points.ply")
+    )
     return {"vertices": len(mesh.vertices), "triangles": len(mesh.triangles)}
 
 
@@ -168,9 +177,16 @@ def map_run(run_dir: Path, out: Path, settings: MapConfig, progress: bool = True
     t0 = time.perf_counter()
     vol = fuse_run(run, settings, progress=progress)
     fused_s = time.perf_counter() - t0
-    summary = {"run": str(Path(run_dir).resolve()), "out": str(Path(out).resolve()), "frames": vol.frames, "settings": settings.model_dump(),
-               "uncertainty_filter": settings.sigma_max is not None and (run.path / "sigma").is_dir(),
-               **write_map(vol, Path(out)), "blocks": vol.blocks,
-               "seconds_per_frame": round(fused_s / max(vol.frames, 1), 4), "peak_memory_mb": round(peak_memory_mb(), 1)}
+    summary = {
+        "run": str(Path(run_dir).resolve()),
+        "out": str(Path(out).resolve()),
+        "frames": vol.frames,
+        "settings": settings.model_dump(),
+        "uncertainty_filter": settings.sigma_max is not None and (run.path / "sigma").is_dir(),
+        **write_map(vol, Path(out)),
+        "blocks": vol.blocks,
+        "seconds_per_frame": round(fused_s / max(vol.frames, 1), 4),
+        "peak_memory_mb": round(peak_memory_mb(), 1),
+    }
     write_text(Path(out) / "map.json", json.dumps(summary, indent=1) + "\n")
     return summary

@@ -38,9 +38,16 @@ class Recipe:
                 for lidar in self.lidars:
                     for light in self.lights:
                         width, height, focal = self.camera
-                        cfg = SimulateConfig(scenario=self.scenarios[i % len(self.scenarios)], lidar=lidar, light=light,
-                                             seed=SEED_BASE[split] + i, frames=self.frames, width=width, height=height,
-                                             focal=focal)
+                        cfg = SimulateConfig(
+                            scenario=self.scenarios[i % len(self.scenarios)],
+                            lidar=lidar,
+                            light=light,
+                            seed=SEED_BASE[split] + i,
+                            frames=self.frames,
+                            width=width,
+                            height=height,
+                            focal=focal,
+                        )
                         out.append((split, cfg))
         return out
 

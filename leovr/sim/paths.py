@@ -75,8 +75,12 @@ class Path2D:
 
 def rounded_rectangle(x0: float, y0: float, x1: float, y1: float, radius: float, n_arc: int = 24) -> np.ndarray:
     """Counter-clockwise rectangle with circular corners, as a point list (closed implicitly)."""
-    corners = [(x1 - radius, y0 + radius, -np.pi / 2), (x1 - radius, y1 - radius, 0.0),
-               (x0 + radius, y1 - radius, np.pi / 2), (x0 + radius, y0 + radius, np.pi)]
+    corners = [
+        (x1 - radius, y0 + radius, -np.pi / 2),
+        (x1 - radius, y1 - radius, 0.0),
+        (x0 + radius, y1 - radius, np.pi / 2),
+        (x0 + radius, y0 + radius, np.pi),
+    ]
     pts = []
     for cx, cy, a0 in corners:
         a = a0 + np.linspace(0.0, np.pi / 2, n_arc)

@@ -27,8 +27,19 @@ class Light:
 
 
 LIGHTS = {
-    "day": Light((0.45, 0.3, 0.84), (0.8, 0.78, 0.72), (0.42, 0.44, 0.48), (0.3, 0.5, 0.85), (0.75, 0.82, 0.92), 0.0, 1.0, 0.004),
-    "dusk": Light((-0.7, 0.55, 0.18), (0.95, 0.6, 0.35), (0.25, 0.23, 0.28), (0.2, 0.22, 0.42), (0.95, 0.55, 0.35), 0.3, 0.8, 0.012),
+    "day": Light(
+        (0.45, 0.3, 0.84), (0.8, 0.78, 0.72), (0.42, 0.44, 0.48), (0.3, 0.5, 0.85), (0.75, 0.82, 0.92), 0.0, 1.0, 0.004
+    ),
+    "dusk": Light(
+        (-0.7, 0.55, 0.18),
+        (0.95, 0.6, 0.35),
+        (0.25, 0.23, 0.28),
+        (0.2, 0.22, 0.42),
+        (0.95, 0.55, 0.35),
+        0.3,
+        0.8,
+        0.012,
+    ),
     "night": Light(None, (0, 0, 0), (0.035, 0.04, 0.06), (0.005, 0.006, 0.015), (0.03, 0.03, 0.05), 2.5, 1.0, 0.03),
 }
 
@@ -45,7 +56,9 @@ def build_scene(static: Mesh, dynamic: Mesh) -> Scene:
     rc = o3d.t.geometry.RaycastingScene()
     for m in (static, dynamic):
         if len(m.triangles):
-            rc.add_triangles(o3d.core.Tensor(m.vertices.astype(np.float32)), o3d.core.Tensor(m.triangles.astype(np.uint32)))
+            rc.add_triangles(
+                o3d.core.Tensor(m.vertices.astype(np.float32)), o3d.core.Tensor(m.triangles.astype(np.uint32))
+            )
         else:  # keep geometry ids stable: a degenerate far-away triangle
             v = np.array([[1e6, 1e6, -1e3], [1e6 + 1, 1e6, -1e3], [1e6, 1e6 + 1, -1e3]], np.float32)
             rc.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(np.array([[0, 1, 2]], np.uint32)))
@@ -64,8 +77,12 @@ def cast(scene: Scene, origins: np.ndarray, dirs: np.ndarray) -> Hits:
     rays = np.hstack([origins, dirs]).astype(np.float32)
     r = scene.rc.cast_rays(o3d.core.Tensor(rays))
     g = r["geometry_ids"].numpy()
-    return Hits(r["t_hit"].numpy().astype(np.float64), np.where(g == NO_HIT, -1, g.astype(np.int64)),
-                r["primitive_ids"].numpy().astype(np.int64), r["primitive_normals"].numpy().astype(np.float64))
+    return Hits(
+        r["t_hit"].numpy().astype(np.float64),
+        np.where(g == NO_HIT, -1, g.astype(np.int64)),
+        r["primitive_ids"].numpy().astype(np.int64),
+        r["primitive_normals"].numpy().astype(np.float64),
+    )
 
 
 def surface_attributes(scene: Scene, hits: Hits, hit_mask: np.ndarray):
@@ -82,7 +99,9 @@ def surface_attributes(scene: Scene, hits: Hits, hit_mask: np.ndarray):
     return mat, col, par
 
 
-def albedo(mat: np.ndarray, col: np.ndarray, par: np.ndarray, P: np.ndarray, nrm: np.ndarray, fp: np.ndarray) -> np.ndarray:
+def albedo(
+    mat: np.ndarray, col: np.ndarray, par: np.ndarray, P: np.ndarray, nrm: np.ndarray, fp: np.ndarray
+) -> np.ndarray:
     """Procedural surface colour at hit points P (world), with texture detail faded by pixel footprint fp."""
     out = col.copy()
 
@@ -131,8 +150,15 @@ def albedo(mat: np.ndarray, col: np.ndarray, par: np.ndarray, P: np.ndarray, nrm
     return np.clip(out, 0.0, 1.0)
 
 
-def render_camera(scene: Scene, T_world_cam: np.ndarray, cam_dirs: np.ndarray, shape: tuple[int, int], fx: float,
-                  light: Light, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def render_camera(
+    scene: Scene,
+    T_world_cam: np.ndarray,
+    cam_dirs: np.ndarray,
+    shape: tuple[int, int],
+    fx: float,
+    light: Light,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """RGB uint8 image, z-depth (metres, 0 = sky) and moving-object mask of one camera view."""
     R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
     d = cam_dirs @ R.T  # z-component 1 in the camera frame: t = depth
@@ -166,15 +192,26 @@ def render_camera(scene: Scene, T_world_cam: np.ndarray, cam_dirs: np.ndarray, s
             irr += (light.headlights * cos_in * fwd / (1.0 + (dist / 10.0) ** 2))[:, None]
         rgb[hit] = alb * irr
     rgb = rgb * light.gain
-    rgb = rgb + rng.normal(0.0, light.read_noise, rgb.shape) + rng.normal(0.0, 1.0, rgb.shape) * np.sqrt(np.clip(rgb, 0, None)) * 0.01
+    rgb = (
+        rgb
+        + rng.normal(0.0, light.read_noise, rgb.shape)
+        + rng.normal(0.0, 1.0, rgb.shape) * np.sqrt(np.clip(rgb, 0, None)) * 0.01
+    )
     img = (np.clip(rgb, 0.0, 1.0) ** (1 / 2.2) * 255.0 + 0.5).astype(np.uint8)
     h, w = shape
     moving = (hits.geom == 1).reshape(h, w)
     return img.reshape(h, w, 3), depth.reshape(h, w).astype(np.float32), moving
 
 
-def scan_lidar(scene: Scene, T_world_sensor: np.ndarray, beams: np.ndarray, max_range: float, noise: float,
-               dropout: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def scan_lidar(
+    scene: Scene,
+    T_world_sensor: np.ndarray,
+    beams: np.ndarray,
+    max_range: float,
+    noise: float,
+    dropout: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
     """Cast each beam from the sensor pose at its firing time (M x 4 x 4); return kept points in the
     sensor frame at that time (x, y, z, intensity) and the mask of kept beams."""
     d = np.einsum("nij,nj->ni", T_world_sensor[:, :3, :3], beams)

@@ -98,8 +98,12 @@ def simulate(cfg: SimulateConfig, out: Path, preview: bool = False, progress: bo
     cam = CameraModel(cfg.width, cfg.height, cfg.focal, cfg.focal)
     cam_dirs = cam.ray_directions()
     writer = NativeWriter(
-        out, name=f"{cfg.scenario}_{cfg.lidar}_{cfg.light}_s{cfg.seed}", rate_hz=cfg.rate_hz, lidar_name=cfg.lidar,
-        extra={"simulation": cfg.model_dump()}, depth_scale=GT_DEPTH_SCALE,
+        out,
+        name=f"{cfg.scenario}_{cfg.lidar}_{cfg.light}_s{cfg.seed}",
+        rate_hz=cfg.rate_hz,
+        lidar_name=cfg.lidar,
+        extra={"simulation": cfg.model_dump()},
+        depth_scale=GT_DEPTH_SCALE,
         camera_height_m=float(T_VEHICLE_CAM[2, 3]),  # the vehicle's frame lies on the road
         overwrite=True,  # rendered again from its settings: an earlier rendering in `out` is replaced
     )

@@ -82,8 +82,13 @@ def _lines(extent, xs, ys):
     return [x0] + list(xs) + [x1], [y0] + list(ys) + [y1]
 
 
-def _add_block(b: MeshBuilder, rng: np.random.Generator, bx: tuple[float, float], by: tuple[float, float],
-               road_sides: dict[str, bool]) -> None:
+def _add_block(
+    b: MeshBuilder,
+    rng: np.random.Generator,
+    bx: tuple[float, float],
+    by: tuple[float, float],
+    road_sides: dict[str, bool],
+) -> None:
     """Sidewalk slab, buildings along its edges, street furniture along the edges that face roads."""
     (xa, xb), (ya, yb) = bx, by
     if xb - xa < 6 or yb - ya < 6:
@@ -91,8 +96,10 @@ def _add_block(b: MeshBuilder, rng: np.random.Generator, bx: tuple[float, float]
     b.box(((xa + xb) / 2, (ya + yb) / 2, 0.0), (xb - xa, yb - ya, KERB), Mat.SIDEWALK, (0.6, 0.6, 0.58))
     # each side: (start, end, fixed coordinate, inward normal, axis of travel)
     sides = {
-        "south": ((xa, xb), ya, (0, 1), 0), "north": ((xa, xb), yb, (0, -1), 0),
-        "west": ((ya, yb), xa, (1, 0), 1), "east": ((ya, yb), xb, (-1, 0), 1),
+        "south": ((xa, xb), ya, (0, 1), 0),
+        "north": ((xa, xb), yb, (0, -1), 0),
+        "west": ((ya, yb), xa, (1, 0), 1),
+        "east": ((ya, yb), xb, (-1, 0), 1),
     }
     for name, ((a, e), fixed, inward, axis) in sides.items():
         margin = SIDEWALK + (16.0 if axis == 1 else 0.0)  # east/west rows stop short of the corners
@@ -108,7 +115,13 @@ def _add_block(b: MeshBuilder, rng: np.random.Generator, bx: tuple[float, float]
             center = (c_along, c_across) if axis == 0 else (c_across, c_along)
             size = (w, d) if axis == 0 else (d, w)
             col = _pastel(rng)
-            b.box((center[0], center[1], KERB), (size[0], size[1], h), Mat.FACADE, col, param=(rng.uniform(2.2, 3.6), axis))
+            b.box(
+                (center[0], center[1], KERB),
+                (size[0], size[1], h),
+                Mat.FACADE,
+                col,
+                param=(rng.uniform(2.2, 3.6), axis),
+            )
             b.box((center[0], center[1], KERB + h), (size[0] + 0.4, size[1] + 0.4, 0.4), Mat.ROOF, (0.3, 0.3, 0.32))
             pos += w + rng.uniform(0.0, 3.0)
         if not road_sides.get(name):
@@ -121,7 +134,12 @@ def _add_block(b: MeshBuilder, rng: np.random.Generator, bx: tuple[float, float]
             if r < 0.55:
                 h = rng.uniform(2.0, 3.5)
                 b.prism((xy[0], xy[1], KERB), 0.18, h, Mat.TRUNK, (0.35, 0.25, 0.15), sides=6)
-                b.blob((xy[0], xy[1], KERB + h + 1.2), rng.uniform(1.4, 2.4), Mat.FOLIAGE, (0.2, rng.uniform(0.4, 0.6), 0.15))
+                b.blob(
+                    (xy[0], xy[1], KERB + h + 1.2),
+                    rng.uniform(1.4, 2.4),
+                    Mat.FOLIAGE,
+                    (0.2, rng.uniform(0.4, 0.6), 0.15),
+                )
             elif r < 0.8:
                 b.prism((xy[0], xy[1], KERB), 0.09, rng.uniform(5.5, 7.5), Mat.METAL, (0.55, 0.55, 0.6), sides=6)
             elif r < 0.92:
@@ -207,7 +225,9 @@ def _traffic(rng, extent, xs, ys, ego_roads, centre: Path2D, n_cars: int, n_peop
             start = rng.uniform(0, max(p.length - 60, 1))
         seg = Path2D(p.pose(np.array([start, start + rng.uniform(20, 60)]))[0])
         col = tuple(rng.uniform(0.1, 0.9, 3))
-        movers.append(Mover(person_template(col), seg, rng.uniform(0, seg.length), rng.uniform(1.0, 1.6), KERB, "person", True))
+        movers.append(
+            Mover(person_template(col), seg, rng.uniform(0, seg.length), rng.uniform(1.0, 1.6), KERB, "person", True)
+        )
     return movers
 
 
@@ -237,14 +257,17 @@ def build_world(scenario: str, seed: int, ego_speed: float) -> World:
     movers = _traffic(rng, extent, xs, ys, ego_roads, centre, n_cars, n_people, near)
     # traffic ahead in the ego's own lane, at the ego's speed so the gap stays constant
     for k in range({"city_loop": 1, "straight": 1, "dynamic": 4}.get(scenario, 0)):
-        movers.append(Mover(car_template(_car_color(rng)), ego, 18.0 + 25.0 * k + rng.uniform(0, 8), ego_speed, 0.02, "car"))
+        movers.append(
+            Mover(car_template(_car_color(rng)), ego, 18.0 + 25.0 * k + rng.uniform(0, 8), ego_speed, 0.02, "car")
+        )
     if scenario == "traffic":
         movers += _hard_traffic(rng, xs, centre, ego, ego_speed)
     return World(scenario, seed, static, movers, ego, extent, ego_roads)
 
 
-def _hard_traffic(rng: np.random.Generator, xs: list[float], centre: Path2D, ego: Path2D, ego_speed: float,
-                  horizon_s: float = 4.0) -> list[Mover]:
+def _hard_traffic(
+    rng: np.random.Generator, xs: list[float], centre: Path2D, ego: Path2D, ego_speed: float, horizon_s: float = 4.0
+) -> list[Mover]:
     """Movers timed to be in view during the first `horizon_s` seconds (a 40-frame sequence), on the
     straight drive along y = 0 that starts at x = -20: a car close ahead in the ego lane at exactly
     the ego speed and one further ahead at about it; oncoming cars passing the ego; cars crossing
@@ -274,7 +297,9 @@ def _hard_traffic(rng: np.random.Generator, xs: list[float], centre: Path2D, ego
             else:
                 continue
             direction = 1 if rng.random() < 0.5 else -1
-            lane = Path2D(np.array([[x + LANE * direction, -140.0 * direction], [x + LANE * direction, 140.0 * direction]]))
+            lane = Path2D(
+                np.array([[x + LANE * direction, -140.0 * direction], [x + LANE * direction, 140.0 * direction]])
+            )
             movers.append(Mover(car(), lane, 140.0 - speed * t_c, speed, 0.02, "car"))
     for _ in range(5):  # from the kerb of the oncoming half across it, then along the far sidewalk
         x = x_start + rng.uniform(10.0, 45.0) + ego_speed * rng.uniform(0.0, horizon_s)

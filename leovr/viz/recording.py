@@ -41,8 +41,12 @@ JPEG_QUALITY = 85
 DEPTH_STEP = 2
 LIDAR_STEP = 8
 MAP_TRIANGLES = 400_000
-HIDDEN_IN_3D = ("world/camera/image/depth_refined", "world/camera/image/depth_generator",
-                "world/camera/image/depth_ground_truth", "world/camera/image/error")
+HIDDEN_IN_3D = (
+    "world/camera/image/depth_refined",
+    "world/camera/image/depth_generator",
+    "world/camera/image/depth_ground_truth",
+    "world/camera/image/error",
+)
 
 
 def blueprint(track: np.ndarray | None = None) -> rrb.Blueprint:
@@ -53,18 +57,26 @@ def blueprint(track: np.ndarray | None = None) -> rrb.Blueprint:
         lo, hi = track.min(axis=0), track.max(axis=0)
         centre, size = (lo + hi) / 2, max(float(np.linalg.norm(hi - lo)), 20.0)
         # RDF axes: y points down, so "above and behind" the start is -y, -z
-        eye = rrb.EyeControls3D(position=centre + np.array([0.0, -0.6, -0.8]) * size, look_target=centre,
-                                eye_up=[0.0, -1.0, 0.0])
+        eye = rrb.EyeControls3D(
+            position=centre + np.array([0.0, -0.6, -0.8]) * size, look_target=centre, eye_up=[0.0, -1.0, 0.0]
+        )
     image = "world/camera/image"
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(
-                rrb.Spatial3DView(origin="world", name="world", eye_controls=eye,
-                                  overrides={e: rrb.EntityBehavior(visible=False) for e in HIDDEN_IN_3D}),
+                rrb.Spatial3DView(
+                    origin="world",
+                    name="world",
+                    eye_controls=eye,
+                    overrides={e: rrb.EntityBehavior(visible=False) for e in HIDDEN_IN_3D},
+                ),
                 rrb.Vertical(
                     rrb.Spatial2DView(origin=image, contents=["$origin/rgb"], name="image"),
-                    rrb.Spatial2DView(origin=image, contents=["$origin/depth_refined", "$origin/depth_ground_truth"],
-                                      name="refined depth (m)"),
+                    rrb.Spatial2DView(
+                        origin=image,
+                        contents=["$origin/depth_refined", "$origin/depth_ground_truth"],
+                        name="refined depth (m)",
+                    ),
                     rrb.Spatial2DView(origin=image, contents=["$origin/depth_generator"], name="generator depth (m)"),
                     rrb.Spatial2DView(origin=image, contents=["$origin/error"], name="|refined - ground truth| (m)"),
                 ),
@@ -73,8 +85,11 @@ def blueprint(track: np.ndarray | None = None) -> rrb.Blueprint:
             rrb.Horizontal(
                 rrb.TimeSeriesView(origin="metrics/mae_m", name="MAE per frame (m)"),
                 rrb.TimeSeriesView(origin="metrics/time_ms", name="time per stage (ms)"),
-                rrb.TimeSeriesView(origin="metrics", contents=["$origin/landmarks_last_seen", "$origin/loop_closed"],
-                                   name="landmarks, loops"),
+                rrb.TimeSeriesView(
+                    origin="metrics",
+                    contents=["$origin/landmarks_last_seen", "$origin/loop_closed"],
+                    name="landmarks, loops",
+                ),
             ),
             row_shares=[4, 1],
         ),
@@ -95,14 +110,22 @@ def _error_image(pred: np.ndarray, gt: np.ndarray) -> "rr.DepthImage":
     if valid.mean() < 0.2:
         err = cv2.dilate(err, np.ones((3, 3), np.uint8))
     h, w = (err.shape[0] // DEPTH_STEP) * DEPTH_STEP, (err.shape[1] // DEPTH_STEP) * DEPTH_STEP
-    err = err[:h, :w].reshape(h // DEPTH_STEP, DEPTH_STEP, w // DEPTH_STEP, DEPTH_STEP).max(axis=(1, 3))  # sparse errors stay
-    return rr.DepthImage(err.astype(np.float16), meter=1.0, colormap="viridis", depth_range=ERROR_RANGE_M)  # 0 m: purple
+    err = (
+        err[:h, :w].reshape(h // DEPTH_STEP, DEPTH_STEP, w // DEPTH_STEP, DEPTH_STEP).max(axis=(1, 3))
+    )  # sparse errors stay
+    return rr.DepthImage(
+        err.astype(np.float16), meter=1.0, colormap="viridis", depth_range=ERROR_RANGE_M
+    )  # 0 m: purple
 
 
 def _depth_image(d: np.ndarray) -> "rr.DepthImage":
     """Metres at half resolution (float16: no 16-bit cap, hovering shows metres), 0 = unknown."""
-    return rr.DepthImage(np.nan_to_num(d[::DEPTH_STEP, ::DEPTH_STEP], nan=0.0).astype(np.float16), meter=1.0,
-                         colormap="turbo", depth_range=DEPTH_RANGE_M)
+    return rr.DepthImage(
+        np.nan_to_num(d[::DEPTH_STEP, ::DEPTH_STEP], nan=0.0).astype(np.float16),
+        meter=1.0,
+        colormap="turbo",
+        depth_range=DEPTH_RANGE_M,
+    )
 
 
 def _depth_cloud(d: np.ndarray, K: np.ndarray, T: np.ndarray) -> "rr.Points3D":
@@ -175,19 +198,36 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
         strips["kiss_icp"] = baseline[: len(indices), :3, 3]  # KISS-ICP alone on the run's input
     if run is not None and poses is not None and (run / "loops.json").is_file():
         at = {i: n for n, i in enumerate(indices)}
-        pairs = [(at[r["frame"]], at[r["candidate"]]) for r in _json_field(run / "loops.json", "loops")
-                 if r["accepted"] and r["frame"] in at and r["candidate"] in at]
+        pairs = [
+            (at[r["frame"]], at[r["candidate"]])
+            for r in _json_field(run / "loops.json", "loops")
+            if r["accepted"] and r["frame"] in at and r["candidate"] in at
+        ]
         if pairs:
-            rec.log("world/loops", rr.LineStrips3D([poses[[a, b], :3, 3] for a, b in pairs], colors=[(220, 40, 200)], radii=0.1),
-                    static=True)
+            rec.log(
+                "world/loops",
+                rr.LineStrips3D([poses[[a, b], :3, 3] for a, b in pairs], colors=[(220, 40, 200)], radii=0.1),
+                static=True,
+            )
     if run is not None and (run / "landmarks.npy").is_file():
-        rec.log("world/landmarks", rr.Points3D(_array(run / "landmarks.npy"), colors=[LANDMARK_COLOUR], radii=0.06),
-                static=True)
+        rec.log(
+            "world/landmarks",
+            rr.Points3D(_array(run / "landmarks.npy"), colors=[LANDMARK_COLOUR], radii=0.06),
+            static=True,
+        )
     if run is not None and (run / "map" / "map.ply").is_file():
         rec.log("world/map", _map_mesh(run / "map" / "map.ply"), static=True)
     first = seq[indices[0]]
-    rec.log("world/camera/image", rr.Pinhole(image_from_camera=first.K, resolution=[first.width, first.height],
-                                             camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=2.0), static=True)
+    rec.log(
+        "world/camera/image",
+        rr.Pinhole(
+            image_from_camera=first.K,
+            resolution=[first.width, first.height],
+            camera_xyz=rr.ViewCoordinates.RDF,
+            image_plane_distance=2.0,
+        ),
+        static=True,
+    )
     scalars = _frame_scalars(run, indices)
     held_out = _held_out_truth(run, seq)
     scale = run_depth_scale(run) if run is not None else None
@@ -196,8 +236,11 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
     T0_inv = None
     missing = [i for i in indices if run is not None and not run_frame_png(run, "depth", i).is_file()]
     if missing:
-        warnings.warn(f"{run / 'depth'}: no refined depth for {len(missing)} of the run's frames "
-                      f"({brief(missing)}); they are recorded without it", stacklevel=2)
+        warnings.warn(
+            f"{run / 'depth'}: no refined depth for {len(missing)} of the run's frames "
+            f"({brief(missing)}); they are recorded without it",
+            stacklevel=2,
+        )
     for n, i in enumerate(indices):
         f = seq[i]
         rec.set_time("frame", sequence=i)
@@ -211,8 +254,14 @@ def _log_all(rec: "rr.RecordingStream", run: Path | None, seq, poses: np.ndarray
         rec.log("world/camera/image/rgb", rr.Image(f.image).compress(jpeg_quality=JPEG_QUALITY))
         if f.points is not None and len(f.points):
             pts = f.points[::LIDAR_STEP, :3]
-            rec.log("world/lidar", rr.Points3D(transform_points(T, transform_points(f.T_cam_lidar, pts)).astype(np.float32),
-                                               colors=_range_colours(np.linalg.norm(pts, axis=1)), radii=0.04))
+            rec.log(
+                "world/lidar",
+                rr.Points3D(
+                    transform_points(T, transform_points(f.T_cam_lidar, pts)).astype(np.float32),
+                    colors=_range_colours(np.linalg.norm(pts, axis=1)),
+                    radii=0.04,
+                ),
+            )
         ref = f.depth if f.depth is not None else (held_out(f) if held_out is not None else None)
         for kind, folder in folders.items():
             png = run_frame_png(run, folder, i) if run is not None else None
@@ -247,8 +296,11 @@ def _map_mesh(path: Path) -> "rr.Mesh3D":
     if len(mesh.triangles) > MAP_TRIANGLES:
         mesh = mesh.simplify_quadric_decimation(MAP_TRIANGLES)
     colours = (np.asarray(mesh.vertex_colors) * 255).astype(np.uint8) if mesh.has_vertex_colors() else None
-    return rr.Mesh3D(vertex_positions=np.asarray(mesh.vertices, np.float32),
-                     triangle_indices=np.asarray(mesh.triangles, np.uint32), vertex_colors=colours)
+    return rr.Mesh3D(
+        vertex_positions=np.asarray(mesh.vertices, np.float32),
+        triangle_indices=np.asarray(mesh.triangles, np.uint32),
+        vertex_colors=colours,
+    )
 
 
 def _frame_scalars(run: Path | None, indices: list[int]) -> dict[int, dict[str, float]]:

@@ -21,14 +21,24 @@ def plot_step_ratios(tracks: dict[str, np.ndarray], reference: np.ndarray, path:
     from scipy.ndimage import median_filter
 
     fig, ax = plt.subplots(figsize=(8, 3.4))
-    styles = {"leovr": ("tab:orange", "-"), "kiss_icp": ("tab:blue", "--"), "kiss_icp_no_deskew": ("tab:cyan", ":"),
-              "mono_vo": ("tab:green", "-."), "leovr_no_loop": ("tab:red", ":")}
+    styles = {
+        "leovr": ("tab:orange", "-"),
+        "kiss_icp": ("tab:blue", "--"),
+        "kiss_icp_no_deskew": ("tab:cyan", ":"),
+        "mono_vo": ("tab:green", "-."),
+        "leovr_no_loop": ("tab:red", ":"),
+    }
     for name, poses in tracks.items():
         r = step_ratios(poses, reference)
         filled = np.where(np.isfinite(r), r, 1.0)
         c, ls = styles.get(name, ("gray", ":"))
-        ax.plot(np.arange(1, len(poses)), np.where(np.isfinite(r), median_filter(filled, smooth, mode="nearest"), np.nan),
-                color=c, linestyle=ls, label=name)
+        ax.plot(
+            np.arange(1, len(poses)),
+            np.where(np.isfinite(r), median_filter(filled, smooth, mode="nearest"), np.nan),
+            color=c,
+            linestyle=ls,
+            label=name,
+        )
     ax.axhline(1.0, color="k", linewidth=0.8)
     ax.set_xlabel("frame")
     ax.set_ylabel("step length / true step")

@@ -21,9 +21,12 @@ def robust(kernel, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
     return base if kernel is None else gtsam.noiseModel.Robust.Create(kernel, base)
 
 
-def build_pose_graph(poses: np.ndarray, loops: list[tuple[int, int, np.ndarray]],
-                     odo_noise: Callable[[int], gtsam.noiseModel.Base],
-                     loop_noise: gtsam.noiseModel.Base) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+def build_pose_graph(
+    poses: np.ndarray,
+    loops: list[tuple[int, int, np.ndarray]],
+    odo_noise: Callable[[int], gtsam.noiseModel.Base],
+    loop_noise: gtsam.noiseModel.Base,
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The graph and its initial values: a prior on the first pose, one between-factor per odometry step
     (`odo_noise(k)` for the step into pose k) and one per loop."""
     g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -43,8 +46,13 @@ def solve_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n:
     return np.stack([res.atPose3(k).matrix() for k in range(n)])
 
 
-def optimise_pose_graph(poses: np.ndarray, loops: list[tuple[int, int, np.ndarray]], odo_sigma=(0.01, 0.05),
-                        loop_sigma=(0.02, 0.1), odo_cauchy: float = 1.0) -> np.ndarray:
+def optimise_pose_graph(
+    poses: np.ndarray,
+    loops: list[tuple[int, int, np.ndarray]],
+    odo_sigma=(0.01, 0.05),
+    loop_sigma=(0.02, 0.1),
+    odo_cauchy: float = 1.0,
+) -> np.ndarray:
     """`poses` F x 4 x 4 camera-to-world; `loops` (i, j, T_j_i): camera i seen from camera j.
     Returns the corrected F x 4 x 4 poses.
 

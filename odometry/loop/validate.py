@@ -36,8 +36,9 @@ def umeyama(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return T
 
 
-def ransac_rigid(src: np.ndarray, dst: np.ndarray, thresh_rel: float = 0.05, thresh_abs: float = 0.3,
-                 iters: int = 200, seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
+def ransac_rigid(
+    src: np.ndarray, dst: np.ndarray, thresh_rel: float = 0.05, thresh_abs: float = 0.3, iters: int = 200, seed: int = 0
+) -> tuple[np.ndarray | None, np.ndarray]:
     """Rigid transform src -> dst by 3-point RANSAC; inlier when the residual is under
     max(thresh_abs, thresh_rel * depth). Returns (T refit on inliers, inlier mask)."""
     n = len(src)
@@ -63,8 +64,15 @@ def _pnp(P: np.ndarray, uv: np.ndarray, K: np.ndarray, reproj_px: float) -> tupl
     n = len(P)
     if n < 6:
         return None, np.zeros(n, bool), float("inf")
-    ok, rv, tv, inl = cv2.solvePnPRansac(P.astype(np.float64), uv.astype(np.float64), K, None,
-                                         reprojectionError=reproj_px, iterationsCount=200, flags=cv2.SOLVEPNP_EPNP)
+    ok, rv, tv, inl = cv2.solvePnPRansac(
+        P.astype(np.float64),
+        uv.astype(np.float64),
+        K,
+        None,
+        reprojectionError=reproj_px,
+        iterationsCount=200,
+        flags=cv2.SOLVEPNP_EPNP,
+    )
     if not ok or inl is None or len(inl) < 6:
         return None, np.zeros(n, bool), float("inf")
     mask = np.zeros(n, bool)
@@ -83,9 +91,17 @@ def _disagreement(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(D[:3, 3])), rotation_angle_deg(D[:3, :3])
 
 
-def validate_loop(fi: Features, pts_i: np.ndarray, fj: Features, pts_j: np.ndarray, K: np.ndarray,
-                  min_inliers: int = 20, max_reproj_px: float = 2.0, max_disagree_m: float = 0.2,
-                  max_disagree_deg: float = 2.0) -> LoopCheck:
+def validate_loop(
+    fi: Features,
+    pts_i: np.ndarray,
+    fj: Features,
+    pts_j: np.ndarray,
+    K: np.ndarray,
+    min_inliers: int = 20,
+    max_reproj_px: float = 2.0,
+    max_disagree_m: float = 0.2,
+    max_disagree_deg: float = 2.0,
+) -> LoopCheck:
     """`pts_*` are the features' 3D points in their own camera (NaN rows where unknown).
 
     `max_disagree_m`: on the tuning laps (seeds 3000-3001) an accepted loop's error against the truth
@@ -111,12 +127,15 @@ def validate_loop(fi: Features, pts_i: np.ndarray, fj: Features, pts_j: np.ndarr
     T_j_i = np.linalg.inv(T_i_j)
     dt, dr = _disagreement(T_j_i, T_j_i_rev)
     n = int(min(m_fwd.sum(), m_rev.sum()))
-    accepted = n >= min_inliers and max(err, err_rev) <= max_reproj_px and dt <= max_disagree_m and dr <= max_disagree_deg
+    accepted = (
+        n >= min_inliers and max(err, err_rev) <= max_reproj_px and dt <= max_disagree_m and dr <= max_disagree_deg
+    )
     return LoopCheck(accepted, n, err, T_j_i, dt, dr)
 
 
-def consistent_loops(loops: list[tuple[int, int, np.ndarray]], poses: np.ndarray, span: int = 3, max_m: float = 0.5,
-                     max_deg: float = 2.0) -> list[bool]:
+def consistent_loops(
+    loops: list[tuple[int, int, np.ndarray]], poses: np.ndarray, span: int = 3, max_m: float = 0.5, max_deg: float = 2.0
+) -> list[bool]:
     """Keep a validated loop (i, j, T_j_i) only when another loop found within `span` frames of i tells
     the same story: carried through the odometry poses (camera-to-world, locally accurate),
     T_j'_i' = (P_j'^-1 P_j) T_j_i (P_i^-1 P_i') must match its own measurement. One inaccurate PnP

@@ -59,7 +59,9 @@ class Vocabulary:
         return self.k**self.levels
 
     @classmethod
-    def train(cls, desc: np.ndarray, k: int = 10, levels: int = 5, seed: int = 0, docs: list[np.ndarray] | None = None) -> "Vocabulary":
+    def train(
+        cls, desc: np.ndarray, k: int = 10, levels: int = 5, seed: int = 0, docs: list[np.ndarray] | None = None
+    ) -> "Vocabulary":
         """Cluster the descriptors level by level; `docs` (descriptor sets, one per image) give the idf."""
         rng = np.random.default_rng(seed)
         bits = unpack(desc)
@@ -94,9 +96,9 @@ class Vocabulary:
         """Leaf word of each descriptor (descending the tree, all descriptors at once)."""
         bits = unpack(desc)
         node = np.zeros(len(bits), np.int64)
-        for l in range(self.levels):
+        for level in range(self.levels):
             kids = node[:, None] * self.k + np.arange(self.k)[None]  # N x k child indices
-            C = self.centers[l][kids]  # N x k x 256
+            C = self.centers[level][kids]  # N x k x 256
             d = bits.sum(1)[:, None] + C.sum(2) - 2.0 * np.einsum("nb,nkb->nk", bits, C)
             node = kids[np.arange(len(bits)), d.argmin(1)]
         return node
@@ -112,8 +114,16 @@ class Vocabulary:
 
     def save(self, path: str | Path) -> None:
         packed = [np.packbits(c.astype(np.uint8), axis=1) for c in self.centers]
-        atomic_write(Path(path), lambda tmp: np.savez_compressed(open(tmp, "wb"), k=self.k, levels=self.levels,
-                                                                 idf=self.idf, **{f"c{i}": p for i, p in enumerate(packed)}))
+        atomic_write(
+            Path(path),
+            lambda tmp: np.savez_compressed(
+                open(tmp, "wb"),
+                k=self.k,
+                levels=self.levels,
+                idf=self.idf,
+                **{f"c{i}": p for i, p in enumerate(packed)},
+            ),
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> "Vocabulary":
