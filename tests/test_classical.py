@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from leovr.depth.classical import complete_depth, fill_top, ipbasic, nearest_fill
+from leovr.depth.classical import fill_top, ipbasic, nearest_fill
+from leovr.depth.fills import complete_depth
 
 
 def test_nearest_fill_takes_the_closest_sample():

@@ -25,7 +25,7 @@ from leovr.data import open_sequence
 from leovr.data.io import read_depth_png
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.data.run_info import run_frame_png
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.errors import DataError
 from leovr.eval.map_metrics import COVER_M, NEAR_M, distances_to_mesh, distances_to_points, map_scores
 from leovr.geometry import back_project, transform_points

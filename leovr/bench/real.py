@@ -32,7 +32,7 @@ from leovr.bench.common import depth_entry, write_bench
 from leovr.config import AdaptConfig, BenchRealConfig, RefineConfig
 from leovr.data import open_sequence
 from leovr.data.io import write_text
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.pipeline.completion import ground_truth_note

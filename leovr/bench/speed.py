@@ -21,7 +21,7 @@ import numpy as np
 from leovr.bench.common import write_bench
 from leovr.config import BenchSpeedConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.paths import kitti_raw_clips
 from leovr.pipeline.refine import CPU, TIMED, WALL, completion_config, frame_sample, run_refine
 from leovr.sim.simulate import simulate

@@ -81,20 +81,3 @@ def ipbasic(sparse: np.ndarray, cfg: IPBasicConfig | None = None) -> np.ndarray:
     if cfg.fill_remaining and not valid.all():
         d = np.where(valid, d, nearest_fill(sparse))
     return d
-
-
-def _interp(sparse: np.ndarray, image: np.ndarray | None = None) -> np.ndarray:
-    from leovr.depth.prior import interpolated_fill  # the generator's prior, scored on its own too
-
-    return interpolated_fill(sparse, image=image)
-
-
-METHODS = {"nearest": nearest_fill, "ipbasic": ipbasic, "interp": _interp}
-
-
-def complete_depth(sparse: np.ndarray, method: str, image: np.ndarray | None = None) -> np.ndarray:
-    """Dense depth (metres) from a sparse map with a classical method; `image` (the frame) guides only
-    `interp` at depth edges (leovr.depth.prior)."""
-    if method not in METHODS:
-        raise ValueError(f"unknown method '{method}' (choose {', '.join(METHODS)})")
-    return _interp(sparse, image) if method == "interp" else METHODS[method](sparse)

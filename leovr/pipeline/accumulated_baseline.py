@@ -10,21 +10,25 @@ leovr's), the nearest return kept per pixel, then filled as `nearest` and `ipbas
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from tqdm import tqdm
 
 from leovr.config import CompleteConfig
 from leovr.data.sequence import Sequence
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.geometry import invert_T
 from leovr.lidar.projection import sparse_depth
-
-if TYPE_CHECKING:
-    from leovr.pipeline.refine import FrameScore
+from leovr.pipeline.refine_input import frame_sample
 
 ACCUMULATED = ("nearest_accumulated", "ipbasic_accumulated")
+
+
+class Scores(Protocol):
+    """A frame's depth scores (`refine_outputs.FrameScore`): one more method's depth added."""
+
+    def add(self, method: str, depth: np.ndarray) -> None: ...
 
 
 def accumulated_fills(
@@ -32,7 +36,7 @@ def accumulated_fills(
     indices: list[int],
     ccfg: CompleteConfig,
     poses: np.ndarray,
-    scored: dict[int, "FrameScore"],
+    scored: dict[int, Scores],
     frames: list[int],
     reach: int,
     causal: bool = False,
@@ -41,8 +45,6 @@ def accumulated_fills(
 ) -> None:
     """Add both accumulated fills to the scores of `frames` (frames of the run's `indices`, whose camera
     poses `poses` holds in the same order). Each frame's cheap scan is read once, in order."""
-    from leovr.pipeline.refine import frame_sample
-
     position = {j: n for n, j in enumerate(indices)}
     cache: dict[int, np.ndarray] = {}  # frame -> its cheap returns in its camera (deskewed)
     K, shape = None, None

@@ -19,7 +19,7 @@ from leovr.data.io import write_depth_png, write_text
 from leovr.data.records import Frame
 from leovr.data.run_info import png_name, read_run_depth, run_identity, start_run
 from leovr.data.sequence import Sequence
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.errors import DataError, brief
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.heldout import parallax_filter

@@ -38,7 +38,7 @@ from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.records import Frame
 from leovr.data.run_info import png_name, run_identity, start_run
 from leovr.data.sequence import Sequence
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.geometry import invert_T
 from leovr.lidar.accumulate import ScanHistory

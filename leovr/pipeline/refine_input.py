@@ -10,7 +10,7 @@ import numpy as np
 from leovr.config import CompleteConfig, FrameSelection, RefineConfig
 from leovr.data.records import Frame
 from leovr.data.sequence import Sequence
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.errors import DataError
 from leovr.eval.heldout import parallax_filter
 from leovr.lidar.deskew import deskew_frame

@@ -17,7 +17,7 @@ from leovr.data.kitti_common import write_kitti_poses
 from leovr.data.native import write_tum_poses
 from leovr.data.run_info import read_run_depth
 from leovr.data.sequence import Sequence
-from leovr.depth.classical import complete_depth
+from leovr.depth.fills import complete_depth
 from leovr.errors import DataError
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.eval.trajectory import trajectory_metrics
