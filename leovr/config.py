@@ -156,9 +156,8 @@ class TrainConfig(_Model):
     ratio_min: float = 0.005  # density-agnostic input (SLIM): share of ground-truth pixels drawn, at least ...
     ratio_max: float = 0.30  # ... and at most
     native_prob: float = Field(0.5, ge=0, le=1)  # share of samples using the sequence's own LiDAR pattern
-    lidar_encoder: Literal["partial", "interp"] = (
-        "partial"  # LiDAR branch: SLIM partial convolutions | pre-interpolated input
-    )
+    # LiDAR branch: SLIM partial convolutions | pre-interpolated input
+    lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
     output: Literal["absolute", "residual", "fusion"] = "fusion"  # what the decoder predicts (leovr.depth.network)
     channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
@@ -188,45 +187,36 @@ class SelfSupConfig(_Model):
     # sparse depth reconstruction |log D - log z| at the LiDAR input's returns (0: off; on the traffic validation
     # seed it helped the unmasked run 8 % and the masked one not at all)
     weight_sparse: float = Field(0.0, ge=0)
-    target_loss: Literal["log_l1", "l2"] = (
-        "log_l1"  # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
-    )
+    # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
+    target_loss: Literal["log_l1", "l2"] = "log_l1"
     flow_mask: bool = True  # eq. 19 motion-optical-flow mask on the photometric loss
     flow_lambda_px: float = Field(1.0, gt=0)  # lambda: largest distance (px) of the flow end point to its epipolar line
     flow_method: Literal["dis", "farneback"] = "dis"  # OpenCV optical flow
     rigid_mask: bool = True  # also drop pixels whose flow disagrees with the rigid flow of the graph's pose and depth
     rigid_abs_px: float = Field(0.5, gt=0)  # rigid test tolerance: px ...
     rigid_rel: float = Field(0.3, ge=0)  # ... plus this share of the rigid flow's depth-dependent part
-    rigid_support_px: float = Field(
-        4.0, ge=0
-    )  # initialisation stage: rigid and depth tests only this close to a LiDAR return (0: everywhere)
+    # initialisation stage: rigid and depth tests only this close to a LiDAR return (0: everywhere)
+    rigid_support_px: float = Field(4.0, ge=0)
     depth_mask: bool = False  # drop pixels whose depth, moved into the neighbour, disagrees with the neighbour's depth
     depth_mask_rel: float = Field(0.05, gt=0, lt=1)  # depth test tolerance, relative
-    auto_mask: bool = (
-        True  # monodepth2: per-pixel minimum over the neighbours, pixels that match better unwarped dropped
-    )
-    weight_nll: float = Field(
-        0.1, ge=0
-    )  # Gaussian NLL of the uncertainty head at the LiDAR-backed landmarks (0: head untrained)
+    # monodepth2: per-pixel minimum over the neighbours, pixels that match better unwarped dropped
+    auto_mask: bool = True
+    # Gaussian NLL of the uncertainty head at the LiDAR-backed landmarks (0: head untrained)
+    weight_nll: float = Field(0.1, ge=0)
     input: str = "full"  # LiDAR input of the generator and the graph (full, vlp16, mid40, ratio:R)
-    train_focal_px: float | None = (
-        260.0  # frames resampled to this focal length (px; the generator's camera); None = native
-    )
+    # frames resampled to this focal length (px; the generator's camera); None = native
+    train_focal_px: float | None = 260.0
     max_frames: int | None = Field(None, ge=1)  # first frames of each sequence only (None = all)
     loop_closure: bool = True  # pose quality assurance (Sec. IV-B) in every graph pass
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
-    landmark_frames: int = Field(
-        4, ge=0
-    )  # a landmark counts as visible in frame i when last observed within this many frames
-    landmarks_lidar_only: bool = (
-        True  # L_f on LiDAR-backed landmarks only (triangulated-only ones carry metres of error)
-    )
-    refined_agree_rel: float = Field(
-        0.05, gt=0
-    )  # L_r uses a frame when its refined depth is within this of the landmarks (median)
-    lidar_encoder: Literal["partial", "interp"] = (
-        "partial"  # LiDAR branch: SLIM partial convolutions | pre-interpolated input
-    )
+    # a landmark counts as visible in frame i when last observed within this many frames
+    landmark_frames: int = Field(4, ge=0)
+    # L_f on LiDAR-backed landmarks only (triangulated-only ones carry metres of error)
+    landmarks_lidar_only: bool = True
+    # L_r uses a frame when its refined depth is within this of the landmarks (median)
+    refined_agree_rel: float = Field(0.05, gt=0)
+    # LiDAR branch: SLIM partial convolutions | pre-interpolated input
+    lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
     output: Literal["absolute", "residual", "fusion"] = "absolute"  # the paper's cold start predicts depth itself
     channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
@@ -285,9 +275,8 @@ class BenchRealConfig(_Model):
     # (docs/decisions/0009-no-adaptation-by-default.md)
     adapt_inputs: list[str] = []
     causal: bool = True  # also run each input in refine's causal mode (live use) and report it beside
-    inductive_train_fraction: float = Field(
-        0.8, gt=0, lt=1
-    )  # adapt on the first 80 % of a clip's frames, score the rest
+    # adapt on the first 80 % of a clip's frames, score the rest
+    inductive_train_fraction: float = Field(0.8, gt=0, lt=1)
     adapt_epochs: int = Field(40, ge=1)  # at most; early stopping on the validation frames usually ends sooner
     quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames ...
     quick_train_frames: int = Field(8, ge=1)  # ... adapted on the first 8
@@ -334,14 +323,10 @@ class BenchSelfSupConfig(_Model):
 
     dataset: str | None = None  # simulator dataset (tools/make_dataset.py); None = the cached default recipe
     scenarios: list[Scenario] = ["dynamic", "city_loop"]  # simulator scenarios trained and scored
-    traffic_sequences: int = Field(
-        3, ge=1
-    )  # traffic scenario (its own dataset recipe): training sequences; 2 test sequences
-    parts: list[Literal["synthetic", "traffic", "kitti"]] = [
-        "synthetic",
-        "traffic",
-        "kitti",
-    ]  # which parts of the bench run
+    # traffic scenario (its own dataset recipe): training sequences; 2 test sequences
+    traffic_sequences: int = Field(3, ge=1)
+    # which parts of the bench run
+    parts: list[Literal["synthetic", "traffic", "kitti"]] = ["synthetic", "traffic", "kitti"]
     lidar: Literal["mid40", "vlp16"] = "mid40"  # LeoVR's self-supervised experiments use the Mid-40
     train_sequences: int = Field(3, ge=1)  # per scenario (day sequences first)
     test_sequences: int = Field(2, ge=1)  # per scenario, from the test split
@@ -363,16 +348,14 @@ class BenchSelfSupConfig(_Model):
 class BatchConfig(_Model):
     """`leovr batch`: one Ray task per sequence, on a local Ray instance or an existing cluster."""
 
-    job: Literal["refine", "complete", "adapt+refine"] = (
-        "refine"  # run on each sequence, with its own section's settings
-    )
+    # run on each sequence, with its own section's settings
+    job: Literal["refine", "complete", "adapt+refine"] = "refine"
     address: str | None = None  # None: start a local Ray instance; "auto" or HOST:PORT: join a running cluster
     workers: int | None = Field(None, ge=1)  # tasks in flight; None = the cluster's CPUs / cpus_per_task
     cpus_per_task: int = Field(1, ge=1)  # Ray's num_cpus per task; also the task's torch / OpenCV threads
     max_retries: int = Field(3, ge=0)  # a task whose worker dies is re-run (resuming) up to this often
-    adapt_processes: int | None = Field(
-        None, ge=1
-    )  # adapt+refine: data-parallel processes of cpus_per_task CPUs (None = one per node, all its CPUs)
+    # adapt+refine: data-parallel processes of cpus_per_task CPUs (None = one per node, all its CPUs)
+    adapt_processes: int | None = Field(None, ge=1)
     dashboard: bool = False  # start Ray's dashboard with a local instance (needs `pip install "ray[default]"`)
     map: bool = False  # refine jobs: also fuse each sequence's run into OUT/NAME/map (`leovr map`, the `map` section)
 

@@ -21,9 +21,8 @@ class FrameSelection(_Model):
     """What depth jobs share: the generator, the cheap LiDAR input, the frames and how they are scored."""
 
     checkpoint: str | None = None  # generator weights (.pt); None = the shipped checkpoint
-    generator_focal_px: float | None = (
-        260.0  # generator run at this focal length (px, its training camera); None = native
-    )
+    # generator run at this focal length (px, its training camera); None = native
+    generator_focal_px: float | None = 260.0
     # onnxruntime_int8: the network in 8-bit integers from the checkpoint's calibration table (leovr.depth.quantize;
     # a checkpoint without one runs in floating point, with a warning); onnxruntime: floating point, torch's outputs
     generator_runtime: GeneratorRuntime = "onnxruntime_int8"

@@ -29,15 +29,13 @@ class GraphConfig(_Model):
     depth_factors: bool | Literal["auto"] = "auto"
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows of log-depth offsets per frame
     grid_cols: int = Field(14, ge=2)  # depth correction field: columns
-    lm_iterations: int = Field(
-        3, ge=1
-    )  # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
+    # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
+    lm_iterations: int = Field(3, ge=1)
     # LM retries a step that raises the error at 10x damping only below this cap; 1e-10: no retry, the update ends
     # (docs/decisions/0002-no-lm-retries.md)
     lm_lambda_upper_bound: float = Field(1e-10, gt=0)
-    pixel_sigma: float = (
-        1.0  # reprojection factor (eq. 8) sigma (px), Huber; x 1.2^n for a keypoint of ORB pyramid level n
-    )
+    # reprojection factor (eq. 8) sigma (px), Huber; x 1.2^n for a keypoint of ORB pyramid level n
+    pixel_sigma: float = 1.0
     bearing_sigma_rad: float = 0.003  # LiDAR point factor (eq. 10): bearing sigma (rad)
     range_sigma_m: float = 0.1  # LiDAR point factor: range sigma (m)
     landmark_prior_rel: float = 0.3  # landmark prior from the depth it was initialised with, sigma / depth
@@ -97,9 +95,8 @@ class MotionStereoConfig(_Model):
     max_rms_px: float = 0.7  # multi-view reprojection error (px), at most
     min_parallax_px: float = 8.0  # the largest displacement against a point at infinity, over the views (px), at least
     lidar_gap_px: float = 8.0  # a corner joins the input only this far from any LiDAR return (px)
-    scale_radius_px: float = (
-        2.0  # a tracked corner takes the LiDAR depth of a return this near, for a pair's length (px)
-    )
+    # a tracked corner takes the LiDAR depth of a return this near, for a pair's length (px)
+    scale_radius_px: float = 2.0
     scale_min_points: int = 10  # a pair with fewer LiDAR-backed corners (parallax > 2 px) is dropped
     min_depth_m: float = 1.5  # corners kept between this depth (m) ...
     max_depth_m: float = 150.0  # ... and this
@@ -231,9 +228,8 @@ class RefineConfig(FrameSelection):
     frontend: FrontEndConfig = FrontEndConfig()  # ORB features, their LiDAR depth, the initial pose
     graph: GraphConfig = GraphConfig()  # the sliding-window graph: its factors, the depth correction field, the solver
     accumulation: AccumulationConfig = AccumulationConfig()  # a cone LiDAR's earlier scans in the generator's input
-    motion_stereo: MotionStereoConfig = (
-        MotionStereoConfig()
-    )  # image corners triangulated over nearby frames correct the depth
+    # image corners triangulated over nearby frames correct the depth
+    motion_stereo: MotionStereoConfig = MotionStereoConfig()
     photometric: PhotometricConfig = PhotometricConfig()  # plane sweep of a leaving frame's depth where no return lies
     loop: LoopConfig = LoopConfig()  # loop closure after the window pass
     camera_only: CameraOnlyConfig = CameraOnlyConfig()  # the camera-only profile (no LiDAR)

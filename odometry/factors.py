@@ -122,9 +122,8 @@ class DepthConsistency:
         # d r / d Pj: log z_j minus log D_j at the pixel Pj projects to (pinhole Jacobian times gradient)
         fx, fy = self.K[0, 0], self.K[1, 1]
         w = np.where(ok, s / self.sigma, 0.0)
-        dr_dP = (
-            np.stack([-gu * fx / zs, -gv * fy / zs, 1.0 / zs + (gu * fx * Pj[0] + gv * fy * Pj[1]) / zs**2]) * w
-        )  # 3 x M
+        # 3 x M
+        dr_dP = np.stack([-gu * fx / zs, -gv * fy / zs, 1.0 / zs + (gu * fx * Pj[0] + gv * fy * Pj[1]) / zs**2]) * w
         if self.B_i is None:
             self.B_i = self.di.grid.dense(self.idx_i, self.w_i)
         # d r / d log D_i: Pj moves along R ray * D

@@ -79,9 +79,8 @@ class FrameInput:
     trusted: np.ndarray | None  # H x W bool: where depth consistency may be sampled
     lidar_uvz: np.ndarray | None  # M x 3: the frame's own LiDAR returns (u, v, depth)
     T_prev_rel: np.ndarray | None = None  # front-end motion from the previous frame
-    odometry_cov: np.ndarray | None = (
-        None  # its 6 x 6 covariance (rotation rad, translation m); None: the config's weak sigmas
-    )
+    # its 6 x 6 covariance (rotation rad, translation m); None: the config's weak sigmas
+    odometry_cov: np.ndarray | None = None
     icp_pose: tuple[np.ndarray, np.ndarray] | None = None  # KISS-ICP's pose (camera to world) and its 6 x 6 covariance
     # landmark id -> its prior's sigma per metre of depth where it differs from `landmark_prior_rel`
     landmark_prior_rel: dict[int, float] = field(default_factory=dict)

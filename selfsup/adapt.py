@@ -265,9 +265,8 @@ def train_epoch(
     # statistics (the usual practice when fine-tuning with small batches); every weight still trains
     model.eval()
     order = torch.randperm(len(train), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch)).tolist()
-    items = [
-        (train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))]) for j in order
-    ]  # the same on every process
+    # the same on every process
+    items = [(train[j], train[j].splits[int(torch.randint(len(train[j].splits), (1,), generator=gen))]) for j in order]
     losses, err, cnt = [], 0.0, 0
     bar = tqdm(
         batches(items, cfg.batch_size), desc=f"adapt epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress

@@ -41,6 +41,7 @@ from selfsup.supervision import (
 )
 from selfsup.warp import warp_image
 
+# full: what the config switches on
 VARIANTS = (
     "eq19",
     "rigid",
@@ -50,7 +51,7 @@ VARIANTS = (
     "eq19_rigid",
     "eq19_movers",
     "full",
-)  # full: what the config switches on
+)
 
 
 @torch.no_grad()
@@ -107,9 +108,8 @@ def score_masks(
             if not 0 <= j < len(frames):
                 continue
             plain = pair_tests(frames, graph.poses, depth, eq19_cfg, k, j)  # eq. 19 alone: the plain flow
-            t = pair_tests(
-                frames, graph.poses, depth, rigid_cfg, k, j
-            )  # with the depth-based tests: the initialised flow
+            # with the depth-based tests: the initialised flow
+            t = pair_tests(frames, graph.poses, depth, rigid_cfg, k, j)
             auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth, cfg.alpha)
             region = t.inside & has_depth
             both = mover_keep(t, True, True)
@@ -148,9 +148,10 @@ def score_masks(
         }
         for v, (tp, dr, mv) in counts.items()
     }
+    # the depth-based tests' reach
     return {
         "variants": variants,
         "moving_share": moving_total / max(scored, 1),
         "pixels": scored,
         "moving_with_depth": moving_tested / max(moving_total, 1),
-    }  # the depth-based tests' reach
+    }

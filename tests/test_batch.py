@@ -240,9 +240,8 @@ def test_a_rerun_with_other_settings_is_refused_before_any_work(drives, tmp_path
     with process_threads():
         assert run_sequence(item, "complete", section[3], tmp_path / "drive0")["status"] == "done"
     stamps = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if p.is_file()}
-    check_no_other_results(
-        tmp_path, [item], {"drive0": task_settings("complete", section[3], item.path)}
-    )  # same: passes
+    # same: passes
+    check_no_other_results(tmp_path, [item], {"drive0": task_settings("complete", section[3], item.path)})
     with pytest.raises(
         DataError, match=r"results of other settings or input files for drive0: config.end \(folder: 3, now: 2\)"
     ):

@@ -52,9 +52,8 @@ def test_a_pitched_camera_still_finds_the_plane():
 def test_no_plane_from_too_few_or_no_road_points():
     rng = np.random.default_rng(3)
     assert fit_ground(_road(rng, 5, 1.5)) is None
-    assert (
-        fit_ground(np.c_[rng.uniform(-5, 5, 50), rng.uniform(-3, -1, 50), rng.uniform(3, 20, 50)]) is None
-    )  # all above
+    # all above
+    assert fit_ground(np.c_[rng.uniform(-5, 5, 50), rng.uniform(-3, -1, 50), rng.uniform(3, 20, 50)]) is None
     assert fit_ground(np.zeros((0, 3))) is None
 
 

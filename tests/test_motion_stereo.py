@@ -119,9 +119,8 @@ def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monke
     real = ms.motion_stereo_depth
     monkeypatch.setattr(ms, "motion_stereo_depth", lambda *a, **k: calls.append(a[0]) or real(*a, **k))
     run_refine(seq, RefineConfig(input="full"), tmp_path / "auto", progress=False)
-    assert calls == list(
-        range(9)
-    )  # a Mid-40 cone: every frame (offsets 2, 4, 8 of the shipped ones: frames 2-6 have 4 views or more)
+    # a Mid-40 cone: every frame (offsets 2, 4, 8 of the shipped ones: frames 2-6 have 4 views or more)
+    assert calls == list(range(9))
     calls.clear()
     run_refine(seq, RefineConfig(input="full", motion_stereo={"enabled": False}), tmp_path / "off", progress=False)
     assert calls == []

@@ -302,9 +302,8 @@ def test_pair_factors_make_the_graph_follow_the_images_motion():
         done = []
         guesses = [make_T(T[:3, :3], [0, 0, 0.5 * i]) for i, T in enumerate(truth)]
         for i, T in enumerate(truth):
-            wrong = guesses[
-                i
-            ]  # the front end's guess: the turn right (else the pair gate refuses the pairs), half speed
+            # the front end's guess: the turn right (else the pair gate refuses the pairs), half speed
+            wrong = guesses[i]
             rel = None if i == 0 else np.linalg.inv(guesses[i - 1]) @ wrong
             f = FrameInput(i, wrong if i else T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel)
             if pairs:

@@ -23,9 +23,8 @@ def ground_plane(h: int = 120, w: int = 200, f: float = 150.0, cam_height: float
 def test_interpolation_is_exact_on_a_plane_where_nearest_fill_is_not():
     gt = ground_plane()
     sparse = np.zeros_like(gt)
-    sparse[80::4, ::2] = gt[
-        80::4, ::2
-    ]  # rings every 4 rows (depth ratio < 1.25 ring to ring), a return every 2 columns
+    # rings every 4 rows (depth ratio < 1.25 ring to ring), a return every 2 columns
+    sparse[80::4, ::2] = gt[80::4, ::2]
     inside = np.zeros_like(gt, bool)
     inside[80:117, 2:-2] = True  # between the first and the last ring
     prior, near = interpolated_fill(sparse), nearest_fill(sparse)
@@ -253,9 +252,8 @@ def test_triangle_map_covers_each_pixel_inside_or_on_a_triangle_and_nothing_else
         )
 
     s1, s2, s3 = side(a, b), side(b, c), side(c, a)
-    inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | (
-        (s1 <= 0) & (s2 <= 0) & (s3 <= 0)
-    )  # pixels x triangles, sides included
+    # pixels x triangles, sides included
+    inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | ((s1 <= 0) & (s2 <= 0) & (s3 <= 0))
     flat = covered.ravel()
     assert ((flat >= 0) == inside.any(1)).all()  # covered exactly where some triangle holds the pixel
     hit = np.nonzero(flat >= 0)[0]

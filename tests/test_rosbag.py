@@ -236,9 +236,8 @@ def test_images_without_a_scan_are_kept_empty_or_dropped(tmp_path):
     assert len(seq) == 6 and seq.unpaired == 1 and len(seq[3].points) == 0 and len(seq[4].points) == 500
     kept = RosbagSequence(bag, TopicChoice(drop_unpaired=True))
     assert len(kept) == 5 and np.allclose(kept.timestamps(), [0.0, 0.1, 0.2, 0.4, 0.5])
-    late = RosbagSequence(
-        _bag(tmp_path / "late", frames=4, missing_clouds=(0,)), TopicChoice()
-    )  # a LiDAR starting late
+    # a LiDAR starting late
+    late = RosbagSequence(_bag(tmp_path / "late", frames=4, missing_clouds=(0,)), TopicChoice())
     info = late.info()
     assert late.unpaired == 1 and info.points_per_scan == 500 and info.has_point_times
     assert {t["topic"]: t["rate_hz"] for t in late.topic_table()}["/points"] == 10.0  # over its own messages' span

@@ -272,6 +272,7 @@ def clip_bench(
         "trajectory": trajectory,
     }
     if minutes:
+        # the adapted network's weight against its prior, chosen on validation frames
         entry |= {
             "protocols": {
                 "inductive": f"adapt on frames 0-{split - 1}, score frames {split}-{n - 1}",
@@ -280,5 +281,5 @@ def clip_bench(
             "adapt_epochs": epochs,
             "adapt_minutes": minutes,
             "adapt_blend": blends,
-        }  # the adapted network's weight against its prior, chosen on validation frames
+        }
     return entry, scored_sets

@@ -24,6 +24,7 @@ from leovr.pipeline.refine import TIMED, run_refine
 from leovr.sim.dataset import Recipe, default_root, make_dataset
 
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)
+# generator_frame and the accumulated fills: cone LiDARs only
 DEPTH_METHODS = (
     "nearest",
     "ipbasic",
@@ -32,7 +33,7 @@ DEPTH_METHODS = (
     "generator",
     "generator_frame",
     "refined",
-)  # generator_frame and the accumulated fills: cone LiDARs only
+)
 TRAJ_KEYS = ("ate_m", "rpe_m", "scale", "align", "frames")
 
 

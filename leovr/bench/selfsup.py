@@ -173,9 +173,8 @@ def train_run(
         elif done.is_file() and state["epoch"] + 1 >= cfg.epochs:
             return done, _minutes(run)
     if share_init is not None and share_init.is_dir() and not (run / "graph" / "init").exists():
-        shutil.copytree(
-            share_init, run / "graph" / "init"
-        )  # the initialisation pass uses no network: same for every run
+        # the initialisation pass uses no network: same for every run
+        shutil.copytree(share_init, run / "graph" / "init")
     train_selfsup(cfg, sequences, run, run_refine, resume=last.is_file(), progress=progress, oracle_masks=oracle_masks)
     return done, _minutes(run, (time.time() - t0) / 60.0)
 

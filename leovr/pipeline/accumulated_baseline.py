@@ -53,13 +53,14 @@ def accumulated_fills(
         nonlocal K, shape
         if j not in cache:
             n = position[j]
+            # KISS-ICP's motion over the sweep
             step = (
                 invert_T(poses[n]) @ poses[n + 1]
                 if n + 1 < len(indices)
                 else invert_T(poses[n - 1]) @ poses[n]
                 if n
                 else None
-            )  # KISS-ICP's motion over the sweep
+            )
             sample = frame_sample(seq, j, ccfg, step, frame_dt, truth=False)
             K, shape, T_cl = sample.frame.K, sample.frame.shape, sample.frame.T_cam_lidar
             kept = sample.kept_points

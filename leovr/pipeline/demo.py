@@ -24,6 +24,7 @@ from leovr.pipeline.tsdf_map import map_run
 from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording
 
+# generator_frame: own scan alone (Mid-40)
 METHODS = (
     "raw",
     "nearest",
@@ -31,7 +32,7 @@ METHODS = (
     "generator_frame",
     "generator",
     "refined",
-)  # generator_frame: own scan alone (Mid-40)
+)
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:

@@ -169,9 +169,8 @@ class RefineRun:
             use_lidar=has_lidar,
             camera_height=None if has_lidar else road_height(seq, cfg),
         )
-        self.textbook = (
-            MonoVO(first.K) if cfg.compare else None
-        )  # the `mono_vo` baseline on the same images (--compare)
+        # the `mono_vo` baseline on the same images (--compare)
+        self.textbook = MonoVO(first.K) if cfg.compare else None
         self.graph = WindowGraph(
             ocfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar
         )
@@ -283,9 +282,8 @@ class RefineRun:
         t2b, c2b = time.perf_counter(), time.process_time()
         left = self.graph.add_frame(fi)
         t3 = time.perf_counter()
-        self.finish(
-            [self.graph.current(i)] if self.cfg.causal else left
-        )  # causal: the newest frame's estimate is its output
+        # causal: the newest frame's estimate is its output
+        self.finish([self.graph.current(i)] if self.cfg.causal else left)
         t4, c4 = time.perf_counter(), time.process_time()
         if self.textbook is not None:
             self.textbook.add(p.sample.frame.image)
@@ -314,9 +312,8 @@ class RefineRun:
 
         sample = p.sample
         prev_i = self.indices[n - 1] if n else None
-        guess = self.stage.sweep_of.pop(
-            prev_i, None
-        )  # the previous sweep's motion, read from its images: to this frame
+        # the previous sweep's motion, read from its images: to this frame
+        guess = self.stage.sweep_of.pop(prev_i, None)
         # spinning LiDARs only: measured there
         spinning_now = self.cone.spinning is True
         guess = guess if spinning_now else None
@@ -448,9 +445,8 @@ class RefineRun:
         """After the last frame: the single-frame generator's scores, warnings, the whole-recording passes,
         the landmarks, the pose baselines and the accumulated fills, then the outputs and metrics."""
         seq, cfg, indices, state = self.seq, self.cfg, self.indices, self.state
-        several = [
-            i for i, fs in self.scored.items() if fs.own_input is not None
-        ]  # earlier scans joined the generator's input
+        # earlier scans joined the generator's input
+        several = [i for i, fs in self.scored.items() if fs.own_input is not None]
         single_frame_generator(seq, self.scored, self.generator, self.progress)
         if self.empty:
             warn_empty_input(seq, self.empty)

@@ -34,6 +34,7 @@ from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE, frame_sample
 TIMED = ("generator_ms", "frontend_ms", "graph_ms", "output_ms")
 WALL = "wall_ms"  # a frame's time on the run's clock (the next frame's generator overlapping this one's graph)
 CPU = "cpu_ms"  # the CPU time of every thread of the process over that span (user + system)
+# depth methods in metrics.json, same pixels
 SCORED = (
     "nearest",
     "ipbasic",
@@ -41,7 +42,7 @@ SCORED = (
     "generator",
     "generator_frame",
     "refined",
-)  # depth methods in metrics.json, same pixels
+)
 # generator: as it ran in the graph (with earlier scans for a cone LiDAR); generator_frame: on the frame's own scan
 # alone;
 # nearest / ipbasic_accumulated: the fills of the same frames' returns placed with KISS-ICP's poses (cone LiDAR only)

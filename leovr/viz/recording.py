@@ -110,12 +110,10 @@ def _error_image(pred: np.ndarray, gt: np.ndarray) -> "rr.DepthImage":
     if valid.mean() < 0.2:
         err = cv2.dilate(err, np.ones((3, 3), np.uint8))
     h, w = (err.shape[0] // DEPTH_STEP) * DEPTH_STEP, (err.shape[1] // DEPTH_STEP) * DEPTH_STEP
-    err = (
-        err[:h, :w].reshape(h // DEPTH_STEP, DEPTH_STEP, w // DEPTH_STEP, DEPTH_STEP).max(axis=(1, 3))
-    )  # sparse errors stay
-    return rr.DepthImage(
-        err.astype(np.float16), meter=1.0, colormap="viridis", depth_range=ERROR_RANGE_M
-    )  # 0 m: purple
+    # sparse errors stay
+    err = err[:h, :w].reshape(h // DEPTH_STEP, DEPTH_STEP, w // DEPTH_STEP, DEPTH_STEP).max(axis=(1, 3))
+    # 0 m: purple
+    return rr.DepthImage(err.astype(np.float16), meter=1.0, colormap="viridis", depth_range=ERROR_RANGE_M)
 
 
 def _depth_image(d: np.ndarray) -> "rr.DepthImage":
