@@ -184,8 +184,8 @@ class SelfSupConfig(_Model):
     weight_feature: float = Field(0.4, ge=0)  # lambda_f, eq. 22
     weight_refined: float = Field(0.1, ge=0)  # lambda_r
     weight_smooth: float = Field(0.2, ge=0)  # lambda_s
-    # sparse depth reconstruction |log D - log z| at the LiDAR input's returns (0: off; on the traffic validation
-    # seed it helped the unmasked run 8 % and the masked one not at all)
+    # sparse depth reconstruction |log D - log z| at the LiDAR input's returns (0: off;
+    # docs/decisions/0011-tuned-settings.md)
     weight_sparse: float = Field(0.0, ge=0)
     # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
     target_loss: Literal["log_l1", "l2"] = "log_l1"
@@ -287,18 +287,15 @@ class BenchRealConfig(_Model):
 class MapConfig(_Model):
     """`leovr map`: a refine run's depth, images and poses fused into a TSDF map (mesh and points)."""
 
-    # voxel edge (m). 0.05 against 0.1: every real map of `leovr bench map` more accurate (by 17-37 %) and more
-    # complete;
-    # `leovr map` of a 200-frame rendered drive then takes 48 s and 2.9 GB at most
+    # voxel edge (m): finer maps are more accurate and more complete, at the cost of time and memory
+    # (docs/decisions/0011-tuned-settings.md)
     voxel_m: float = Field(0.05, gt=0.0)
     max_depth_m: float = Field(40.0, gt=0.0)  # pixels deeper than this are left out
     # pixels whose predicted uncertainty (sigma/ of the run) exceeds this fraction of their depth are left out;
-    # None keeps them all: on both real drives and both inputs every threshold from 0.05 to 0.5 made the map
-    # less complete and no more accurate (`leovr bench map`, docs/benchmarks.md)
+    # None keeps them all: no threshold made a real map better (docs/decisions/0011-tuned-settings.md)
     sigma_max: float | None = Field(None, gt=0.0)
     # pixels whose 3 x 3 neighbourhood spans more than a factor 1 + edge_jump in depth (a depth edge) are left out;
-    # None keeps them. Measured with `leovr bench map` on both real drives, both inputs: 0.05 and 0.03 made every map
-    # more accurate than none (0.03 most, completeness within 3 %), 0.02 lost a fifth of one map's completeness
+    # None keeps them (docs/decisions/0011-tuned-settings.md)
     edge_jump: float | None = Field(0.03, gt=0.0)
     trunc_voxels: float = Field(4.0, gt=0.0)  # the signed distance is truncated at this many voxels
     # voxels observed this many times or fewer are not part of the surface (Open3D keeps the voxels whose summed

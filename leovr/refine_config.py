@@ -29,7 +29,7 @@ class GraphConfig(_Model):
     depth_factors: bool | Literal["auto"] = "auto"
     grid_rows: int = Field(8, ge=2)  # depth correction field: rows of log-depth offsets per frame
     grid_cols: int = Field(14, ge=2)  # depth correction field: columns
-    # Levenberg-Marquardt iterations per update (3 measured as good as 6, half the time)
+    # Levenberg-Marquardt iterations per update (docs/decisions/0011-tuned-settings.md)
     lm_iterations: int = Field(3, ge=1)
     # LM retries a step that raises the error at 10x damping only below this cap; 1e-10: no retry, the update ends
     # (docs/decisions/0002-no-lm-retries.md)
@@ -80,13 +80,13 @@ class MotionStereoConfig(_Model):
     # frames before and after frame i that its corners are tracked into; a farther one only the corners that the
     # nearer one on the same side kept
     offsets: list[int] = [2, 4, 8, 12, 16]
-    # a causal run's frames before frame i: the previous frame too (without it a causal Mid-40-like run on
-    # kitti_raw_0013 lost its way, ATE 1.23 against 0.14 m; depth better on both real drives and a rendered one)
+    # a causal run's frames before frame i: the previous frame too (without it a causal Mid-40-like run lost its
+    # way; docs/decisions/0011-tuned-settings.md)
     causal_offsets: list[int] = [1, 2, 4, 8, 12, 16]
     max_corners: int = 4000  # Shi-Tomasi corners per frame, at most ...
     corner_quality: float = 0.003  # ... their quality level (share of the strongest corner's) ...
     corner_distance_px: int = 4  # ... and distance apart (px), at least
-    # pyramidal Lucas-Kanade: window (px), pyramid levels, iterations (21 / 4 / 30: 2.5x the time, worse)
+    # pyramidal Lucas-Kanade: window (px), pyramid levels, iterations (docs/decisions/0011-tuned-settings.md)
     lk_window_px: int = 11
     lk_levels: int = 3  # ... pyramid levels
     lk_iterations: int = 20  # ... iterations
@@ -123,11 +123,12 @@ class PhotometricConfig(_Model):
     # (odometry.photo_field); auto: cone LiDAR only (docs/decisions/0007-photometric-field-cone-only.md)
     enabled: bool | Literal["auto"] = "auto"
     offsets: list[int] = [1, 2, 3]  # plane sweep against the frames this many before and after (frames)
-    rows: int = 16  # the correction's grid (nodes), corner to corner (finer than the graph's 8 x 14: 1.81 -> 1.77 m)
+    # the correction's grid (nodes), corner to corner, finer than the graph's 8 x 14
+    # (docs/decisions/0011-tuned-settings.md)
+    rows: int = 16
     cols: int = 28  # ... its columns
     # candidates: log offsets in [-span, span], 0.2 apart (odd count: 0 is one); a parabola through the best and
-    # its neighbours refines it. 0.2 apart beat 0.1 on the development drives (span 0.5 / 11: 1.846 m, 0.8 / 9:
-    # 1.813, 1.0 / 11: 1.813, 0.6 / 7: 1.829, 0.8 / 11: 1.824, 1.0 / 21: 1.837)
+    # its neighbours refines it (docs/decisions/0011-tuned-settings.md)
     span_log: float = 0.8
     candidates: int = 9  # ... candidates in the span
     patch_px: int = 2  # ZNCC window half size, at the downsampled scale
@@ -138,15 +139,11 @@ class PhotometricConfig(_Model):
     min_depth_m: float = 0.5  # pixels nearer than this (m) do not vote
     min_backed: int = 5  # nodes with returns and a clear choice needed to check the poses
     # ... and this share of the seen nodes with returns: where the images pin the depth at few of the nodes whose
-    # depth is known, the check rests on little and the sweep's choices elsewhere are no better (development data:
-    # simulator drives 0.64-1.0 of them, 5-95 %, and the sweep helped on 91 % of the frames; KITTI frames 0-37
-    # 0.01-0.35, and the sweep made 35 of 38 frames worse with the graph's poses, whatever the check's bias)
+    # depth is known, the check rests on little and the sweep's choices elsewhere are no better
+    # (docs/decisions/0011-tuned-settings.md)
     min_backed_share: float = 0.5
-    # their median choice may be this far from 0 (a step length read wrong, a turn misread). Simulator validation
-    # drives: 5-95 % -0.07 to 0.04; the sweep helped in every bias bin, so with the share test above in front of
-    # it: 0.05: 1.813 m, 0.1: 1.785, 0.15: 1.772, off: 1.770 (0.1 kept as the safer). KITTI frames 0-37 (graph's
-    # poses): -0.51 to -0.05, refused by the share test already (without it, 0.05 alone lets 1-2 frames through,
-    # each made worse)
+    # their median choice may be this far from 0 (a step length read wrong, a turn misread;
+    # docs/decisions/0011-tuned-settings.md)
     max_bias_log: float = 0.1
     # the sweep runs on images made smaller by the integer factor that brings them nearest this many pixels
     # (448 x 256: 2, KITTI's 1242 x 375: 4; the patch size is at that scale); 0: this fixed factor
@@ -154,8 +151,7 @@ class PhotometricConfig(_Model):
     downsample: int = 0  # a fixed integer factor instead (0: from sweep_pixels)
     # a far candidate (depth x e^far_log, ~20x: as good as infinity) that a moved node's best must beat by
     # `far_gain`: a vehicle driving along with the camera matches best at infinity, and without this test its
-    # nodes were pushed to the span's far end (KITTI frames 0-37 with KISS-ICP's poses on the full scan, no
-    # check: 1.70 -> 1.85 m without, 1.65 m with; simulator validation 1.823 -> 1.807 m); 0: off
+    # nodes were pushed to the span's far end (docs/decisions/0011-tuned-settings.md); 0: off
     far_log: float = 3.0
     far_gain: float = 0.05  # ... by this much (ZNCC cost)
 
@@ -201,9 +197,8 @@ class CameraOnlyConfig(_Model):
     ground_triangulation_min_deg: float = Field(0.3, gt=0)
     triangulated_prior_rel: float = Field(1.0, gt=0)  # ... and their depth prior, sigma / depth
     # ORB features per frame in place of `frontend.n_features`: the graph marginalises a leaving frame's landmarks
-    # into one dense factor, whose cost grows with them; 500 instead of 1000 gave the same ATE on kitti_raw_0013
-    # (0.055 against 0.056 m) and odometry 06 (0.053 against 0.052 m) at 0.55-0.85x the time a frame
-    # (`leovr refine CLIP --input none`, kitti_raw, kitti_raw_0013, odometry 06)
+    # into one dense factor, whose cost grows with them; half as many keep the ATE at less time
+    # (docs/decisions/0011-tuned-settings.md)
     n_features: int = Field(500, ge=50)
     # `refine.graph` settings used in their place without LiDAR (camera_only_config)
     graph: CameraOnlyGraphConfig = CameraOnlyGraphConfig()

@@ -2,9 +2,9 @@
 
 numpy, scipy and OpenCV each ship their own OpenBLAS, whose worker threads keep spinning for a while
 after a call. In the per-frame loop a BLAS call in the classical prior (then scipy's Delaunay) left them
-spinning on both cores while torch ran the network: the generator took 210 ms per 448 x 256 frame
-instead of 150 (city_loop_mid40_day_s2000, `leovr refine`). The loops' own BLAS work is small
-matrices, so they run with single-threaded BLAS; torch (its own OpenMP pool) keeps its threads.
+spinning on both cores while torch ran the network, which then took 1.4x as long
+(docs/decisions/0011-tuned-settings.md). The loops' own BLAS work is small matrices, so they run with
+single-threaded BLAS; torch (its own OpenMP pool) keeps its threads.
 """
 
 from __future__ import annotations

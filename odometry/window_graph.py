@@ -4,10 +4,8 @@ depth-prior factors; a gtsam fixed-lag smoother marginalises frames that leave t
 
 Frames enter one at a time (`add_frame`); each call returns the frames that just left the window with
 their final pose and field. A spinning LiDAR's window is smoothed incrementally (IncrementalFixedLagSmoother:
-iSAM2, every variable that moved relinearised at each update): on the real development clips the poses and
-depth of batch smoothing at 0.7x the graph's time (kitti_raw VLP-16-like: graph 80 -> 60 ms a frame, depth
-0.666 m both; kitti_raw_0013: full-scan ATE 0.0626 -> 0.0628 m, VLP-16-like 0.0597 -> 0.0587 m); on the
-simulator's VLP-16 test drives depth +1.3 % and ATE +1.3 % on average (the city loop's depth +3 %). Every other
+iSAM2, every variable that moved relinearised at each update): the poses and depth of batch smoothing in less
+time (docs/decisions/0011-tuned-settings.md). Every other
 window is batch (BatchFixedLagSmoother, Levenberg-Marquardt): a cone LiDAR's consistency factors draw a fresh
 pixel sample before every update, which a cached linearisation would not see, and its pair factors start far
 from their solution (one Gauss-Newton step per frame does not get there); iSAM2 cannot marginalise a
@@ -37,8 +35,8 @@ from odometry.factors import (
 )
 
 # a KISS-ICP motion whose rotation is this far (deg) from the images' is left out of the window (`_icp_factors`):
-# on a rendered Mid-40 lap at 80 km/h KISS-ICP slips by 10-60 degrees in the turns while sure of itself (the lap's
-# ATE 29.2 m with its motions, 1.16 m without the slipped ones); on the shared KITTI clips none is left out
+# on a cone KISS-ICP can slip by tens of degrees in a fast turn while sure of itself
+# (docs/decisions/0011-tuned-settings.md)
 ICP_GATE_DEG = 3.0
 
 

@@ -28,30 +28,24 @@ import numpy as np
 
 from leovr.depth.classical import nearest_fill
 
-# Chosen on the simulator's validation split (never on the KITTI clip):
-# lowest mean MAE relative to the nearest fill over Mid-40, VLP-16 and uniform-ratio inputs
-# (0.948 at 1.5, 0.951 at 2, 0.962 at 1.25; no edge test 0.993, worst on VLP-16 at 1.13x nearest).
+# Chosen on the simulator's validation split: the lowest mean MAE relative to the nearest fill over Mid-40,
+# VLP-16 and uniform-ratio inputs (docs/decisions/0011-tuned-settings.md).
 EDGE_RATIO = 1.5
 
 # The edge-aware interpolation's settings (neighbours, edge weight of the geodesic distance, weight decay),
-# chosen on the KITTI raw clip's development frames 0-37 (never the test frames 38-47): edge-triangle MAE
-# 5.18 -> 4.02 m (VLP-16-like), 4.44 -> 3.24 m (Mid-40-like).
+# chosen on the KITTI raw clip's development frames (docs/decisions/0011-tuned-settings.md).
 EDGE_AWARE_K = 64
 EDGE_AWARE_LAMBDA = 999.0
 EDGE_AWARE_SIGMA = 0.05
-# Chosen on development data (KITTI raw frames 0-36 step 2 and the simulator's day validation drives; the
-# KITTI test frames 38-47 never read): among 2, 2.5, 3, 4 and no limit, 3 lowered the prior's MAE on all
-# four sets (KITTI VLP-16-like -4.7 %).
+# The largest depth ratio across a guide edge: chosen on development data, the lowest prior MAE on every set
+# (docs/decisions/0011-tuned-settings.md).
 EDGE_GUIDE_MAX_RATIO = 3.0
 MIN_EDGE_AWARE_RETURNS = 16  # fewer returns than this: the nearest return (the fit needs neighbours)
 MAX_EDGE_AWARE_RETURNS = 32000  # OpenCV's interpolator takes fewer than 32767 matches: denser inputs are strided
 # The guide's time grows with its returns (a KITTI HDL-64 scan puts about 15-18k in view). Above
 # DENSE_RETURNS it takes the returns within EDGE_NEIGHBOURHOOD_PX of a depth edge (a return with one EDGE_RATIO
 # nearer or farther inside that window: where the guide is read, with the neighbours its local fits use) and
-# every DENSE_REST_STRIDE-th other return. `tools/eval_dense_prior.py` (every second frame of both KITTI raw
-# clips, a tenth of each scan's returns held out), against the guide given every return: the prior's MAE
-# 0.4585 -> 0.4534 m (kitti_raw) and 0.9083 -> 0.9090 m (kitti_raw_0013), its time 227 -> 187 and 243 -> 210 ms
-# a frame.
+# every DENSE_REST_STRIDE-th other return: the same MAE in less time (docs/decisions/0011-tuned-settings.md).
 DENSE_RETURNS = 8000
 EDGE_NEIGHBOURHOOD_PX = 41
 DENSE_REST_STRIDE = 4
@@ -136,7 +130,7 @@ def delaunay_triangles(u: np.ndarray, v: np.ndarray, shape: tuple[int, int]) -> 
     h, w = shape
     subdiv = cv2.Subdiv2D((-10 * w, -10 * h, 21 * w, 21 * h))
     # inserted along a Hilbert curve: each point lands next to the last, so the search for its triangle is
-    # short (a 17.6k-return HDL-64 frame: 23 ms, against 74 in random order and 53 row by row)
+    # short (docs/decisions/0011-tuned-settings.md)
     order = hilbert_order(u, v)
     subdiv.insert(np.stack([u[order], v[order]], 1).astype(np.float32))
     corners = np.rint(np.asarray(subdiv.getTriangleList(), np.float64).reshape(-1, 3, 2)).astype(np.int64)  # () if none
