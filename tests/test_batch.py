@@ -199,8 +199,9 @@ def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
 def test_bench_batch_contract(tmp_path):
     from leovr.bench.batch import run_batch_bench
 
-    cfg = LeovrConfig.model_validate({"bench_batch": {"sequences": 2, "frames": 3}})
-    doc = run_batch_bench(tmp_path / "batch.json", cfg, progress=False)
+    from leovr.bench.config import BenchBatchConfig
+
+    doc = run_batch_bench(tmp_path / "batch.json", BenchBatchConfig(sequences=2, frames=3), progress=False)
     assert json.loads((tmp_path / "batch.json").read_text()) == doc
     assert doc["sequences"] == 2 and doc["frames"] == 6 and set(doc["wall_s"]) == {"1", "2"}
     assert doc["speedup"] == pytest.approx(doc["wall_s"]["1"] / doc["wall_s"]["2"], rel=1e-2)

@@ -9,7 +9,7 @@ import json
 import numpy as np
 
 from leovr.bench.depth import run_depth_bench
-from leovr.config import BenchDepthConfig
+from leovr.bench.config import BenchDepthConfig
 from leovr.depth.inference import (
     load_generator,
     predict,

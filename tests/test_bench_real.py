@@ -6,7 +6,7 @@ import pytest
 import json
 
 from leovr.bench.real import METHODS, run_real_bench
-from leovr.config import BenchRealConfig
+from leovr.bench.config import BenchRealConfig
 from tests.conftest import KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_shared
 
 

@@ -6,7 +6,7 @@ import pytest
 import json
 
 from leovr.bench.refine import run_refine_bench
-from leovr.config import BenchRefineConfig
+from leovr.bench.config import BenchRefineConfig
 
 
 @pytest.mark.slow

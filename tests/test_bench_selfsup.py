@@ -9,7 +9,8 @@ import json
 import torch
 
 from leovr.bench.selfsup import run_selfsup_bench, untrained_generator
-from leovr.config import BenchSelfSupConfig, SelfSupConfig
+from leovr.bench.config import BenchSelfSupConfig
+from leovr.config import SelfSupConfig
 
 
 @pytest.mark.slow

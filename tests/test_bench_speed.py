@@ -8,7 +8,7 @@ import json
 import pytest
 
 from leovr.bench.speed import growth, run_speed_bench
-from leovr.config import BenchSpeedConfig
+from leovr.bench.config import BenchSpeedConfig
 from leovr.pipeline.refine import TIMED, timing_record
 
 

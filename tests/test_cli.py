@@ -22,7 +22,20 @@ runner = CliRunner()
 
 
 def test_default_yaml_matches_built_in_defaults():
+    from leovr.bench.config import BenchConfig, load_bench_config
+
     assert load_config(REPO_ROOT / "configs" / "default.yaml") == LeovrConfig()
+    assert load_bench_config(REPO_ROOT / "configs" / "bench.yaml") == BenchConfig()
+
+
+def test_the_products_config_holds_no_benchmark_section_and_a_bench_config_is_checked():
+    from leovr.bench.config import load_bench_config
+    from leovr.errors import ConfigError
+
+    assert not [key for key in LeovrConfig.model_fields if key.startswith("bench")]
+    bad = REPO_ROOT / "configs" / "default.yaml"  # the product's sections are no benchmark's
+    with pytest.raises(ConfigError, match="default.yaml"):
+        load_bench_config(bad)
 
 
 def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
@@ -286,7 +299,7 @@ def test_simulate_command_and_bad_option(tmp_path):
 
 def test_bench_simulate_contract(tmp_path):
     cfg = tmp_path / "c.yaml"
-    cfg.write_text("bench_simulate:\n  frames: 1\n  lidars: [mid40]\n")
+    cfg.write_text("simulate:\n  frames: 1\n  lidars: [mid40]\n")
     r = runner.invoke(app, ["bench", "simulate", "--out", str(tmp_path / "b.json"), "-c", str(cfg)])
     assert r.exit_code == 0, r.output
     doc = json.loads((tmp_path / "b.json").read_text())

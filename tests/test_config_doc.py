@@ -98,3 +98,15 @@ class RefineConfig(_Model):
 def test_check_mode_passes_on_the_committed_file():
     done = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_docs.py"), "--check"], capture_output=True)
     assert done.returncode == 0, done.stderr.decode()
+
+
+def test_committed_bench_config_md_is_rendered_from_the_bench_models():
+    from leovr.bench.config import BenchConfig
+    from leovr.config_doc import BENCH_DOC, render_bench
+
+    doc = render_bench()
+    assert BENCH_DOC.read_text() == doc, "docs/bench_config.md is stale: run `python tools/gen_docs.py`"
+    assert re.findall(r"^## (\w+)$", doc, re.M) == list(BenchConfig.model_fields)
+    for key, field in BenchConfig.model_fields.items():
+        rows = _rows(doc, key)
+        assert list(rows) == list(field.annotation.model_fields)

@@ -21,9 +21,15 @@ def generated() -> dict[Path, str]:
     from leovr.bench.report import render as benchmarks
     from leovr.cli_doc import render as cli
     from leovr.config_doc import render as config
+    from leovr.config_doc import render_bench as bench_config
 
     docs = ROOT / "docs"
-    return {docs / "benchmarks.md": benchmarks(docs / "results"), docs / "config.md": config(), docs / "cli.md": cli()}
+    return {
+        docs / "benchmarks.md": benchmarks(docs / "results"),
+        docs / "config.md": config(),
+        docs / "bench_config.md": bench_config(),
+        docs / "cli.md": cli(),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

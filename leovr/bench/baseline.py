@@ -6,7 +6,8 @@ import time
 from pathlib import Path
 
 from leovr.bench.common import depth_entry, write_bench
-from leovr.config import BenchBaselineConfig, CompleteConfig
+from leovr.bench.config import BenchBaselineConfig
+from leovr.config import CompleteConfig
 from leovr.data import open_sequence
 from leovr.errors import DataError
 from leovr.pipeline.completion import ground_truth_note, run_completion

@@ -10,15 +10,17 @@ import time
 from pathlib import Path
 
 from leovr.bench.common import write_bench
+from leovr.bench.config import BenchBatchConfig
 from leovr.config import LeovrConfig, SimulateConfig
 from leovr.pipeline.batch import run_batch
 from leovr.pipeline.batch_manifest import read_batch
 from leovr.sim.simulate import simulate
 
 
-def run_batch_bench(out: Path, cfg: LeovrConfig, progress: bool = True) -> dict:
+def run_batch_bench(out: Path, bcfg: BenchBatchConfig, progress: bool = True) -> dict:
+    """Both timed runs of `leovr batch` on the product's default settings (configs/default.yaml)."""
     started = time.time()
-    bcfg = cfg.bench_batch
+    cfg = LeovrConfig()
     work = Path(out).with_name(Path(out).stem + "_work")
     drives = work / "drives"
     for n in range(bcfg.sequences):

@@ -17,7 +17,8 @@ from scipy.stats import spearmanr
 from tqdm import tqdm
 
 from leovr.bench.common import depth_entry, write_bench
-from leovr.config import BenchDepthConfig, CompleteConfig
+from leovr.bench.config import BenchDepthConfig
+from leovr.config import CompleteConfig
 from leovr.data import open_sequence
 from leovr.data.sequence import Sequence
 from leovr.depth.dataset import split_entries
@@ -143,7 +144,9 @@ def run_depth_bench(out: Path, cfg: BenchDepthConfig, quick: bool = False, progr
 
         kitti = Path(cfg.kitti) if cfg.kitti else kitti_raw_dir()
         if not kitti.exists():
-            raise DataError(kitti, "KITTI raw clip not found (set LEOVR_SHARED_DATA or bench_depth.kitti)")
+            raise DataError(
+                kitti, "KITTI raw clip not found (set LEOVR_SHARED_DATA or `depth.kitti` in the bench config)"
+            )
         seq = open_sequence(kitti)
         for inp in cfg.kitti_inputs:
             results[f"kitti_{inp}"], notes["kitti"] = score_sequences(

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from leovr.bench.common import write_bench
-from leovr.config import BenchLoopConfig, LoopConfig, RefineConfig, SimulateConfig
+from leovr.bench.config import BenchLoopConfig
+from leovr.config import LoopConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.geometry import invert_T, rotation_angle_deg
 from leovr.paths import kitti_odometry_dir, kitti_raw_dir, shipped_vocabulary

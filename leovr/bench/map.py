@@ -20,7 +20,8 @@ import numpy as np
 
 from leovr.bench.common import write_bench
 from leovr.bench.real import prepared_work
-from leovr.config import BenchMapConfig, RefineConfig
+from leovr.bench.config import BenchMapConfig
+from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.data.io import read_depth_png
 from leovr.data.kitti_common import read_kitti_poses
@@ -40,7 +41,9 @@ def run_map_bench(out: Path, cfg: BenchMapConfig, quick: bool = False, progress:
 
     clips = [Path(c) for c in cfg.clips] if cfg.clips else kitti_raw_clips()
     if not clips:
-        raise DataError(shared_data_dir(), "no KITTI raw drive found (set LEOVR_SHARED_DATA or bench_map.clips)")
+        raise DataError(
+            shared_data_dir(), "no KITTI raw drive found (set LEOVR_SHARED_DATA or `map.clips` in the bench config)"
+        )
     settings = {**cfg.model_dump(), "quick": quick, "clips": [str(c) for c in clips]}
     work = Path(out).with_name(Path(out).stem + "_work")
     prepared_work(work, settings)

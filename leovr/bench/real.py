@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from leovr.bench.common import depth_entry, write_bench
-from leovr.config import AdaptConfig, BenchRealConfig, RefineConfig
+from leovr.bench.config import BenchRealConfig
+from leovr.config import AdaptConfig, RefineConfig
 from leovr.data import open_sequence
 from leovr.data.io import write_text
 from leovr.depth.fills import complete_depth
@@ -97,7 +98,9 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
 
     clips = [Path(c) for c in cfg.clips] if cfg.clips else kitti_raw_clips()
     if not clips:
-        raise DataError(shared_data_dir(), "no KITTI raw drive found (set LEOVR_SHARED_DATA or bench_real.clips)")
+        raise DataError(
+            shared_data_dir(), "no KITTI raw drive found (set LEOVR_SHARED_DATA or `real.clips` in the bench config)"
+        )
     for clip in clips:
         if not clip.exists():
             raise DataError(clip, "KITTI raw drive not found")

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from leovr.bench.common import depth_entry, write_bench
-from leovr.config import BenchRefineConfig, RefineConfig
+from leovr.bench.config import BenchRefineConfig
+from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.depth.dataset import split_entries
 from leovr.eval.depth_metrics import DepthMetricAccumulator

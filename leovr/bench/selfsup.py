@@ -22,7 +22,8 @@ import torch
 from tqdm import tqdm
 
 from leovr.bench.common import write_bench
-from leovr.config import BenchSelfSupConfig, CompleteConfig, SelfSupConfig
+from leovr.bench.config import BenchSelfSupConfig
+from leovr.config import CompleteConfig, SelfSupConfig
 from leovr.data import open_sequence
 from leovr.data.io import atomic_write, write_text
 from leovr.data.sequence import Sequence, SequenceView

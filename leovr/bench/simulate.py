@@ -7,7 +7,8 @@ import time
 from pathlib import Path
 
 from leovr.bench.common import write_bench
-from leovr.config import BenchSimulateConfig, SimulateConfig
+from leovr.bench.config import BenchSimulateConfig
+from leovr.config import SimulateConfig
 from leovr.sim.simulate import simulate
 
 

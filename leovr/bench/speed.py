@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from leovr.bench.common import write_bench
-from leovr.config import BenchSpeedConfig, RefineConfig, SimulateConfig
+from leovr.bench.config import BenchSpeedConfig
+from leovr.config import RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.depth.fills import complete_depth
 from leovr.paths import kitti_raw_clips
