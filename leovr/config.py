@@ -4,7 +4,7 @@ options given on the command line override it."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from pydantic import Field, ValidationError, field_validator
 
@@ -22,6 +22,8 @@ from leovr.refine_config import (  # noqa: F401  (re-exported: leovr.config name
     PhotometricConfig,
     RefineConfig,
 )
+
+M = TypeVar("M", bound=_Model)
 
 Scenario = Literal["city_loop", "straight", "dynamic", "traffic"]  # leovr.sim.world.SCENARIOS
 
@@ -236,10 +238,10 @@ def _describe(exc: ValidationError) -> str:
     return "; ".join(one(e) for e in exc.errors())
 
 
-def load_config(path: str | Path | None = None) -> LeovrConfig:
-    """Defaults, overlaid with a YAML file when given; unknown keys and bad values are errors."""
+def load_model(path: str | Path | None, model: type[M]) -> M:
+    """`model`'s defaults, overlaid with a YAML file when given; unknown keys and bad values are errors."""
     if path is None:
-        return LeovrConfig()
+        return model()
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found")
@@ -249,9 +251,14 @@ def load_config(path: str | Path | None = None) -> LeovrConfig:
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of sections at the top level")
     try:
-        return LeovrConfig.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(f"{path}: {_describe(exc)}") from exc
+
+
+def load_config(path: str | Path | None = None) -> LeovrConfig:
+    """The product's settings: defaults, overlaid with a YAML file when given."""
+    return load_model(path, LeovrConfig)
 
 
 def _given(options: dict[str, Any]) -> dict[str, Any]:

@@ -6,10 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, ValidationError
+from pydantic import Field
 
-from leovr.config import GeneratorRuntime, MapConfig, Scenario, _describe, _Model
-from leovr.errors import ConfigError
+from leovr.config import GeneratorRuntime, MapConfig, Scenario, _Model, load_model
 
 
 class BenchBaselineConfig(_Model):
@@ -181,18 +180,5 @@ class BenchConfig(_Model):
 
 
 def load_bench_config(path: str | Path | None = None) -> BenchConfig:
-    """Defaults, overlaid with a YAML file when given; unknown keys and bad values are errors."""
-    if path is None:
-        return BenchConfig()
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: config file not found")
-    from leovr.data.io import read_yaml
-
-    data = read_yaml(path) or {}
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping of sections at the top level")
-    try:
-        return BenchConfig.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(f"{path}: {_describe(exc)}") from exc
+    """The benchmarks' settings: defaults, overlaid with a YAML file when given."""
+    return load_model(path, BenchConfig)
