@@ -21,64 +21,22 @@ from tqdm import tqdm
 
 from leovr.config import BatchConfig, LeovrConfig, override
 from leovr.data.io import check_output_dir, write_text
-from leovr.data.run_info import differences, folder_fingerprint
-from leovr.errors import ConfigError, DataError, LeovrError, brief
+from leovr.errors import ConfigError, LeovrError, brief
 from leovr.pipeline.batch_manifest import BatchItem
-from leovr.pipeline.batch_summary import read_json_or_empty, write_summary
+from leovr.pipeline.batch_adapt import ADAPT_DIR, adapt_batch, adapt_done
+from leovr.pipeline.batch_state import (
+    STATE_FILE,
+    check_no_other_results,
+    is_done,
+    read_state,
+    set_threads,
+    task_settings,
+)
+from leovr.pipeline.batch_summary import write_summary
 
-STATE_FILE = "batch.json"
-ADAPT_DIR = "_adapt"  # the adapted generator of an adapt+refine batch
-ERROR_FILE = "error.json"  # a data error the adaptation met (written by its process 0)
 # a local instance without the dashboard: nothing reads Ray's own metrics, and not collecting them spares the
 # raylet's wait for the metrics agent at start (ray.init alone about 4.0 -> 2.9 s here; docs/benchmarks.md)
 LOCAL_SYSTEM_CONFIG = {"enable_metrics_collection": False}
-
-
-def task_settings(
-    job: str, section: dict[str, Any], path: Path | None = None, map_section: dict[str, Any] | None = None
-) -> dict[str, Any]:
-    """What a sequence's result depends on (the job, its settings, the map's when one is fused, the sequence's
-    files): a re-run with other settings or changed data is refused before any work."""
-    files = folder_fingerprint(path) if path is not None and Path(path).exists() else None
-    record = {"job": job, "config": section, "files_sha1": files} | ({"map": map_section} if map_section else {})
-    return json.loads(json.dumps(record, default=str))
-
-
-def _read_state(folder: Path) -> dict:
-    return read_json_or_empty(folder / STATE_FILE)
-
-
-def is_done(folder: Path, settings: dict) -> bool:
-    st = _read_state(folder)
-    return st.get("status") == "done" and st.get("settings") == settings and (folder / "metrics.json").is_file()
-
-
-def check_no_other_results(out: Path, items: list[BatchItem], settings: dict[str, dict]) -> None:
-    """Refuse, before any work, a batch whose output folders hold results of other settings or other input
-    files: resuming into them would mix two runs, and replacing them would lose results already written."""
-    stale = []
-    for it in items:
-        folder = out / it.name
-        if not (folder / "run.json").is_file():
-            continue
-        prev = _read_state(folder).get("settings")
-        if prev != settings[it.name]:
-            diff = differences(prev, settings[it.name]) if isinstance(prev, dict) else ["no batch.json"]
-            stale.append(f"{it.name}: {brief(diff, 2, '; ')}")
-    if stale:
-        raise DataError(
-            out,
-            f"holds results of other settings or input files for {brief(stale, 3, ', ')}; "
-            "use a new --out, or delete those sequences' folders to do them again",
-        )
-
-
-def _set_threads(n: int) -> None:
-    import cv2
-    import torch
-
-    torch.set_num_threads(n)
-    cv2.setNumThreads(n)
 
 
 def run_sequence(
@@ -99,12 +57,12 @@ def run_sequence(
 
     if topics is not None:
         rosbag.CHOICE = topics
-    _set_threads(threads)
+    set_threads(threads)
     settings = settings if settings is not None else task_settings(job, section, item.path, map_section)
     if is_done(out, settings):
-        return {**_read_state(out), "status": "skipped"}
+        return {**read_state(out), "status": "skipped"}
     out.mkdir(parents=True, exist_ok=True)
-    prev = _read_state(out)
+    prev = read_state(out)
     attempts = int(prev.get("attempts", 0)) + 1 if prev.get("settings") == settings else 1
     state = {
         "name": item.name,
@@ -214,7 +172,7 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
         todo = []
         for it in live:
             if is_done(out / it.name, settings[it.name]):
-                rows[it.name] = {**_read_state(out / it.name), "status": "skipped"}
+                rows[it.name] = {**read_state(out / it.name), "status": "skipped"}
             else:
                 todo.append(it)
         if todo:
@@ -301,112 +259,3 @@ def _run_tasks(
             plot=False,
         )
     bar.close()
-
-
-def _adapt_settings(items: list[BatchItem], cfg: LeovrConfig) -> dict:
-    return task_settings(
-        "adapt",
-        {"sequences": {str(it.path): folder_fingerprint(it.path) for it in items}, "adapt": cfg.adapt.model_dump()},
-    )
-
-
-def adapt_done(items: list[BatchItem], cfg: LeovrConfig, out: Path) -> str | None:
-    """The adapted checkpoint of an earlier run of the same batch and settings, if it finished."""
-    out = Path(out).resolve()
-    st = _read_state(out)
-    if (
-        (out / "generator.pt").is_file()
-        and st.get("status") == "done"
-        and st.get("settings") == _adapt_settings(items, cfg)
-    ):
-        return str(out / "generator.pt")
-    return None
-
-
-def _adapt_loop(config: dict) -> None:
-    """One process of the adaptation under Ray Train (its process group is Ray's): resumes from the
-    last epoch after a worker died. A data error is written to ERROR_FILE by process 0, not raised, so
-    that Ray Train does not retry what cannot succeed (every process reads the same frames and meets it)."""
-    from leovr.config import AdaptConfig
-    from leovr.data import open_sequence
-    from selfsup.adapt import adapt
-    from selfsup.distributed import distributed
-
-    _set_threads(config["threads"])
-    folder = Path(config["folder"])
-    resume = (folder / "checkpoint_last.pt").is_file()
-    try:
-        adapt(
-            [open_sequence(p) for p in config["paths"]],
-            AdaptConfig.model_validate(config["adapt"]),
-            folder,
-            resume=resume,
-            progress=False,
-        )
-    except LeovrError as exc:
-        if distributed()[0] == 0:
-            write_text(folder / ERROR_FILE, json.dumps({"error": str(exc)}) + "\n")
-
-
-def _resolved(acfg: Any) -> dict:
-    """The adapt section with its starting checkpoint as an absolute path."""
-    d = acfg.model_dump()
-    if d.get("init_checkpoint"):
-        d["init_checkpoint"] = str(Path(d["init_checkpoint"]).resolve())
-    return d
-
-
-def adapt_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: bool = True) -> str:
-    """Adapt the generator on every sequence of the batch, data-parallel with Ray Train's TorchTrainer
-    (DistributedDataParallel over gloo): by default one process per node, holding that node's CPUs
-    (on one machine, two processes with a thread each were no faster than one with two threads, and
-    each process holds all the frames); `batch.adapt_processes` processes of `cpus_per_task` CPUs
-    instead. Restarted from the last epoch up to `max_retries` times when a worker dies. Returns the
-    adapted checkpoint's path."""
-    import ray
-    from ray.train import FailureConfig, RunConfig, ScalingConfig
-    from ray.train.torch import TorchTrainer
-
-    bcfg = cfg.batch
-    if bcfg.adapt_processes:
-        n, per = bcfg.adapt_processes, bcfg.cpus_per_task
-    else:  # one process per node with that node's CPUs: threads within a node, data-parallel across nodes
-        cpus = [
-            int(nd["Resources"]["CPU"]) for nd in ray.nodes() if nd.get("Alive") and nd["Resources"].get("CPU", 0) >= 1
-        ]
-        n, per = max(1, len(cpus)), max(1, min(cpus, default=1))
-    out = Path(out).resolve()
-    out.mkdir(parents=True, exist_ok=True)
-    (out / ERROR_FILE).unlink(missing_ok=True)
-    if progress:
-        tqdm.write(
-            f"adapting the generator on {len(items)} sequence(s): {n} data-parallel process(es) on Ray Train -> {out}"
-        )
-    trainer = TorchTrainer(
-        _adapt_loop,
-        # absolute paths: Ray Train runs each process in a folder of its own
-        train_loop_config={
-            "paths": [str(Path(it.path).resolve()) for it in items],
-            "adapt": _resolved(cfg.adapt),
-            "folder": str(out),
-            "threads": per,
-        },
-        scaling_config=ScalingConfig(num_workers=n, use_gpu=False, resources_per_worker={"CPU": per}),
-        run_config=RunConfig(
-            name="ray_train", storage_path=str(out), failure_config=FailureConfig(max_failures=bcfg.max_retries)
-        ),
-    )
-    try:
-        trainer.fit()
-    except Exception as exc:  # Ray Train's failure after its retries (a worker died too often)
-        raise DataError(out, f"adaptation on the batch's sequences failed, nothing refined: {exc}") from exc
-    err = read_json_or_empty(out / ERROR_FILE).get("error")
-    if err:
-        raise DataError(out, f"adaptation on the batch's sequences failed, nothing refined: {err}")
-    path = str(out / "generator.pt")
-    write_text(
-        out / STATE_FILE,
-        json.dumps({"status": "done", "settings": _adapt_settings(items, cfg), "checkpoint": path, "processes": n})
-        + "\n",
-    )
-    return path
