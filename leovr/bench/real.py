@@ -33,8 +33,10 @@ from leovr.bench.config import BenchRealConfig
 from leovr.config import AdaptConfig, RefineConfig
 from leovr.data import open_sequence
 from leovr.data.io import write_text
+from leovr.data.oxts import REFERENCE_NOTE
 from leovr.depth.fills import complete_depth
 from leovr.errors import DataError
+from leovr.geometry import invert_T
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.pipeline.completion import ground_truth_note
 from leovr.pipeline.refine import FrameScore, completion_config, frame_sample, run_refine
@@ -129,6 +131,7 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
         },
         "ground_truth": "; ".join(ground_truth_note(k, completion_config(RefineConfig())) for k in sorted(notes))
         + ("; " + TRUTH_DESKEW_NOTE if "heldout" in notes else ""),
+        "ground_truth_poses": REFERENCE_NOTE,
     }
     return write_bench(out, "real", body, started)
 
@@ -147,10 +150,29 @@ def add_adapted(shipped: FrameScore, adapted: FrameScore) -> None:
     shipped.pred["adapted_refined"] = adapted.pred["refined"][ib]
 
 
-def trajectory_entry(metrics: dict) -> dict:
-    """ATE (whole clip and per stretch of 32 frames), RPE, KITTI's relative errors and the median step ratio of
-    leovr and the baselines of one refine run, and leovr's ATE over KISS-ICP's (the better of its two deskew
-    settings)."""
+def gps_fix_ates(seq, run: Path, n: int) -> dict[str, float]:
+    """Each written trajectory's ATE (SE(3)-aligned) against the recording's GPS fixes alone, as KITTI's devkit
+    reads them, where the reader keeps them (`gps_poses`): the figure users of the devkit compare with."""
+    gps = getattr(seq, "gps_poses", None)
+    if gps is None:
+        return {}
+    from leovr.data.kitti_common import read_kitti_poses
+    from leovr.eval.trajectory import trajectory_metrics
+
+    ref = invert_T(gps[0]) @ gps[:n]
+    files = {"leovr": "poses_kitti.txt", "kiss_icp": "poses_kiss_icp_kitti.txt"}
+    files["kiss_icp_no_deskew"] = "poses_kiss_icp_no_deskew_kitti.txt"
+    return {
+        name: trajectory_metrics(read_kitti_poses(run / f), ref)["ate_m"]
+        for name, f in files.items()
+        if (run / f).is_file()
+    }
+
+
+def trajectory_entry(metrics: dict, gps_ates: dict[str, float]) -> dict:
+    """ATE (whole clip and per stretch of 32 frames; against the GPS fixes alone too, `gps_ates`), RPE, KITTI's
+    relative errors and the median step ratio of leovr and the baselines of one refine run, and leovr's ATE
+    over KISS-ICP's (the better of its two deskew settings)."""
     keys = (
         "ate_m",
         "ate_lateral_m",
@@ -164,6 +186,9 @@ def trajectory_entry(metrics: dict) -> dict:
         "step_ratio_median",
     )
     t = {k: {key: v[key] for key in keys if key in v} for k, v in metrics["trajectory"].items()}
+    for name, ate in gps_ates.items():
+        if name in t:
+            t[name]["ate_gps_fixes_m"] = ate
     kiss = min(v["ate_m"] for k, v in t.items() if k.startswith("kiss_icp"))
     return t | {"leovr_vs_kiss_icp": t["leovr"]["ate_m"] / kiss}
 
@@ -212,7 +237,7 @@ def clip_bench(
         m = run_refine(seq, base, work / f"{inp}_shipped", resume=True, progress=progress, collect=shipped)
         interp_scores(seq, base, shipped)
         if "trajectory" in m:
-            trajectory[inp] = trajectory_entry(m)
+            trajectory[inp] = trajectory_entry(m, gps_fix_ates(seq, work / f"{inp}_shipped", n))
         if cfg.causal:  # live use: every output from its frame and earlier ones (baselines too)
             live: dict[int, FrameScore] = {}
             mc = run_refine(
@@ -226,7 +251,7 @@ def clip_bench(
             results[f"causal_{inp}"] = pooled([(live, list(range(n)))], list(base.bins))
             scored_sets[f"causal_{inp}"] = live, list(range(n))
             if "trajectory" in mc:
-                trajectory[f"causal_{inp}"] = trajectory_entry(mc)
+                trajectory[f"causal_{inp}"] = trajectory_entry(mc, gps_fix_ates(seq, work / f"{inp}_causal", n))
         if inp not in cfg.adapt_inputs:
             results[f"shipped_{inp}"] = pooled([(shipped, list(range(n)))], list(base.bins))
             scored_sets[f"shipped_{inp}"] = shipped, list(range(n))

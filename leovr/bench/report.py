@@ -50,6 +50,8 @@ GLOSSARY = [
     "- MAE, RMSE, ATE (RMSE of the aligned positions; lateral, vertical, forward: its parts along the true "
     "camera's x, y, z axes) and RPE (frame to frame) in metres; AbsRel = mean "
     "|error| / depth; delta1 = share of pixels within 1.25x of the truth. `A ÷ B` ratios below 1.00x favour A.",
+    "- Drift: ATE per 32 frames (each stretch aligned alone), KITTI drift (the odometry devkit's relative "
+    "translation error, % of the distance, mean over segments of 25, 50 and 100 m).",
 ]
 
 

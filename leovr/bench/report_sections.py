@@ -108,6 +108,7 @@ def render_real(doc: dict) -> tuple[list[str], list[str]]:
         for name, c in clips.items()
     ]
     data += [f"ground truth: {doc.get('ground_truth', '-')}"]
+    data += [f"ground truth: {doc['ground_truth_poses']}"] if doc.get("ground_truth_poses") else []
     groups = {f"{name}, {inp}": g for name, c in clips.items() for inp, g in (c.get("results") or {}).items()}
     pooled = get(doc, "pooled", "results") or {}
     groups.update({f"pooled, {inp}": g for inp, g in pooled.items()})

@@ -146,6 +146,9 @@ def traj_table(groups: dict[str, Any]) -> list[str]:
                     num(r.get("ate_m")),
                     *(num(r.get(f"ate_{axis}_m")) for axis in AXES),
                     num(r.get("rpe_m")),
+                    " / ".join(num(a) for a in r.get("ate_per_stretch_m") or []) or "-",
+                    num(r.get("kitti_t_err_pct"), 2),
+                    num(r.get("ate_gps_fixes_m")),
                     alignment(r),
                     vs,
                 ]
@@ -156,10 +159,13 @@ def traj_table(groups: dict[str, Any]) -> list[str]:
         "ATE (m)",
         *(f"{axis} (m)" for axis in AXES),
         "RPE (m)",
+        "ATE per 32 frames (m)",
+        "KITTI drift (%)",
+        "ATE vs GPS fixes (m)",
         "alignment",
         "leovr ÷ this (ATE)",
     ]
-    for col in (7, 5, 4, 3):  # drop what no run recorded (alignment; the ATE's parts)
+    for col in (10, 9, 8, 7, 5, 4, 3):  # drop what no run recorded (alignment; the ATE's parts)
         if all(r[col] == "-" for r in rows):
             head, rows = head[:col] + head[col + 1 :], [r[:col] + r[col + 1 :] for r in rows]
     return table(head, rows)

@@ -10,11 +10,10 @@ import numpy as np
 
 from leovr.data.io import check_timestamps, read_matrix_rows
 from leovr.data.kitti_common import KITTI_CAMERA_HEIGHT_M, split_projection
+from leovr.data.oxts import oxts_poses, read_packets
 from leovr.data.sequence import FileSequence
 from leovr.errors import DataError, brief
 from leovr.geometry import invert_T, make_T, poses_at
-
-EARTH_RADIUS_M = 6378137.0
 
 
 def find_drive(path: Path) -> Path | None:
@@ -58,30 +57,6 @@ def _stamps_for(path: Path, numbers: list[int], what: str) -> np.ndarray | None:
             path, f"{len(t)} {what} timestamps, but frame number {numbers[-1]} needs line {numbers[-1] + 1}"
         )
     return t[numbers]
-
-
-def oxts_poses(files: list[Path]) -> np.ndarray:
-    """IMU poses (F x 4 x 4, relative to the first) from OXTS packets, Mercator as in KITTI's devkit."""
-    packets = []
-    for f in files:
-        try:
-            packets.append(np.array(f.read_text().split()[:6], float))
-        except (OSError, ValueError) as exc:
-            raise DataError(f, f"unreadable OXTS packet: {exc}") from exc
-        if len(packets[-1]) < 6:
-            raise DataError(f, "OXTS packet has fewer than 6 values (lat lon alt roll pitch yaw)")
-    o = np.array(packets)
-    lat, lon, alt, roll, pitch, yaw = o.T
-    scale = np.cos(np.radians(lat[0]))
-    tx = scale * EARTH_RADIUS_M * np.radians(lon)
-    ty = scale * EARTH_RADIUS_M * np.log(np.tan(np.radians(90.0 + lat) / 2.0))
-    from scipy.spatial.transform import Rotation
-
-    R = Rotation.from_euler("ZYX", np.stack([yaw, pitch, roll], 1)).as_matrix()
-    T = np.tile(np.eye(4), (len(o), 1, 1))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = np.stack([tx, ty, alt], 1)
-    return invert_T(T[0]) @ T
 
 
 def _numbered(folder: Path, pattern: str) -> dict[int, Path]:
@@ -149,19 +124,26 @@ class KittiRawSequence(FileSequence):
             self.sweeps = sweeps
         oxts = _numbered(drive / "oxts" / "data", "*.txt") if (drive / "oxts" / "data").is_dir() else {}
         self._poses = None
+        self.gps_poses: np.ndarray | None = None  # the fixes alone, as KITTI's devkit reads them (for comparison)
         if oxts and T_cam_imu is not None:
             missing = [n for n in numbers if n not in oxts]
             if missing:
                 raise DataError(drive / "oxts" / "data", f"no OXTS packet for {_frames(missing)}")
-            T_w_imu = oxts_poses([oxts[n] for n in numbers])
+            packets = read_packets([oxts[n] for n in numbers])
             oxts_t = _stamps_for(drive / "oxts" / "timestamps.txt", numbers, "OXTS")
-            if oxts_t is not None and camera_t is not None:
-                # each packet is stamped by the GPS/IMU's own clock tick, 2-14 ms off the camera's (11-12 m/s:
-                # up to 0.15 m): the poses at the images' times, interpolated between the packets
-                T_w_imu = poses_at(check_timestamps(oxts_t, drive / "oxts" / "timestamps.txt"), T_w_imu, camera_t)
+            if oxts_t is not None:
+                oxts_t = check_timestamps(oxts_t, drive / "oxts" / "timestamps.txt")
             T_imu_cam = invert_T(T_cam_imu)
-            # world = first camera frame
-            self._poses = invert_T(T_w_imu[0] @ T_imu_cam) @ T_w_imu @ T_imu_cam
+
+            def camera_poses(T_w_imu: np.ndarray) -> np.ndarray:
+                if oxts_t is not None and camera_t is not None:
+                    # each packet is stamped by the GPS/IMU's own clock tick, 2-14 ms off the camera's (11-12
+                    # m/s: up to 0.15 m): the poses at the images' times, interpolated between the packets
+                    T_w_imu = poses_at(oxts_t, T_w_imu, camera_t)
+                return invert_T(T_w_imu[0] @ T_imu_cam) @ T_w_imu @ T_imu_cam  # world = first camera frame
+
+            self._poses = camera_poses(oxts_poses(packets, oxts_t))
+            self.gps_poses = camera_poses(oxts_poses(packets))
         self.has_poses = self._poses is not None
 
     def frame_numbers(self) -> list[int]:
