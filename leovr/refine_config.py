@@ -12,28 +12,19 @@ from leovr.lidar.cheap_sensor import parse_input
 
 
 class FrontEndConfig(_Model):
-    """The visual-LiDAR front end: ORB features per frame, their LiDAR depth and the initial pose."""
+    """The visual-LiDAR front end: ORB features per frame and the initial pose."""
 
     n_features: int = Field(1000, ge=50)  # ORB features per frame
-    assoc_radius_px: float = 5.0  # feature <-> projected LiDAR point association radius (px, eq. 10)
-    assoc_max_rel_spread: float = 0.1  # reject when depths within the radius spread more than this (relative)
     pnp_reproj_px: float = 2.0  # PnP / epipolar inlier threshold of the front end (px)
 
 
 class GraphConfig(_Model):
-    """The sliding-window factor graph (LeoVR Sec. III-C): its factors, the depth correction field and the
-    solver."""
+    """The sliding-window factor graph (LeoVR Sec. III-C): its factors' weights (the solver's settings and the
+    correction field's size are constants of odometry.window_graph)."""
 
     # the correction field's depth-consistency and LiDAR-depth factors (false: point factors only); auto: off with a
     # spinning LiDAR, judged on the first scan of 100+ returns (docs/decisions/0003-depth-factors-auto.md)
     depth_factors: bool | Literal["auto"] = "auto"
-    grid_rows: int = Field(8, ge=2)  # depth correction field: rows of log-depth offsets per frame
-    grid_cols: int = Field(14, ge=2)  # depth correction field: columns
-    # Levenberg-Marquardt iterations per update (docs/decisions/0011-tuned-settings.md)
-    lm_iterations: int = Field(3, ge=1)
-    # LM retries a step that raises the error at 10x damping only below this cap; 1e-10: no retry, the update ends
-    # (docs/decisions/0002-no-lm-retries.md)
-    lm_lambda_upper_bound: float = Field(1e-10, gt=0)
     # reprojection factor (eq. 8) sigma (px), Huber; x 1.2^n for a keypoint of ORB pyramid level n
     pixel_sigma: float = 1.0
     bearing_sigma_rad: float = 0.003  # LiDAR point factor (eq. 10): bearing sigma (rad)
@@ -43,21 +34,13 @@ class GraphConfig(_Model):
     odometry_sigma_m: float = 0.3  # ... translation sigma (m)
     # KISS-ICP's point-to-point registration covariance x this (docs/decisions/0001-icp-covariance-inflation.md)
     icp_cov_inflation: float = Field(2.0, gt=0)
-    consistency_samples: int = Field(300, ge=10)  # pixels per depth-consistency factor, resampled each update
     consistency_sigma_log: float = 0.05  # depth-consistency sigma (log depth)
-    lidar_depth_samples: int = Field(400, ge=0)  # own LiDAR returns on the correction field (0 = off)
     lidar_depth_sigma_log: float = 0.03  # LiDAR-depth factor sigma (log depth)
-    prior_sigma_min: float = 0.02  # generator prior on the field: sigma / depth per cell, clipped below ...
-    prior_sigma_max: float = 0.5  # ... and above
-    # the images' motion to the window's frames `pair_offsets` before as robust between factors; auto: cone LiDAR
-    # only; needs a LiDAR (docs/decisions/0006-pair-factors-cone-only.md)
+    # the images' motion to the window's frames 1-3 before as robust between factors; auto: cone LiDAR only; needs a
+    # LiDAR (docs/decisions/0006-pair-factors-cone-only.md)
     pair_factors: bool | Literal["auto"] = "auto"
-    pair_offsets: list[int] = [1, 2, 3]  # pair factors to the frames this many before (frames)
     pair_sigma_rad: float = Field(0.0007, gt=0)  # pair factor rotation sigma (rad)
     pair_sigma_rel: float = Field(0.02, gt=0)  # pair factor translation sigma per metre of the pair's travel (+ 1 cm)
-    # a pair whose rotation is this far (deg) from both the initial pose's and the front end's essential matrix is
-    # left out; 0: no test (docs/decisions/0006-pair-factors-cone-only.md)
-    pair_gate_deg: float = Field(3.0, ge=0)
 
 
 class AccumulationConfig(_Model):
@@ -72,7 +55,8 @@ class AccumulationConfig(_Model):
 
 class MotionStereoConfig(_Model):
     """Motion stereo (odometry.motion_stereo): image corners triangulated over the frames before and after
-    correct the generator's depth where a cone LiDAR does not reach; settings chosen on development data only."""
+    correct the generator's depth where a cone LiDAR does not reach; its other settings are constants of
+    odometry.motion_stereo, chosen on development data only."""
 
     # image corners outside the LiDAR's reach, triangulated over +-16 frames, correct the generator's depth;
     # auto: cone LiDAR only; needs a LiDAR (docs/decisions/0005-motion-stereo-cone-only.md)
@@ -83,77 +67,17 @@ class MotionStereoConfig(_Model):
     # a causal run's frames before frame i: the previous frame too (without it a causal Mid-40-like run lost its
     # way; docs/decisions/0011-tuned-settings.md)
     causal_offsets: list[int] = [1, 2, 4, 8, 12, 16]
-    max_corners: int = 4000  # Shi-Tomasi corners per frame, at most ...
-    corner_quality: float = 0.003  # ... their quality level (share of the strongest corner's) ...
-    corner_distance_px: int = 4  # ... and distance apart (px), at least
-    # pyramidal Lucas-Kanade: window (px), pyramid levels, iterations (docs/decisions/0011-tuned-settings.md)
-    lk_window_px: int = 11
-    lk_levels: int = 3  # ... pyramid levels
-    lk_iterations: int = 20  # ... iterations
-    track_check_px: float = 0.5  # forward-backward optical-flow agreement (px)
-    min_views: int = 4  # views a corner needs, frame i included
-    max_rms_px: float = 0.7  # multi-view reprojection error (px), at most
-    min_parallax_px: float = 8.0  # the largest displacement against a point at infinity, over the views (px), at least
-    lidar_gap_px: float = 8.0  # a corner joins the input only this far from any LiDAR return (px)
-    # a tracked corner takes the LiDAR depth of a return this near, for a pair's length (px)
-    scale_radius_px: float = 2.0
-    scale_min_points: int = 10  # a pair with fewer LiDAR-backed corners (parallax > 2 px) is dropped
-    min_depth_m: float = 1.5  # corners kept between this depth (m) ...
-    max_depth_m: float = 150.0  # ... and this
-    # a corner is kept when at least this many other kept corners lie within neighbour_radius x focal length
-    # (pixels) and their median depth is within max_log_diff of its own (log): lone corners and outliers go
-    min_neighbours: int = 2
-    neighbour_radius: float = 0.05  # ... the neighbours' radius (x focal length)
-    max_log_diff: float = 0.15  # ... their median depth's largest difference (log)
-    # corrected_depth: the corners' log ratio to the generator spread with sigma = spread x focal length (px),
-    # over pixels whose generator depth is within about range_log (log) of the corner's, fading where their
-    # summed weight is small against `support` corners' worth
-    spread: float = 0.06
-    support: float = 1.0  # ... corners' worth of weight below which the correction fades
-    range_log: float = 0.2  # ... generator depth this near the corner's (log)
-    # a corner's ratio is taken against the generator depth within this many pixels (px) that matches it best
-    edge_px: int = 2
 
 
 class PhotometricConfig(_Model):
     """The photometric field (odometry.photo_field): a plane sweep against the neighbours' images corrects a
-    leaving frame's depth where no return lies; settings chosen on development data only."""
+    leaving frame's depth where no return lies; its other settings are constants of odometry.photo_field, chosen on
+    development data only."""
 
     # a leaving frame's depth where no return lies, by a plane sweep against its neighbours' images
     # (odometry.photo_field); auto: cone LiDAR only (docs/decisions/0007-photometric-field-cone-only.md)
     enabled: bool | Literal["auto"] = "auto"
     offsets: list[int] = [1, 2, 3]  # plane sweep against the frames this many before and after (frames)
-    # the correction's grid (nodes), corner to corner, finer than the graph's 8 x 14
-    # (docs/decisions/0011-tuned-settings.md)
-    rows: int = 16
-    cols: int = 28  # ... its columns
-    # candidates: log offsets in [-span, span], 0.2 apart (odd count: 0 is one); a parabola through the best and
-    # its neighbours refines it (docs/decisions/0011-tuned-settings.md)
-    span_log: float = 0.8
-    candidates: int = 9  # ... candidates in the span
-    patch_px: int = 2  # ZNCC window half size, at the downsampled scale
-    min_texture: float = 4.0  # gray-level variance in the window: flatter patches do not vote
-    min_pixels: int = 30  # a node needs this much (bilinear) weight of voting pixels for every candidate
-    # a node moves only when its best candidate's mean ZNCC cost is this much below no change
-    min_gain: float = Field(0.05, ge=0)
-    min_depth_m: float = 0.5  # pixels nearer than this (m) do not vote
-    min_backed: int = 5  # nodes with returns and a clear choice needed to check the poses
-    # ... and this share of the seen nodes with returns: where the images pin the depth at few of the nodes whose
-    # depth is known, the check rests on little and the sweep's choices elsewhere are no better
-    # (docs/decisions/0011-tuned-settings.md)
-    min_backed_share: float = 0.5
-    # their median choice may be this far from 0 (a step length read wrong, a turn misread;
-    # docs/decisions/0011-tuned-settings.md)
-    max_bias_log: float = 0.1
-    # the sweep runs on images made smaller by the integer factor that brings them nearest this many pixels
-    # (448 x 256: 2, KITTI's 1242 x 375: 4; the patch size is at that scale); 0: this fixed factor
-    sweep_pixels: int = 30000
-    downsample: int = 0  # a fixed integer factor instead (0: from sweep_pixels)
-    # a far candidate (depth x e^far_log, ~20x: as good as infinity) that a moved node's best must beat by
-    # `far_gain`: a vehicle driving along with the camera matches best at infinity, and without this test its
-    # nodes were pushed to the span's far end (docs/decisions/0011-tuned-settings.md); 0: off
-    far_log: float = 3.0
-    far_gain: float = 0.05  # ... by this much (ZNCC cost)
 
 
 class LoopConfig(_Model):

@@ -35,6 +35,10 @@ from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_h
 # its depth scaled by 0.9 made a Mid-40-like run's steps 1-3 % shorter; at 1.0 within 0.6 %, and kitti_raw_0013's
 # whole-drive ATE 0.365 -> 0.345 m over seeds 0-2; docs/decisions/0001-icp-covariance-inflation.md)
 GENERATOR_LANDMARK_PRIOR_REL = 1.0
+# a feature takes the depth of the LiDAR returns within this radius (px) when their depths spread by at most this
+# share of their median (odometry.lidar_assoc.associate)
+ASSOC_RADIUS_PX = 5.0
+ASSOC_MAX_REL_SPREAD = 0.1
 
 
 @dataclass
@@ -126,13 +130,8 @@ class FrontEnd:
         lidar_z = np.full(len(uv), np.nan)
         if self.use_lidar and sparse is not None:
             lv, lu = np.nonzero(sparse > 0)
-            front = self.cfg.frontend
             lidar_z = associate(
-                uv,
-                np.stack([lu, lv], 1).astype(float),
-                sparse[lv, lu],
-                front.assoc_radius_px,
-                front.assoc_max_rel_spread,
+                uv, np.stack([lu, lv], 1).astype(float), sparse[lv, lu], ASSOC_RADIUS_PX, ASSOC_MAX_REL_SPREAD
             )
         z = np.where(np.isfinite(lidar_z), lidar_z, z)
         pts = back_project(uv, z, self.K)

@@ -13,8 +13,8 @@ there). The generator's depth then moves towards the corners around them (`corre
 the network as extra input instead, the corners helped the real clip more but made the simulator's
 drives worse: a few wrong corners move whole regions there. Settings were chosen on development data
 only, the clip's frames 0-37 and the simulator's Mid-40 validation drives; on with a cone LiDAR only
-(docs/decisions/0005-motion-stereo-cone-only.md). The settings are `refine.motion_stereo`
-(leovr.config.MotionStereoConfig).
+(docs/decisions/0005-motion-stereo-cone-only.md). `refine.motion_stereo` turns it on and sets the neighbours;
+the rest are the constants below.
 """
 
 from __future__ import annotations
@@ -28,8 +28,37 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from leovr.config import MotionStereoConfig
 from odometry.mono_vo import recover_pose
+
+# Settings chosen on development data only (the clip's frames 0-37 and the simulator's Mid-40 validation drives;
+# docs/decisions/0011-tuned-settings.md): fixed here, not a user's to tune.
+MAX_CORNERS = 4000  # Shi-Tomasi corners per frame, at most ...
+CORNER_QUALITY = 0.003  # ... their quality level (share of the strongest corner's) ...
+CORNER_DISTANCE_PX = 4  # ... and distance apart (px), at least
+LK_WINDOW_PX = 11  # pyramidal Lucas-Kanade: window (px) ...
+LK_LEVELS = 3  # ... pyramid levels
+LK_ITERATIONS = 20  # ... iterations
+TRACK_CHECK_PX = 0.5  # forward-backward optical-flow agreement (px)
+MIN_VIEWS = 4  # views a corner needs, frame i included
+MAX_RMS_PX = 0.7  # multi-view reprojection error (px), at most
+MIN_PARALLAX_PX = 8.0  # the largest displacement against a point at infinity, over the views (px), at least
+LIDAR_GAP_PX = 8.0  # a corner joins the input only this far from any LiDAR return (px)
+SCALE_RADIUS_PX = 2.0  # a tracked corner takes the LiDAR depth of a return this near, for a pair's length (px)
+SCALE_MIN_POINTS = 10  # a pair with fewer LiDAR-backed corners (parallax > 2 px) is dropped
+MIN_DEPTH_M, MAX_DEPTH_M = 1.5, 150.0  # corners kept between these depths (m)
+# a corner is kept when at least MIN_NEIGHBOURS other kept corners lie within NEIGHBOUR_RADIUS x focal length (px)
+# and their median depth is within MAX_LOG_DIFF of its own (log): lone corners and outliers go
+MIN_NEIGHBOURS = 2
+NEIGHBOUR_RADIUS = 0.05
+MAX_LOG_DIFF = 0.15
+# corrected_depth: the corners' log ratio to the generator spread with sigma = SPREAD x focal length (px), over
+# pixels whose generator depth is within about RANGE_LOG (log) of the corner's, fading where their summed weight
+# is small against SUPPORT corners' worth; each ratio taken against the generator depth within EDGE_PX (px) that
+# matches the corner best
+SPREAD = 0.06
+SUPPORT = 1.0
+RANGE_LOG = 0.2
+EDGE_PX = 2
 
 
 class GrayImages:
@@ -54,18 +83,18 @@ class GrayImages:
         return self.images[i]
 
 
-def track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray, s: MotionStereoConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Corners of g0 in g1 (pyramidal Lucas-Kanade) and which of them came back within s.track_check_px."""
+def track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corners of g0 in g1 (pyramidal Lucas-Kanade) and which of them came back within TRACK_CHECK_PX."""
     lk = dict(
-        winSize=(s.lk_window_px, s.lk_window_px),
-        maxLevel=s.lk_levels,
-        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, s.lk_iterations, 0.01),
+        winSize=(LK_WINDOW_PX, LK_WINDOW_PX),
+        maxLevel=LK_LEVELS,
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, LK_ITERATIONS, 0.01),
     )
     if not len(corners):
         return corners.copy(), np.zeros(0, bool)
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(g0, g1, corners, None, **lk)
     p0, st0, _ = cv2.calcOpticalFlowPyrLK(g1, g0, p1, None, **lk)
-    ok = (st1[:, 0] == 1) & (st0[:, 0] == 1) & (np.linalg.norm(p0 - corners, axis=1) < s.track_check_px)
+    ok = (st1[:, 0] == 1) & (st0[:, 0] == 1) & (np.linalg.norm(p0 - corners, axis=1) < TRACK_CHECK_PX)
     return p1, ok
 
 
@@ -98,7 +127,6 @@ def scaled_motion(
     ok: np.ndarray,
     K: np.ndarray,
     lidar: np.ndarray,
-    s: MotionStereoConfig,
 ) -> np.ndarray | None:
     """Frame i -> j as [R | t] (3 x 4): the essential matrix's rotation and direction `Rt` (`essential_motion`),
     its length from the LiDAR depths at the corners (`lidar`: one per corner, 0 = none; `returns_at`); None
@@ -110,7 +138,7 @@ def scaled_motion(
     _, par = displacement_px(Rt, X, K)
     d = lidar[ok]
     use = (d > 0) & (z > 0) & (par > 2.0) & np.isfinite(z)
-    if use.sum() < s.scale_min_points:
+    if use.sum() < SCALE_MIN_POINTS:
         return None
     out = Rt.copy()
     out[:, 3] *= float(np.median(d[use] / z[use]))
@@ -189,9 +217,9 @@ class Corners:
         return Corners(*(x[sel] for x in (self.u, self.v, self.z, self.rms, self.parallax, self.views)))
 
 
-def detect_corners(g0: np.ndarray, s: MotionStereoConfig) -> np.ndarray | None:
+def detect_corners(g0: np.ndarray) -> np.ndarray | None:
     """N x 2 float32 corners of a grayscale image (Shi-Tomasi), None when it has none."""
-    found = cv2.goodFeaturesToTrack(g0, s.max_corners, s.corner_quality, s.corner_distance_px)
+    found = cv2.goodFeaturesToTrack(g0, MAX_CORNERS, CORNER_QUALITY, CORNER_DISTANCE_PX)
     return None if found is None else found.reshape(-1, 2).astype(np.float32)
 
 
@@ -213,13 +241,12 @@ class FrameTracks:
         images: GrayImages,
         K: np.ndarray,
         own: np.ndarray | None,
-        s: MotionStereoConfig = MotionStereoConfig(),
         ladder: list[int] | tuple[int, ...] = (),
     ) -> None:
-        self.i, self.images, self.K, self.s, self.ladder = i, images, K, s, tuple(ladder)
+        self.i, self.images, self.K, self.ladder = i, images, K, tuple(ladder)
         g0 = images[i]
         self.g0 = g0
-        self.corners = None if g0 is None else detect_corners(g0, s)
+        self.corners = None if g0 is None else detect_corners(g0)
         self.lidar: np.ndarray | None = None
         # each rung's previous one: the next nearer ladder neighbour on the same side of frame i
         self.below: dict[int, int] = {}
@@ -237,7 +264,7 @@ class FrameTracks:
         without any has no pair length and no corner to triangulate."""
         if not (own > 0).any():
             self.corners = None
-        self.lidar = None if self.corners is None else returns_at(own, self.corners, self.s.scale_radius_px)
+        self.lidar = None if self.corners is None else returns_at(own, self.corners, SCALE_RADIUS_PX)
         self._pairs = {}
 
     def track_into(self, neighbours: list[int]) -> None:
@@ -266,10 +293,10 @@ class FrameTracks:
             if g1 is not None and g1.shape == self.g0.shape:
                 cand = self._candidates(j)
                 if cand is None:
-                    found = track(self.g0, g1, self.corners, self.s)
+                    found = track(self.g0, g1, self.corners)
                 else:
                     p, ok = self.corners.copy(), np.zeros(len(self.corners), bool)
-                    p[cand], ok[cand] = track(self.g0, g1, self.corners[cand], self.s)
+                    p[cand], ok[cand] = track(self.g0, g1, self.corners[cand])
                     found = p, ok
             self._tracked[j] = found
         return self._tracked[j]
@@ -293,7 +320,7 @@ class FrameTracks:
             found = None
             if Rt is not None:
                 p, ok = self._tracked[j]
-                Rt = scaled_motion(Rt, self.corners, p, ok, self.K, self.lidar, self.s)
+                Rt = scaled_motion(Rt, self.corners, p, ok, self.K, self.lidar)
                 found = None if Rt is None else (Rt, p, ok)
             self._pairs[j] = found
         return self._pairs[j]
@@ -305,7 +332,6 @@ def pair_motions(
     images: GrayImages,
     K: np.ndarray,
     own: np.ndarray,
-    s: MotionStereoConfig = MotionStereoConfig(),
     tracks: FrameTracks | None = None,
 ) -> dict[int, np.ndarray]:
     """Frame i's motion to each neighbour j as a 4 x 4 T_j_i (camera i's points into camera j): rotation and
@@ -318,7 +344,7 @@ def pair_motions(
     stereo (built here when None)."""
     if not neighbours:
         return {}
-    tracks = FrameTracks(i, images, K, own, s) if tracks is None else tracks
+    tracks = FrameTracks(i, images, K, own) if tracks is None else tracks
     out = {}
     for j in neighbours:
         found = tracks.pair(j)
@@ -333,14 +359,13 @@ def triangulated_corners(
     images: GrayImages,
     K: np.ndarray,
     own: np.ndarray,
-    s: MotionStereoConfig = MotionStereoConfig(),
     tracks: FrameTracks | None = None,
 ) -> Corners:
     """Frame i's corners tracked into its neighbours and triangulated; all of them, before the tests."""
     none = Corners(*(np.zeros(0, t) for t in (int, int, float, float, float, int)))
     if not neighbours:
         return none
-    tracks = FrameTracks(i, images, K, own, s, neighbours) if tracks is None else tracks
+    tracks = FrameTracks(i, images, K, own, neighbours) if tracks is None else tracks
     views = [found for found in map(tracks.pair, neighbours) if found is not None]
     if not views:
         return none
@@ -375,27 +400,26 @@ def motion_stereo_depth(
     K: np.ndarray,
     own: np.ndarray,
     seen: np.ndarray | None = None,
-    s: MotionStereoConfig = MotionStereoConfig(),
     tracks: FrameTracks | None = None,
 ) -> np.ndarray:
     """Frame i's triangulated corners that pass the tests, as a sparse depth map (0 = none), only where no
     LiDAR return of `seen` (default: `own`, the frame's own returns, which set each pair's length) lies
-    within s.lidar_gap_px. `tracks`: frame i's, to share with the pair motions."""
+    within LIDAR_GAP_PX. `tracks`: frame i's, to share with the pair motions."""
     out = np.zeros(own.shape, np.float32)
-    c = triangulated_corners(i, neighbours, images, K, own, s, tracks)
+    c = triangulated_corners(i, neighbours, images, K, own, tracks)
     if not len(c):
         return out
     with np.errstate(invalid="ignore"):
         keep = (
-            (c.views >= s.min_views)
-            & (c.rms < s.max_rms_px)
-            & (c.parallax > s.min_parallax_px)
-            & (c.z > s.min_depth_m)
-            & (c.z < s.max_depth_m)
+            (c.views >= MIN_VIEWS)
+            & (c.rms < MAX_RMS_PX)
+            & (c.parallax > MIN_PARALLAX_PX)
+            & (c.z > MIN_DEPTH_M)
+            & (c.z < MAX_DEPTH_M)
         )
     c = c.take(keep)
-    c = c.take(agree_with_neighbours(c, s.neighbour_radius * float(K[0, 0]), s.min_neighbours, s.max_log_diff))
-    far = nearest_returns(own if seen is None else seen, np.column_stack([c.u, c.v]))[0] > s.lidar_gap_px
+    c = c.take(agree_with_neighbours(c, NEIGHBOUR_RADIUS * float(K[0, 0]), MIN_NEIGHBOURS, MAX_LOG_DIFF))
+    far = nearest_returns(own if seen is None else seen, np.column_stack([c.u, c.v]))[0] > LIDAR_GAP_PX
     out[c.v[far], c.u[far]] = c.z[far]
     return out
 

@@ -5,18 +5,18 @@ stereo corners), and the generator guesses from one image. With the graph's pose
 tell which depth is right: warped into the frame with the right depth, a textured patch matches. For every
 node of a coarse grid left without LiDAR returns, a plane sweep over a log-depth offset (a few candidates
 around the refined depth) sums the patches' ZNCC cost over the node's pixels (bilinear weights), in every
-neighbour; the best candidate (sub-step by a parabola) is kept when it lowers the cost by `min_gain` against
+neighbour; the best candidate (sub-step by a parabola) is kept when it lowers the cost by MIN_GAIN against
 no change and against a depth far beyond the span (what a vehicle driving along with the camera looks like).
 The kept offsets are upsampled bilinearly and multiply the refined depth. Nodes with LiDAR
 returns keep the graph's depth (there the returns are better, and the photometric choice made them worse on
-the development drives), and they check the poses and the images: most of them (`min_backed_share`) must have a
+the development drives), and they check the poses and the images: most of them (MIN_BACKED_SHARE) must have a
 clear valley, and there they should choose no change; otherwise, or when their median choice is off by more than
-`max_bias_log`, the frame keeps the graph's depth (on the real KITTI clip a quarter of them had a clear valley,
+MAX_BIAS_LOG, the frame keeps the graph's depth (on the real KITTI clip a quarter of them had a clear valley,
 their choice read the depth 5-40 % too far, and the sweep made 35 of the 38 development frames worse). Run when a
 frame leaves the window, with the poses it leaves with (final before it, the window's after it). Settings
 chosen on development data only: the simulator's Mid-40 validation drives and the KITTI clip's frames 0-37
-(docs/decisions/0007-photometric-field-cone-only.md). The settings are `refine.photometric`
-(leovr.config.PhotometricConfig).
+(docs/decisions/0007-photometric-field-cone-only.md). `refine.photometric` turns it on and sets the neighbours;
+the rest are the constants below.
 """
 
 from __future__ import annotations
@@ -24,8 +24,33 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from leovr.config import PhotometricConfig
 from odometry.depth_field import CorrectionGrid
+
+# Settings chosen on development data only (docs/decisions/0007-photometric-field-cone-only.md, the figures in
+# docs/decisions/0011-tuned-settings.md): fixed here, not a user's to tune.
+ROWS, COLS = 16, 28  # the correction's grid (nodes), corner to corner, finer than the graph's 8 x 14
+# candidates: log offsets in [-SPAN_LOG, SPAN_LOG], 0.2 apart (odd count: 0 is one); a parabola through the best
+# and its neighbours refines it
+SPAN_LOG = 0.8
+CANDIDATES = 9
+PATCH_PX = 2  # ZNCC window half size, at the working scale
+MIN_TEXTURE = 4.0  # gray-level variance in the window: flatter patches do not vote
+MIN_PIXELS = 30  # a node needs this much (bilinear) weight of voting pixels for every candidate
+MIN_GAIN = 0.05  # a node moves only when its best candidate's mean ZNCC cost is this much below no change
+MIN_DEPTH_M = 0.5  # pixels nearer than this (m) do not vote
+MIN_BACKED = 5  # nodes with returns and a clear choice needed to check the poses ...
+# ... and this share of the seen nodes with returns: where the images pin the depth at few of the nodes whose
+# depth is known, the check rests on little and the sweep's choices elsewhere are no better
+MIN_BACKED_SHARE = 0.5
+MAX_BIAS_LOG = 0.1  # their median choice may be this far from 0 (a step length read wrong, a turn misread)
+# the sweep runs on images made smaller by the integer factor that brings them nearest this many pixels (448 x
+# 256: 2, KITTI's 1242 x 375: 4; the patch size is at that scale)
+SWEEP_PIXELS = 30000
+# a far candidate (depth x e^FAR_LOG, ~20x: as good as infinity) that a moved node's best must beat by FAR_GAIN:
+# a vehicle driving along with the camera matches best at infinity, and without this test its nodes were pushed
+# to the span's far end; 0: off
+FAR_LOG = 3.0
+FAR_GAIN = 0.05
 
 
 def _box(x: np.ndarray, k: int) -> np.ndarray:
@@ -52,11 +77,10 @@ def _working_scale(
     gray: np.ndarray,
     neighbours: list[tuple[np.ndarray, np.ndarray]],
     K: np.ndarray,
-    s: PhotometricConfig,
 ) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
-    """Depth, images and intrinsics at the sweep's working resolution (about `s.sweep_pixels` pixels, or
-    `s.downsample`): the depth sampled at the pixel centres, the images area-averaged."""
-    f = s.downsample or max(int(round(np.sqrt(depth.size / s.sweep_pixels))), 1)
+    """Depth, images and intrinsics at the sweep's working resolution (about SWEEP_PIXELS pixels): the depth
+    sampled at the pixel centres, the images area-averaged."""
+    f = max(int(round(np.sqrt(depth.size / SWEEP_PIXELS))), 1)
     if f > 1:  # pixel centres: (x + 0.5) / f - 0.5
 
         def small(im: np.ndarray) -> np.ndarray:
@@ -89,29 +113,28 @@ def _sweep_costs(
     gray: np.ndarray,
     neighbours: list[tuple[np.ndarray, np.ndarray]],
     K: np.ndarray,
-    s: PhotometricConfig,
 ) -> tuple[CorrectionGrid, np.ndarray, np.ndarray, np.ndarray]:
-    """The grid, the candidate log offsets (the far candidate last when `s.far_log`) and, per candidate and
+    """The grid, the candidate log offsets (the far candidate last when FAR_LOG) and, per candidate and
     node, the summed patch cost (1 - ZNCC with each neighbour's image warped by the scaled depth) and the
     number of pixels that saw it."""
     h, w = depth.shape
-    grid = CorrectionGrid(s.rows, s.cols, h, w)
+    grid = CorrectionGrid(ROWS, COLS, h, w)
     votes = _votes_cache.setdefault(grid, _Votes(grid))
-    k = s.patch_px
+    k = PATCH_PX
     a = gray.astype(np.float32)
     ma = _box(a, k)
     va = _box(a * a, k) - ma * ma
     fx, fy, cx, cy = (np.float32(K[r, c]) for r, c in ((0, 0), (1, 1), (0, 2), (1, 2)))
     uu, vv = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     rays = np.stack([(uu - cx) / fx, (vv - cy) / fy, np.ones_like(uu)], -1) * depth[..., None].astype(np.float32)
-    cands = np.linspace(-s.span_log, s.span_log, s.candidates)
-    if s.far_log:
-        cands = np.append(cands, s.far_log)
+    cands = np.linspace(-SPAN_LOG, SPAN_LOG, CANDIDATES)
+    if FAR_LOG:
+        cands = np.append(cands, FAR_LOG)
     nc = len(cands)
     cost = np.zeros((nc, grid.size))
     weight = np.zeros((nc, grid.size))
     inner = (uu > k) & (uu < w - 1 - k) & (vv > k) & (vv < h - 1 - k)
-    textured = (va > s.min_texture) & (depth > 0) & inner
+    textured = (va > MIN_TEXTURE) & (depth > 0) & inner
     for img, T in neighbours:
         b_img = img.astype(np.float32)
         A = rays @ T[:3, :3].T.astype(np.float32)  # rotated rays x depth; the candidates only scale them
@@ -125,7 +148,7 @@ def _sweep_costs(
             u2 = fx * (Ax * e + t[0]) / zs + cx
             v2 = fy * (Ay * e + t[1]) / zs + cy
             b = cv2.remap(b_img, _reflected(u2, w), _reflected(v2, h), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-            ok = textured & (z > s.min_depth_m) & (u2 > k) & (u2 < w - 1 - k) & (v2 > k) & (v2 < h - 1 - k)
+            ok = textured & (z > MIN_DEPTH_M) & (u2 > k) & (u2 < w - 1 - k) & (v2 > k) & (v2 < h - 1 - k)
             mb = _box(b, k)
             vb = _box(b * b, k) - mb * mb
             cab = _box(a * b, k) - ma * mb
@@ -145,21 +168,20 @@ def photometric_offsets(
     neighbours: list[tuple[np.ndarray, np.ndarray]],
     K: np.ndarray,
     free: np.ndarray,
-    s: PhotometricConfig = PhotometricConfig(),
     stats: dict | None = None,
 ) -> np.ndarray:
-    """Per-node log offsets (grid `s.rows` x `s.cols`, flat) for a frame's depth (H x W, 0 = unknown).
+    """Per-node log offsets (grid ROWS x COLS, flat) for a frame's depth (H x W, 0 = unknown).
     `gray`: the frame's image (H x W); `neighbours`: (image, T_j_i) pairs, T_j_i mapping this camera's
     coordinates into neighbour j's; `free`: per node, whether it may move (no LiDAR returns). Nodes
     without enough textured, visible pixels or a clear minimum stay at 0, and so does every node when the
     nodes with returns disagree with the depth (see below). `stats` receives the check's figures."""
-    out = np.zeros(s.rows * s.cols)
+    out = np.zeros(ROWS * COLS)
     if not neighbours or not free.any() or free.all():
         return out
-    depth, gray, neighbours, K = _working_scale(depth, gray, neighbours, K, s)
-    grid, cands, cost, weight = _sweep_costs(depth, gray, neighbours, K, s)
+    depth, gray, neighbours, K = _working_scale(depth, gray, neighbours, K)
+    grid, cands, cost, weight = _sweep_costs(depth, gray, neighbours, K)
     mean = cost / np.maximum(weight, 1e-9)
-    if s.far_log:
+    if FAR_LOG:
         far_mean, far_weight = mean[-1], weight[-1]
         cands, cost, weight, mean = cands[:-1], cost[:-1], weight[:-1], mean[:-1]
     nodes = np.arange(grid.size)
@@ -172,36 +194,34 @@ def photometric_offsets(
     lowest = mean[best, nodes]
     # a node votes when enough pixels saw every candidate (its best may lie at the span's end: the generator
     # is often that far off outside the cone; requiring a valley inside the span cost 0.06 m on the development drives)
-    seen = weight.min(0) >= s.min_pixels
+    seen = weight.min(0) >= MIN_PIXELS
     # the nodes with returns check the sweep: the graph's depth is right there, so where their cost has a
     # clear valley they should choose no change; a median choice far from it (poses off: a step length
     # wrong, a turn misread) or too few such nodes, and the frame keeps the graph's depth
-    backed = seen & ~free & (np.minimum(mean[0], mean[-1]) - lowest > s.min_gain)
+    backed = seen & ~free & (np.minimum(mean[0], mean[-1]) - lowest > MIN_GAIN)
     bias = float(np.median(chosen[backed])) if backed.any() else np.inf
     eligible = int((seen & ~free).sum())
     if stats is not None:
         stats.update(backed=int(backed.sum()), bias=bias, eligible=eligible)
-    if backed.sum() < max(s.min_backed, s.min_backed_share * eligible) or abs(bias) > s.max_bias_log:
+    if backed.sum() < max(MIN_BACKED, MIN_BACKED_SHARE * eligible) or abs(bias) > MAX_BIAS_LOG:
         return out
-    keep = free & seen & (mean[len(cands) // 2] - lowest > s.min_gain)
-    if s.far_log:
-        keep &= (far_weight < s.min_pixels) | (far_mean - lowest > s.far_gain)
+    keep = free & seen & (mean[len(cands) // 2] - lowest > MIN_GAIN)
+    if FAR_LOG:
+        keep &= (far_weight < MIN_PIXELS) | (far_mean - lowest > FAR_GAIN)
     out[keep] = chosen[keep]
     return out
 
 
-def free_nodes(sparse: np.ndarray, s: PhotometricConfig = PhotometricConfig()) -> np.ndarray:
+def free_nodes(sparse: np.ndarray) -> np.ndarray:
     """Per node of the photometric grid: True where the nearest-node cell holds no LiDAR return."""
-    grid = CorrectionGrid(s.rows, s.cols, *sparse.shape)
+    grid = CorrectionGrid(ROWS, COLS, *sparse.shape)
     counts = grid.cell_means(np.where(sparse > 0, 1.0, 0.0))  # share of pixels with a return
     return ~(np.nan_to_num(counts) > 0)
 
 
-def photometric_correction(
-    depth: np.ndarray, offsets: np.ndarray, s: PhotometricConfig = PhotometricConfig()
-) -> np.ndarray:
+def photometric_correction(depth: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """The depth times the upsampled offsets (0 stays 0)."""
     if not np.any(offsets):
         return depth
-    grid = CorrectionGrid(s.rows, s.cols, *depth.shape)
+    grid = CorrectionGrid(ROWS, COLS, *depth.shape)
     return np.where(depth > 0, depth * np.exp(grid.upsample(offsets)), 0.0)

@@ -21,7 +21,7 @@ import cv2
 import gtsam
 import numpy as np
 
-from leovr.config import GraphConfig, RefineConfig
+from leovr.config import RefineConfig
 from leovr.geometry import invert_T, rotation_angle_deg
 from odometry.depth_field import CorrectionGrid
 from odometry.mono_vo import relative_motion
@@ -34,6 +34,18 @@ from odometry.factors import (
     projection_factor,
 )
 
+# The solver and the correction field, fixed (docs/decisions/0011-tuned-settings.md, 0002-no-lm-retries.md):
+LM_ITERATIONS = 3  # Levenberg-Marquardt iterations per update
+# LM retries a step that raises the error at 10x damping only below this cap; 1e-10: no retry, the update ends
+LM_LAMBDA_UPPER_BOUND = 1e-10
+GRID_ROWS, GRID_COLS = 8, 14  # depth correction field: log-depth offsets per frame
+CONSISTENCY_SAMPLES = 300  # pixels per depth-consistency factor, resampled each update
+LIDAR_DEPTH_SAMPLES = 400  # own LiDAR returns on the correction field
+PRIOR_SIGMA_MIN, PRIOR_SIGMA_MAX = 0.02, 0.5  # the generator prior on the field: sigma / depth per cell, clipped
+# a pair motion whose rotation is this far (deg) from both the initial pose's and the front end's essential matrix
+# is left out (docs/decisions/0006-pair-factors-cone-only.md)
+PAIR_GATE_DEG = 3.0
+PAIR_OFFSETS = (1, 2, 3)  # pair factors to the frames this many before (frames)
 # a KISS-ICP motion whose rotation is this far (deg) from the images' is left out of the window (`_icp_factors`):
 # on a cone KISS-ICP can slip by tens of degrees in a fast turn while sure of itself
 # (docs/decisions/0011-tuned-settings.md)
@@ -105,14 +117,14 @@ class _Pair:
     trusted_uv: tuple[np.ndarray, np.ndarray]
 
 
-def lm_params(cfg: GraphConfig) -> gtsam.LevenbergMarquardtParams:
-    """The smoother's Levenberg-Marquardt settings: `lm_iterations` iterations, and a step that does not lower
-    the error is retried with more damping only while lambda stays under `lm_lambda_upper_bound`. gtsam's batch
-    smoother never lets lambda fall below 1e-10, so the default cap of 1e-10 ends the update at the first step
-    that fails (the window is converged) instead of solving it again at damping that barely changes the step."""
+def lm_params(lambda_upper_bound: float = LM_LAMBDA_UPPER_BOUND) -> gtsam.LevenbergMarquardtParams:
+    """The smoother's Levenberg-Marquardt settings: LM_ITERATIONS iterations, and a step that does not lower the
+    error is retried with more damping only while lambda stays under `lambda_upper_bound`. gtsam's batch smoother
+    never lets lambda fall below 1e-10, so the cap of 1e-10 ends the update at the first step that fails (the
+    window is converged) instead of solving it again at damping that barely changes the step."""
     lm = gtsam.LevenbergMarquardtParams()
-    lm.setMaxIterations(cfg.lm_iterations)
-    lm.setlambdaUpperBound(cfg.lm_lambda_upper_bound)
+    lm.setMaxIterations(LM_ITERATIONS)
+    lm.setlambdaUpperBound(lambda_upper_bound)
     return lm
 
 
@@ -127,7 +139,7 @@ class WindowGraph:
     condition_leaving: bool = True
 
     def __post_init__(self) -> None:
-        self.grid = CorrectionGrid(self.cfg.graph.grid_rows, self.cfg.graph.grid_cols, *self.shape)
+        self.grid = CorrectionGrid(GRID_ROWS, GRID_COLS, *self.shape)
         self.cal = gtsam.Cal3_S2(self.K[0, 0], self.K[1, 1], 0.0, self.K[0, 2], self.K[1, 2])
         self.depths: dict[int, FrameDepth] = {}
         self.poses: dict[int, np.ndarray] = {}
@@ -151,7 +163,7 @@ class WindowGraph:
         """iSAM2 for a spinning LiDAR's window (`set_sensor`), else batch Levenberg-Marquardt (module docstring)."""
         lag = self.cfg.window - 0.5
         if not self.incremental:
-            return gtsam.BatchFixedLagSmoother(lag, lm_params(self.cfg.graph))
+            return gtsam.BatchFixedLagSmoother(lag, lm_params())
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(0.0)
         params.relinearizeSkip = 1
@@ -194,12 +206,12 @@ class WindowGraph:
         self.depths[f.index] = fd
         values.insert(C(f.index), np.zeros(self.grid.size))
         sig = self.grid.cell_means(f.rel_sigma)
-        sig = np.clip(np.nan_to_num(sig, nan=g.prior_sigma_max), g.prior_sigma_min, g.prior_sigma_max)
+        sig = np.clip(np.nan_to_num(sig, nan=PRIOR_SIGMA_MAX), PRIOR_SIGMA_MIN, PRIOR_SIGMA_MAX)
         graph.add(gtsam.PriorFactorVector(C(f.index), np.zeros(self.grid.size), gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        if self.depth_factors and f.lidar_uvz is not None and len(f.lidar_uvz) and g.lidar_depth_samples > 0:
+        if self.depth_factors and f.lidar_uvz is not None and len(f.lidar_uvz):
             uvz = f.lidar_uvz
-            if len(uvz) > g.lidar_depth_samples:
-                uvz = uvz[self.rng.choice(len(uvz), g.lidar_depth_samples, replace=False)]
+            if len(uvz) > LIDAR_DEPTH_SAMPLES:
+                uvz = uvz[self.rng.choice(len(uvz), LIDAR_DEPTH_SAMPLES, replace=False)]
             graph.add(LidarDepth(fd, uvz[:, 0], uvz[:, 1], uvz[:, 2], g.lidar_depth_sigma_log).factor(C(f.index)))
         for k, P in f.new_landmarks.items():
             values.insert(L(k), np.asarray(P, float))
@@ -228,7 +240,7 @@ class WindowGraph:
     def _pair_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph) -> None:
         """The images' motions from this frame to earlier frames of the window: rotation to
         `pair_sigma_rad`, translation to `pair_sigma_rel` of its length, Huber-robust (a pair's essential
-        matrix is sometimes far off). A pair whose rotation is more than `pair_gate_deg` from the front end's
+        matrix is sometimes far off). A pair whose rotation is more than PAIR_GATE_DEG from the front end's
         initial pose is kept only if the essential matrix of the front end's own matches with the previous
         frame agrees with it instead: in a fast turn either the pair's tracks or the initial pose can be the
         one that failed (Huber still lets a 100-sigma outlier pull the pose)."""
@@ -237,7 +249,7 @@ class WindowGraph:
         for j, T in f.pair_motions.items():
             if j not in self.poses:
                 continue
-            if g.pair_gate_deg > 0 and not self._pair_agrees(f, j, T, second):
+            if PAIR_GATE_DEG > 0 and not self._pair_agrees(f, j, T, second):
                 continue
             length = float(np.linalg.norm(T[:3, 3]))
             base = gtsam.noiseModel.Diagonal.Sigmas(
@@ -247,10 +259,10 @@ class WindowGraph:
             graph.add(gtsam.BetweenFactorPose3(X(j), X(f.index), gtsam.Pose3(T), noise))
 
     def _pair_agrees(self, f: FrameInput, j: int, T: np.ndarray, second: list[np.ndarray | None]) -> bool:
-        """Whether pair j's rotation lies within `pair_gate_deg` of the initial pose's, or else of the rotation
+        """Whether pair j's rotation lies within PAIR_GATE_DEG of the initial pose's, or else of the rotation
         of the essential matrix of the front end's matches with the previous frame (chained to j through the
         window's poses)."""
-        gate = self.cfg.graph.pair_gate_deg
+        gate = PAIR_GATE_DEG
         R_pair = T[:3, :3]
         if rotation_angle_deg(R_pair.T @ (invert_T(self.poses[j]) @ f.T_init)[:3, :3]) <= gate:
             return True
@@ -294,7 +306,7 @@ class WindowGraph:
 
     def _resample(self, pair: _Pair) -> None:
         u, v = pair.trusted_uv
-        n = self.cfg.graph.consistency_samples
+        n = CONSISTENCY_SAMPLES
         pick = self.rng.choice(len(u), n, replace=len(u) < n)
         pair.dc.set_samples(u[pick], v[pick])
 

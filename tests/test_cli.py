@@ -69,7 +69,7 @@ def test_a_nested_table_in_yaml_changes_only_the_keys_it_names(tmp_path):
 
 def test_override_merges_nested_options_and_skips_the_ones_not_given():
     base = RefineConfig(graph={"pixel_sigma": 2.0}, loop={"min_gap": 40})
-    cfg = override(base, window=6, loop={"enabled": True}, graph={"grid_rows": None}, causal=None)
+    cfg = override(base, window=6, loop={"enabled": True}, graph={"pixel_sigma": None}, causal=None)
     assert cfg.window == 6 and cfg.loop.enabled and cfg.loop.min_gap == 40 and cfg.graph == base.graph
     assert override(base, loop={"enabled": None}) == base
     with pytest.raises(ConfigError, match=r"loop\.min_gap"):

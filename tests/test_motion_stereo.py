@@ -6,11 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from leovr.config import MotionStereoConfig, SimulateConfig
+from leovr.config import SimulateConfig
 from leovr.data import open_sequence
 from leovr.lidar.projection import sparse_depth
 from leovr.sim.simulate import simulate
 from odometry.motion_stereo import (
+    LIDAR_GAP_PX,
     Corners,
     GrayImages,
     agree_with_neighbours,
@@ -20,7 +21,7 @@ from odometry.motion_stereo import (
 )
 from scipy.ndimage import distance_transform_edt
 
-SETTINGS = MotionStereoConfig(offsets=[1, 2, 3, 4])  # a 9-frame drive
+OFFSETS = [1, 2, 3, 4]  # a 9-frame drive
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +37,7 @@ def _run(drive, own_scale: float = 1.0, load=None):
     return (
         f,
         own,
-        motion_stereo_depth(4, neighbour_frames(4, list(range(9)), SETTINGS.offsets), images, f.K, own, s=SETTINGS),
+        motion_stereo_depth(4, neighbour_frames(4, list(range(9)), OFFSETS), images, f.K, own),
     )
 
 
@@ -44,7 +45,7 @@ def test_corners_outside_the_cone_take_their_true_depth(drive):
     f, own, out = _run(drive)
     v, u = np.nonzero(out > 0)
     assert len(v) >= 20
-    assert (distance_transform_edt(own <= 0)[v, u] > SETTINGS.lidar_gap_px).all()  # never beside a return
+    assert (distance_transform_edt(own <= 0)[v, u] > LIDAR_GAP_PX).all()  # never beside a return
     rel = np.abs(out[v, u] - f.depth[v, u]) / f.depth[v, u]
     assert np.median(rel) < 0.08 and np.mean(rel < 0.3) > 0.85
 
@@ -147,7 +148,7 @@ def test_pair_motions_match_the_true_motion_and_take_their_length_from_the_lidar
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
     images = GrayImages(lambda j: frames[j].image, keep=16)
-    found = pair_motions(4, [3, 2, 1], images, f.K, own, SETTINGS)
+    found = pair_motions(4, [3, 2, 1], images, f.K, own)
     assert sorted(found) == [1, 2, 3]
     for j, T in found.items():
         true = np.linalg.inv(frames[j].T_world_cam) @ f.T_world_cam  # camera 4's points into camera j
@@ -157,9 +158,9 @@ def test_pair_motions_match_the_true_motion_and_take_their_length_from_the_lidar
         # one frame apart the parallax is small and the length up to ~20 % off (the graph's Huber factor
         # takes it with the pairs two and three frames apart)
         assert angle < 0.15 and abs(length - 1) < (0.25 if j == 3 else 0.08), (j, angle, length)
-    doubled = pair_motions(4, [2], images, f.K, own * 2.0, SETTINGS)
+    doubled = pair_motions(4, [2], images, f.K, own * 2.0)
     assert abs(np.linalg.norm(doubled[2][:3, 3]) / np.linalg.norm(found[2][:3, 3]) - 2.0) < 0.05
-    assert pair_motions(4, [2], images, f.K, np.zeros_like(own), SETTINGS) == {}  # no return: no length
+    assert pair_motions(4, [2], images, f.K, np.zeros_like(own)) == {}  # no return: no length
 
 
 def test_returns_at_takes_the_nearest_return_within_the_radius():
@@ -191,18 +192,18 @@ def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, mon
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
     images = GrayImages(lambda j: frames[j].image, keep=16)
-    neighbours = neighbour_frames(4, list(range(9)), SETTINGS.offsets)
-    alone = motion_stereo_depth(4, neighbours, images, f.K, own, s=SETTINGS)
+    neighbours = neighbour_frames(4, list(range(9)), OFFSETS)
+    alone = motion_stereo_depth(4, neighbours, images, f.K, own)
     # the pairs alone, asked farthest first: each rung tracks its rung below first
     pairs_alone = ms.pair_motions(
-        4, [1, 2, 3], images, f.K, own, SETTINGS, tracks=ms.FrameTracks(4, images, f.K, own, SETTINGS, neighbours)
+        4, [1, 2, 3], images, f.K, own, tracks=ms.FrameTracks(4, images, f.K, own, neighbours)
     )
     tracked = []
     real_track = ms.track
-    monkeypatch.setattr(ms, "track", lambda g0, g1, c, s: tracked.append(1) or real_track(g0, g1, c, s))
-    tracks = ms.FrameTracks(4, images, f.K, own, SETTINGS, neighbours)
-    shared = motion_stereo_depth(4, neighbours, images, f.K, own, s=SETTINGS, tracks=tracks)
-    pairs = ms.pair_motions(4, [3, 2, 1], images, f.K, own, SETTINGS, tracks=tracks)
+    monkeypatch.setattr(ms, "track", lambda g0, g1, c: tracked.append(1) or real_track(g0, g1, c))
+    tracks = ms.FrameTracks(4, images, f.K, own, neighbours)
+    shared = motion_stereo_depth(4, neighbours, images, f.K, own, tracks=tracks)
+    pairs = ms.pair_motions(4, [3, 2, 1], images, f.K, own, tracks=tracks)
     assert len(tracked) == len(neighbours)  # frames 3, 2 and 1 are motion stereo's neighbours too
     np.testing.assert_array_equal(shared, alone)
     assert sorted(pairs) == sorted(pairs_alone) == [1, 2, 3]
@@ -219,20 +220,19 @@ def test_a_farther_neighbour_tracks_only_the_corners_its_nearer_one_tracked(driv
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
     images = GrayImages(lambda j: frames[j].image, keep=16)
-    s = MotionStereoConfig(offsets=[1, 2, 4])
-    neighbours = neighbour_frames(4, list(range(9)), s.offsets)
+    neighbours = neighbour_frames(4, list(range(9)), [1, 2, 4])
     asked = []
     real_track = ms.track
-    monkeypatch.setattr(ms, "track", lambda g0, g1, c, s: asked.append(len(c)) or real_track(g0, g1, c, s))
-    tracks = ms.FrameTracks(4, images, f.K, own, s, neighbours)
-    ladder = motion_stereo_depth(4, neighbours, images, f.K, own, s=s, tracks=tracks)
+    monkeypatch.setattr(ms, "track", lambda g0, g1, c: asked.append(len(c)) or real_track(g0, g1, c))
+    tracks = ms.FrameTracks(4, images, f.K, own, neighbours)
+    ladder = motion_stereo_depth(4, neighbours, images, f.K, own, tracks=tracks)
     n = len(tracks.corners)
     assert asked[:2] == [n, n]  # frames 3 and 5: every corner
     for far, near in ((2, 3), (6, 5), (0, 2), (8, 6)):
         ok_far, ok_near = tracks._track(far)[1], tracks._track(near)[1]
         assert not (ok_far & ~ok_near).any(), (far, near)
     assert max(asked[2:]) < n  # the farther ones: fewer
-    every = motion_stereo_depth(4, neighbours, images, f.K, own, s=s, tracks=ms.FrameTracks(4, images, f.K, own, s))
+    every = motion_stereo_depth(4, neighbours, images, f.K, own, tracks=ms.FrameTracks(4, images, f.K, own))
     both = (ladder > 0) & (every > 0)
     assert abs((ladder > 0).sum() - (every > 0).sum()) < 0.15 * (every > 0).sum()
     assert both.sum() > 0.8 * (every > 0).sum()

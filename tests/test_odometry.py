@@ -334,16 +334,20 @@ def _pair_run(pair_error_deg: float, gate_deg: float, matches_follow_pair: bool)
         c = (pts - T_cam[:3, 3]) @ T_cam[:3, :3]
         return (c @ K.T)[:, :2] / c[:, 2:]
 
-    graph = WindowGraph(RefineConfig(window=4, graph={"depth_factors": False, "pair_gate_deg": gate_deg}), K, SHAPE)
+    import odometry.window_graph as wg
+
+    graph = WindowGraph(RefineConfig(window=4, graph={"depth_factors": False}), K, SHAPE)
     done = []
-    for i, T in enumerate(truth):
-        rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
-        f = FrameInput(i, T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel)
-        if i == 4:
-            f.pair_motions = {3: bad}
-            f.matches_prev = (3, pixels(np.eye(4)), pixels(bad if matches_follow_pair else rel))
-        done += graph.add_frame(f)
-    done += graph.flush()
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(wg, "PAIR_GATE_DEG", gate_deg)
+        for i, T in enumerate(truth):
+            rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
+            f = FrameInput(i, T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel)
+            if i == 4:
+                f.pair_motions = {3: bad}
+                f.matches_prev = (3, pixels(np.eye(4)), pixels(bad if matches_follow_pair else rel))
+            done += graph.add_frame(f)
+        done += graph.flush()
     est = {r.index: r.T_world_cam for r in done}
     return rotation_angle_deg((np.linalg.inv(est[3]) @ est[4])[:3, :3])
 
@@ -465,7 +469,6 @@ def _failed_step_solves(cap: float) -> tuple[int, float]:
     residual's slope: the step overshoots 2.5x), and the estimate it leaves."""
     import gtsam
 
-    from leovr.config import GraphConfig
     from odometry.window_graph import lm_params
 
     key = gtsam.symbol("c", 0)
@@ -475,7 +478,7 @@ def _failed_step_solves(cap: float) -> tuple[int, float]:
             H[0] = np.array([[0.4]])
         return values.atVector(key) - 1.0
 
-    smoother = gtsam.BatchFixedLagSmoother(10.0, lm_params(GraphConfig(lm_lambda_upper_bound=cap)))
+    smoother = gtsam.BatchFixedLagSmoother(10.0, lm_params(cap))
     graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap()
     graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [key], residual))
     values.insert(key, np.array([0.0]))
@@ -488,10 +491,10 @@ def test_a_step_that_raises_the_error_ends_the_update_without_retries():
     """The default LM cap: a failed step is not solved again at a damping too small to change it (such
     retries make the graph's slowest frames; docs/decisions/0002-no-lm-retries.md); a cap of 1e-2 retries
     it 3 times, to the same end."""
-    from leovr.config import RefineConfig
+    from odometry.window_graph import LM_LAMBDA_UPPER_BOUND
 
-    assert RefineConfig().graph.lm_lambda_upper_bound <= 1e-10
-    solves, x = _failed_step_solves(RefineConfig().graph.lm_lambda_upper_bound)
+    assert LM_LAMBDA_UPPER_BOUND <= 1e-10
+    solves, x = _failed_step_solves(LM_LAMBDA_UPPER_BOUND)
     assert solves == 1 and x == 0.0
     solves_old, x_old = _failed_step_solves(1e-2)
     assert solves_old == 4 and x_old == x

@@ -6,13 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from leovr.config import PhotometricConfig
 from leovr.geometry import invert_T
 from leovr.lidar.projection import sparse_depth
 from odometry.depth_field import CorrectionGrid
-from odometry.photo_field import free_nodes, photometric_correction, photometric_offsets
-
-S = PhotometricConfig()
+import odometry.photo_field as pf
+from odometry.photo_field import COLS, ROWS, free_nodes, photometric_correction, photometric_offsets
 
 
 @pytest.fixture(scope="module")
@@ -35,35 +33,35 @@ def test_a_wrong_scale_outside_the_cone_comes_back_to_the_truth(drive):
     _, frames = drive
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
-    free = free_nodes(own, S)
+    free = free_nodes(own)
     assert 0.3 < free.mean() < 0.95  # the cone's nodes hold returns, the rest of the image none
-    grid = CorrectionGrid(S.rows, S.cols, *f.shape)
+    grid = CorrectionGrid(ROWS, COLS, *f.shape)
     shift = grid.upsample(0.3 * free)  # the free nodes' depth 35 % too far
     wrong = np.where(f.depth > 0, f.depth * np.exp(shift), 0.0)
-    off = photometric_offsets(wrong, _gray(f), _neighbours(frames), f.K, free, S)
+    off = photometric_offsets(wrong, _gray(f), _neighbours(frames), f.K, free)
     assert np.all(off[~free] == 0)  # nodes with returns never move
-    fixed = photometric_correction(wrong, off, S)
+    fixed = photometric_correction(wrong, off)
     region = (shift > 0.29) & (f.depth > 0) & (f.depth < 80)
     before = np.abs(wrong[region] - f.depth[region]).mean()
     after = np.abs(fixed[region] - f.depth[region]).mean()
     assert after < 0.5 * before
     assert np.median(off[free & (off != 0)]) == pytest.approx(-0.3, abs=0.08)
     # the right depth stays where it is: few nodes move, and its error stays far below the wrong one's
-    kept = photometric_offsets(f.depth, _gray(f), _neighbours(frames), f.K, free, S)
+    kept = photometric_offsets(f.depth, _gray(f), _neighbours(frames), f.K, free)
     assert np.mean(np.abs(kept[free]) > 0.1) < 0.05
-    assert np.abs(photometric_correction(f.depth, kept, S)[region] - f.depth[region]).mean() < 0.25 * before
+    assert np.abs(photometric_correction(f.depth, kept)[region] - f.depth[region]).mean() < 0.25 * before
 
 
 def test_no_neighbour_no_free_node_or_a_flat_image_moves_nothing(drive):
     _, frames = drive
     f = frames[4]
-    free = np.ones(S.rows * S.cols, bool)
+    free = np.ones(ROWS * COLS, bool)
     depth = f.depth * 1.3
-    assert not photometric_offsets(depth, _gray(f), [], f.K, free, S).any()
-    assert not photometric_offsets(depth, _gray(f), _neighbours(frames), f.K, ~free, S).any()
+    assert not photometric_offsets(depth, _gray(f), [], f.K, free).any()
+    assert not photometric_offsets(depth, _gray(f), _neighbours(frames), f.K, ~free).any()
     flat = np.full(f.shape, 128, np.uint8)
-    assert not photometric_offsets(depth, flat, [(flat, np.eye(4))], f.K, free, S).any()
-    assert photometric_correction(depth, np.zeros(S.rows * S.cols), S) is depth
+    assert not photometric_offsets(depth, flat, [(flat, np.eye(4))], f.K, free).any()
+    assert photometric_correction(depth, np.zeros(ROWS * COLS)) is depth
 
 
 @pytest.mark.slow
@@ -100,50 +98,52 @@ def test_poses_whose_steps_read_short_are_caught_by_the_nodes_with_returns(drive
     _, frames = drive
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
-    free = free_nodes(own, S)
+    free = free_nodes(own)
     short = []
     for im, T in _neighbours(frames):
         T = T.copy()
         T[:3, 3] *= 0.75  # every step 25 % short: the sweep would read every depth 25 % near
         short.append((im, T))
     stats: dict = {}
-    assert not photometric_offsets(f.depth, _gray(f), short, f.K, free, S, stats).any()
+    assert not photometric_offsets(f.depth, _gray(f), short, f.K, free, stats).any()
     assert stats["bias"] == pytest.approx(np.log(0.75), abs=0.1)
     stats.clear()
-    assert photometric_offsets(f.depth, _gray(f), _neighbours(frames), f.K, free, S, stats).size == free.size
-    assert abs(stats["bias"]) <= S.max_bias_log and stats["backed"] >= S.min_backed
+    assert photometric_offsets(f.depth, _gray(f), _neighbours(frames), f.K, free, stats).size == free.size
+    assert abs(stats["bias"]) <= pf.MAX_BIAS_LOG and stats["backed"] >= pf.MIN_BACKED
 
 
-def test_texture_that_moves_with_the_camera_is_not_pushed_away(drive):
+def test_texture_that_moves_with_the_camera_is_not_pushed_away(drive, monkeypatch):
     """A vehicle driving along with the camera stays put in the image: every candidate of the span matches it
     worse than infinity, and without the far candidate its nodes went to the span's far end."""
     _, frames = drive
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
-    free = free_nodes(own, S)
+    free = free_nodes(own)
     w = f.shape[1] // 4
     along = []
     for im, T in _neighbours(frames):
         im = im.copy()
         im[:, :w] = _gray(f)[:, :w]  # the left quarter: the same picture in every frame
         along.append((im, T))
-    node_u = np.tile(np.linspace(0, f.shape[1] - 1, S.cols), S.rows)
+    node_u = np.tile(np.linspace(0, f.shape[1] - 1, COLS), ROWS)
     region = free & (node_u < 0.7 * w)
     assert region.sum() >= 10
-    naive = photometric_offsets(f.depth, _gray(f), along, f.K, free, S.model_copy(update={"far_log": 0.0}))
+    off = photometric_offsets(f.depth, _gray(f), along, f.K, free)
+    with monkeypatch.context() as m:
+        m.setattr(pf, "FAR_LOG", 0.0)
+        naive = photometric_offsets(f.depth, _gray(f), along, f.K, free)
     assert np.median(naive[region]) > 0.3  # the naive sweep pushes it far
-    off = photometric_offsets(f.depth, _gray(f), along, f.K, free, S)
     assert np.mean(np.abs(off[region]) > 0.1) < 0.2
 
 
-def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive):
+def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive, monkeypatch):
     """Most nodes with returns must find a clear valley: where the images do not pin the depth that the LiDAR
     measured, the sweep's choices elsewhere are not trusted either (the real KITTI clip: a quarter of them)."""
     _, frames = drive
     f = frames[4]
     own = sparse_depth(f.points, f.K, f.T_cam_lidar, f.shape)
-    free = free_nodes(own, S)
-    grid = CorrectionGrid(S.rows, S.cols, *f.shape)
+    free = free_nodes(own)
+    grid = CorrectionGrid(ROWS, COLS, *f.shape)
     wrong = np.where(f.depth > 0, f.depth * np.exp(grid.upsample(0.3 * free)), 0.0)
     cone = grid.upsample((~free).astype(float)) > 0.3
     cols = np.nonzero(cone.any(0))[0]
@@ -155,10 +155,11 @@ def test_a_frame_whose_known_depth_the_images_do_not_pin_keeps_its_depth(drive):
         im[cone] = rng.integers(0, 256, int(cone.sum()))  # there the neighbours show noise: no depth fits
         unpinned.append((im, T))
     stats: dict = {}
-    assert not photometric_offsets(wrong, _gray(f), unpinned, f.K, free, S, stats).any(), stats
-    assert stats["backed"] < S.min_backed_share * stats["eligible"]
+    assert not photometric_offsets(wrong, _gray(f), unpinned, f.K, free, stats).any(), stats
+    assert stats["backed"] < pf.MIN_BACKED_SHARE * stats["eligible"]
     # the share test is what refused it: without it the free nodes move as in the first test
-    off = photometric_offsets(wrong, _gray(f), unpinned, f.K, free, S.model_copy(update={"min_backed_share": 0.0}))
+    monkeypatch.setattr(pf, "MIN_BACKED_SHARE", 0.0)
+    off = photometric_offsets(wrong, _gray(f), unpinned, f.K, free)
     assert np.median(off[free & (off != 0)]) == pytest.approx(-0.3, abs=0.1)
 
 

@@ -200,7 +200,6 @@ class RefineRun:
         self.cone = ConeSteps(has_lidar)  # whether the `auto` cone-LiDAR steps run; the sensor is judged once
         # the photometric correction of a leaving frame: its neighbours' images and the nodes free to move
         self.position = {j: n for n, j in enumerate(indices)}
-        self.photo = cfg.photometric
         self.photo_images = GrayImages(
             lambda j: stereo_image(seq, j), keep=cfg.window + 2 * max(cfg.photometric.offsets, default=0) + 3
         )
@@ -332,7 +331,7 @@ class RefineRun:
         fi.pair_motions = p.pairs
         if i not in self.done and self.cone.runs(self.cfg.photometric.enabled, sample):
             self.photo_images.put(i, sample.frame.image)
-            self.photo_free[i] = free_nodes(sample.sparse, self.photo)
+            self.photo_free[i] = free_nodes(sample.sparse)
         return fi
 
     def judge_sensor(self, sample: EvalSample) -> None:
@@ -437,9 +436,7 @@ class RefineRun:
         pairs = [(im, T) for im, T in pairs if im is not None and im.shape == depth.shape]
         if gray is None or not pairs:
             return depth
-        return photometric_correction(
-            depth, photometric_offsets(depth, gray, pairs, self.K, free, self.photo), self.photo
-        )
+        return photometric_correction(depth, photometric_offsets(depth, gray, pairs, self.K, free))
 
     def conclude(self, pool: dict[str, DepthMetricAccumulator] | None, collect: dict[int, FrameScore] | None) -> dict:
         """After the last frame: the single-frame generator's scores, warnings, the whole-recording passes,

@@ -91,6 +91,7 @@ class PrepareStage:
         frames: Lookahead,
     ) -> None:
         from odometry.motion_stereo import GrayImages
+        from odometry.window_graph import PAIR_OFFSETS
         from odometry.sweep_motion import SweepMotion
 
         self.seq, self.cfg, self.ccfg, self.indices = seq, cfg, ccfg, indices
@@ -101,7 +102,7 @@ class PrepareStage:
         # motion stereo: image corners outside a cone LiDAR's reach, triangulated over neighbouring frames
         self.stereo = cfg.motion_stereo
         self.stereo_images = GrayImages(
-            lambda j: stereo_image(seq, j), keep=2 * max([*self.stereo.offsets, *cfg.graph.pair_offsets]) + 3
+            lambda j: stereo_image(seq, j), keep=2 * max([*self.stereo.offsets, *PAIR_OFFSETS]) + 3
         )
         self.sweep_images = SweepMotion()
         # a sweep's images' motion (ORB matching, essential matrix) needs only the two images: it runs in its own
@@ -242,7 +243,7 @@ class PrepareStage:
     ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray], np.ndarray | None]:
         """The generator's depth and log sigma on the sample (with the earlier scans that agree with it),
         moved towards the motion-stereo corners, the pair motions, and the corners."""
-        from odometry.motion_stereo import corrected_depth
+        from odometry.motion_stereo import EDGE_PX, RANGE_LOG, SPREAD, SUPPORT, corrected_depth
 
         cfg, stereo, K = self.cfg, self.stereo, sample.frame.K
         if earlier is not None:
@@ -262,19 +263,18 @@ class PrepareStage:
         depth, log_sigma = self.generator(seen)
         corners, pairs = tracked.result()
         if corners is not None:  # the generator's depth moved towards the corners around them
-            depth = corrected_depth(
-                depth, corners, stereo.spread * float(K[0, 0]), stereo.support, stereo.range_log, stereo.edge_px
-            )
+            depth = corrected_depth(depth, corners, SPREAD * float(K[0, 0]), SUPPORT, RANGE_LOG, EDGE_PX)
         return depth, log_sigma, pairs, corners
 
     def _neighbours(self, i: int, with_stereo: bool, with_pairs: bool) -> tuple[list[int], list[int]]:
         """Frame i's motion-stereo neighbours and the earlier frames of its pair motions."""
         from odometry.motion_stereo import neighbour_frames
+        from odometry.window_graph import PAIR_OFFSETS
 
         cfg, stereo = self.cfg, self.stereo
         offsets = stereo.causal_offsets if cfg.causal else stereo.offsets
         neighbours = neighbour_frames(i, self.indices, offsets, cfg.causal) if with_stereo else []
-        earlier = [i - o for o in cfg.graph.pair_offsets if i - o in self.selected] if with_pairs else []
+        earlier = [i - o for o in PAIR_OFFSETS if i - o in self.selected] if with_pairs else []
         return neighbours, earlier
 
     def track_ahead(self, i: int, K: np.ndarray) -> None:
@@ -297,7 +297,7 @@ class PrepareStage:
 
         if i not in self.stereo_images.images:
             return None
-        tracks = FrameTracks(i, self.stereo_images, K, None, self.stereo, neighbours)
+        tracks = FrameTracks(i, self.stereo_images, K, None, neighbours)
         tracks.track_into([*neighbours, *earlier])
         return tracks
 
@@ -318,18 +318,17 @@ class PrepareStage:
         (no corner near a return)."""
         from odometry.motion_stereo import FrameTracks, motion_stereo_depth, pair_motions
 
-        stereo = self.stereo
         neighbours, earlier = self._neighbours(i, with_stereo, with_pairs)
         tracks = None if ahead is None else ahead.result()
         if tracks is None or tracks.ladder != tuple(neighbours) or not np.array_equal(tracks.K, K):
             if i not in self.stereo_images.images:
                 self.stereo_images.put(i, image)
-            tracks = FrameTracks(i, self.stereo_images, K, None, stereo, neighbours)
+            tracks = FrameTracks(i, self.stereo_images, K, None, neighbours)
         tracks.set_returns(own)
         corners = None
         if with_stereo:
-            corners = motion_stereo_depth(i, neighbours, self.stereo_images, K, own, seen, stereo, tracks)
+            corners = motion_stereo_depth(i, neighbours, self.stereo_images, K, own, seen, tracks)
         pairs = {}
         if with_pairs:  # the images' motion to the window's earlier frames
-            pairs = pair_motions(i, earlier, self.stereo_images, K, own, stereo, tracks)
+            pairs = pair_motions(i, earlier, self.stereo_images, K, own, tracks)
         return corners, pairs
