@@ -19,8 +19,9 @@ scoring of finished frames, not their computation.
 
 The run's stages: the generator stage (`refine_prepare`: the frame's input and generator depth, in a second
 thread one frame ahead, `lookahead`), the front end and the window update (`RefineRun.step`), the frames
-leaving the window (`RefineRun.finish`: depth PNGs, poses, the photometric step), the whole-recording passes
-(`refine_passes`) and the outputs (`refine_outputs`).
+leaving the window (`RefineRun.finish`: depth PNGs, poses, the photometric step of `refine_photometric`), the
+whole-recording passes (`refine_passes`) and the outputs (`refine_outputs`); what is scored beside them (held-out
+truth, classical fills, pose baselines) is `refine_scoring`'s.
 """
 
 from __future__ import annotations
@@ -33,26 +34,20 @@ import numpy as np
 from tqdm import tqdm
 
 from leovr.config import RefineConfig
-from leovr.data.io import atomic_write, write_depth_png
-from leovr.data.kitti_common import write_kitti_poses
+from leovr.data.io import atomic_write
 from leovr.data.records import Frame
 from leovr.data.run_info import png_name, run_identity, start_run
 from leovr.data.sequence import Sequence
-from leovr.depth.fills import complete_depth
 from leovr.eval.depth_metrics import DepthMetricAccumulator
-from leovr.geometry import invert_T
 from leovr.lidar.accumulate import ScanHistory
-from leovr.pipeline.accumulated_baseline import accumulated_fills
 from leovr.pipeline.completion import (
     EvalSample,
     frame_indices,
     generator_checkpoint,
     generator_method,
     warn_empty_input,
-    with_truth,
 )
 from leovr.pipeline.frame_writer import FrameWriter
-from leovr.pipeline.kiss_baseline import kiss_icp_trajectories
 from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_input import (
     camera_only_config,
@@ -79,6 +74,8 @@ from leovr.pipeline.refine_outputs import (
     write_outputs,
 )
 from leovr.pipeline.refine_passes import whole_recording_passes
+from leovr.pipeline.refine_photometric import PhotometricStep
+from leovr.pipeline.refine_scoring import RunScoring
 from leovr.pipeline.refine_prepare import ConeSteps, PreparedFrame, PrepareStage
 from leovr.threads import single_threaded_blas
 
@@ -141,11 +138,9 @@ class RefineRun:
 
     def __init__(self, seq: Sequence, cfg: RefineConfig, out: Path, resume: bool, progress: bool, score: bool) -> None:
         from odometry.frontend import FrontEnd
-        from odometry.mono_vo import MonoVO
-        from odometry.motion_stereo import GrayImages
         from odometry.window_graph import WindowGraph
 
-        self.seq, self.cfg, self.out, self.progress, self.score = seq, cfg, Path(out), progress, score
+        self.seq, self.cfg, self.out, self.progress = seq, cfg, Path(out), progress
         self.ccfg = ccfg = completion_config(cfg)
         self.indices = indices = frame_indices(len(seq), ccfg)
         self.state_path = self.out / "progress.json"
@@ -158,8 +153,7 @@ class RefineRun:
         }
         self.has_lidar = has_lidar = seq.has_lidar and cfg.input != "none"
         self.generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
-        self.first = first = seq[indices[0]]
-        self.K = first.K
+        first = seq[indices[0]]
         ocfg = cfg if has_lidar else camera_only_config(cfg)  # the odometry's settings
         self.front = FrontEnd(
             ocfg,
@@ -169,8 +163,6 @@ class RefineRun:
             use_lidar=has_lidar,
             camera_height=None if has_lidar else road_height(seq, cfg),
         )
-        # the `mono_vo` baseline on the same images (--compare)
-        self.textbook = MonoVO(first.K) if cfg.compare else None
         self.graph = WindowGraph(
             ocfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar
         )
@@ -179,7 +171,7 @@ class RefineRun:
         self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
         self.unwritten: list[tuple[str, dict[str, np.ndarray]]] = []  # finished frames' depth maps, to write
         self.empty: list[int] = []  # frames whose LiDAR input has no return inside the image
-        self.scored: dict[int, FrameScore] = {}  # frames of this process, scored from their arrays
+        self.scoring = RunScoring(seq, cfg, ccfg, self.out, score, first)  # evaluation beside the outputs
         stamps = seq.timestamps()
         checkpoint = generator_checkpoint(ccfg) if cfg.depth_source == "generator" else None
         start_run(
@@ -198,12 +190,7 @@ class RefineRun:
             cfg.accumulation.frames if has_lidar else 0, first.T_cam_lidar, cfg.accumulation.check
         )
         self.cone = ConeSteps(has_lidar)  # whether the `auto` cone-LiDAR steps run; the sensor is judged once
-        # the photometric correction of a leaving frame: its neighbours' images and the nodes free to move
-        self.position = {j: n for n, j in enumerate(indices)}
-        self.photo_images = GrayImages(
-            lambda j: stereo_image(seq, j), keep=cfg.window + 2 * max(cfg.photometric.offsets, default=0) + 3
-        )
-        self.photo_free: dict[int, np.ndarray] = {}
+        self.photometric = PhotometricStep(seq, cfg, indices, first.K)  # a leaving frame's depth where no return lies
         self.t_end = time.perf_counter()  # the end of the last frame's turn on the run's clock
         self.c_end = time.process_time()  # ... and on the process's CPU clock (every thread, user + system)
 
@@ -277,15 +264,14 @@ class RefineRun:
             self.submit_next(ahead, n, fi)
         self.pending[i] = p.depth, p.log_sigma, self.front.depth_scale
         t_base, c_base = time.perf_counter(), time.process_time()  # scoring and baselines: not a frame's time
-        self.score_and_baselines(i, p.sample)
+        self.scoring.frame(i, p.sample, i in self.done, self.has_lidar, bool(self.history.frames), self.writer)
         t2b, c2b = time.perf_counter(), time.process_time()
         left = self.graph.add_frame(fi)
         t3 = time.perf_counter()
         # causal: the newest frame's estimate is its output
         self.finish([self.graph.current(i)] if self.cfg.causal else left)
         t4, c4 = time.perf_counter(), time.process_time()
-        if self.textbook is not None:
-            self.textbook.add(p.sample.frame.image)
+        self.scoring.image(p.sample.frame.image)
         # wall: this frame's share of the run's clock (baselines excluded), the generator overlapping the graph
         wall = 1000.0 * ((t4 - self.t_end) - (t2b - t_base))
         cpu = 1000.0 * ((c4 - self.c_end) - (c2b - c_base))  # every thread's CPU time over the same span
@@ -307,8 +293,6 @@ class RefineRun:
     def front_end(self, n: int, i: int, p: PreparedFrame) -> FrameInput:
         """Frame i's initial pose and observations for the graph, with its pair motions and motion-stereo
         corners; its image kept for the photometric step when that runs."""
-        from odometry.photo_field import free_nodes
-
         sample = p.sample
         prev_i = self.indices[n - 1] if n else None
         # the previous sweep's motion, read from its images: to this frame
@@ -330,8 +314,7 @@ class RefineRun:
         )
         fi.pair_motions = p.pairs
         if i not in self.done and self.cone.runs(self.cfg.photometric.enabled, sample):
-            self.photo_images.put(i, sample.frame.image)
-            self.photo_free[i] = free_nodes(sample.sparse)
+            self.photometric.keep(i, sample)
         return fi
 
     def judge_sensor(self, sample: EvalSample) -> None:
@@ -362,36 +345,23 @@ class RefineRun:
         velocity = self.stage.start if first and self.stage.start is not None else self.front.velocity
         ahead.submit(self.stage.prepare, self.indices[n + 1], velocity, earlier)
 
-    def score_and_baselines(self, i: int, sample: EvalSample) -> None:
-        """Frame i's score (its held-out truth built here) and the classical baselines on the very same
-        input, for the metrics (not timed); nothing for a frame finished before a resume."""
-        fs = FrameScore.of(with_truth(sample, self.ccfg)) if self.score and i not in self.done else None
-        if fs is not None:
-            self.scored[i] = fs
-        if fs is not None and self.history.frames:
-            fs.own_input = (*np.nonzero(sample.sparse), sample.sparse[sample.sparse > 0])
-        if self.has_lidar and i not in self.done:
-            ipb = complete_depth(sample.sparse, "ipbasic")
-            self.writer.submit(write_depth_png, self.out / "depth_ipbasic" / png_name(self.names, i), ipb)
-            if fs is not None:
-                fs.add("ipbasic", ipb)
-                fs.add("nearest", complete_depth(sample.sparse, "nearest"))
-
     def finish(self, results: list[FrameResult]) -> None:
         """The frames leaving the window: refined depth (after the photometric step), both depth PNGs and
         the pose saved; a finished frame of a resumed run only has its replayed pose kept."""
         leaving = {r.index: r.T_world_cam for r in results}  # at the end the whole window leaves at once
+
+        def poses_of(near: list[int]) -> dict[int, np.ndarray]:  # the frames leaving with one: as they leave
+            return self.latest_poses(near) | {j: leaving[j] for j in near if j in leaving}
+
         for r in results:
             gen_depth, log_sigma, scale = self.pending.pop(r.index)
             if r.index in self.done:
                 self.replayed[r.index] = r.T_world_cam
                 continue
             refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
-            if r.index in self.photo_free:  # where no return lies, the depth its neighbours' images agree with
-                refined = self.photometric_step(r.index, r.T_world_cam, refined, leaving)
-            if r.index in self.scored:
-                self.scored[r.index].add("generator", gen_depth)
-                self.scored[r.index].add("refined", refined)
+            if r.index in self.photometric:  # where no return lies, the depth its neighbours' images agree with
+                refined = self.photometric.correct(r.index, r.T_world_cam, refined, poses_of)
+            self.scoring.depth(r.index, gen_depth, refined)
             # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
             sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
             self.state.poses[r.index] = r.T_world_cam.ravel().tolist()
@@ -418,33 +388,10 @@ class RefineRun:
                 out[j] = np.array(self.state.poses[j]).reshape(4, 4)
         return out
 
-    def photometric_step(
-        self, i: int, T_i: np.ndarray, depth: np.ndarray, leaving: dict[int, np.ndarray]
-    ) -> np.ndarray:
-        """Frame i's refined depth after the plane sweep against the selected frames `photometric.offsets`
-        before and after it (the poses they have now: final before i, the window's after it; `leaving`: the
-        poses of the frames leaving with i)."""
-        from odometry.photo_field import photometric_correction, photometric_offsets
-
-        cfg, indices, at = self.cfg, self.indices, self.position[i]
-        free = self.photo_free.pop(i)
-        offsets = [-o for o in cfg.photometric.offsets] + ([] if cfg.causal else cfg.photometric.offsets)
-        near = [indices[at + o] for o in offsets if 0 <= at + o < len(indices)]
-        poses = self.latest_poses(near) | {j: leaving[j] for j in near if j in leaving}
-        gray = self.photo_images[i]
-        pairs = [(self.photo_images[j], invert_T(poses[j]) @ T_i) for j in near if j in poses]
-        pairs = [(im, T) for im, T in pairs if im is not None and im.shape == depth.shape]
-        if gray is None or not pairs:
-            return depth
-        return photometric_correction(depth, photometric_offsets(depth, gray, pairs, self.K, free))
-
     def conclude(self, pool: dict[str, DepthMetricAccumulator] | None, collect: dict[int, FrameScore] | None) -> dict:
         """After the last frame: the single-frame generator's scores, warnings, the whole-recording passes,
         the landmarks, the pose baselines and the accumulated fills, then the outputs and metrics."""
         seq, cfg, indices, state = self.seq, self.cfg, self.indices, self.state
-        # earlier scans joined the generator's input
-        several = [i for i, fs in self.scored.items() if fs.own_input is not None]
-        single_frame_generator(seq, self.scored, self.generator, self.progress)
         if self.empty:
             warn_empty_input(seq, self.empty)
         if self.replayed:
@@ -456,20 +403,7 @@ class RefineRun:
         atomic_write(self.out / "landmarks_frame.npy", lambda tmp: np.save(tmp, seen_by))
         lidar_backed = self.graph.lidar_backed()
         atomic_write(self.out / "landmarks_lidar.npy", lambda tmp: np.save(tmp, lidar_backed))
-        baselines, icp = self.pose_baselines(bool(several))
-        if several and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
-            accumulated_fills(
-                seq,
-                indices,
-                self.ccfg,
-                icp,
-                self.scored,
-                several,
-                cfg.accumulation.frames,
-                causal=cfg.causal,
-                frame_dt=self.frame_dt,
-                progress=self.progress,
-            )
+        baselines = self.scoring.conclude(indices, self.has_lidar, self.generator, self.frame_dt, self.progress)
         return write_outputs(
             seq,
             cfg,
@@ -480,31 +414,9 @@ class RefineRun:
             self.has_lidar,
             self.progress,
             pool,
-            self.score,
-            self.scored,
+            self.scoring.score,
+            self.scoring.scored,
             collect,
             baselines,
             no_returns=len(self.empty) == len(indices),
         )
-
-    def pose_baselines(self, several: bool) -> tuple[dict[str, tuple[np.ndarray, str]], np.ndarray | None]:
-        """The trajectories scored beside leovr's (name -> poses, alignment), their pose files written, and
-        KISS-ICP's poses (None when it did not run): the textbook monocular VO (`--compare`), KISS-ICP with
-        and without its deskew (with a LiDAR, when compared, scored, or the accumulated fills need it)."""
-        seq, cfg, indices, out = self.seq, self.cfg, self.indices, self.out
-        baselines: dict[str, tuple[np.ndarray, str]] = {}
-        if self.textbook is not None:
-            baselines["mono_vo"] = np.stack(self.textbook.poses), "sim3"
-            write_kitti_poses(out / "poses_mono_vo_kitti.txt", baselines["mono_vo"][0])
-        icp = None
-        if self.has_lidar and (cfg.compare or several or self.score and self.first.T_world_cam is not None):
-            # without its deskew too where scans carry point times: the other way to run it
-            runs = kiss_icp_trajectories(
-                seq, indices, self.ccfg, (True, False) if self.first.point_times is not None else (True,), self.progress
-            )
-            for deskew, name in ((True, "kiss_icp"), (False, "kiss_icp_no_deskew")):
-                if runs is not None and deskew in runs:
-                    baselines[name] = runs[deskew], "se3"
-                    write_kitti_poses(out / f"poses_{name}_kitti.txt", runs[deskew])
-            icp = None if runs is None else runs[True]
-        return baselines, icp
