@@ -89,9 +89,9 @@ def killed_after_saves(n: int) -> Iterator[None]:
     """A refine run inside the block is killed (KeyboardInterrupt) right after its n-th progress save (a frame's
     files, then the progress record naming it), as a user's Ctrl-C or a lost machine would leave it; the block
     expects that interrupt. The run writes in its own thread here, so the interrupt comes at that moment."""
-    from leovr.pipeline import refine
+    from leovr.pipeline import refine, refine_record
 
-    write, writer, calls = refine.write_frame_files, refine.FrameWriter, []
+    write, writer, calls = refine_record.write_frame_files, refine.FrameWriter, []
 
     def killed(*args):
         write(*args)
@@ -99,10 +99,10 @@ def killed_after_saves(n: int) -> Iterator[None]:
         if len(calls) == n:
             raise KeyboardInterrupt
 
-    refine.write_frame_files = killed
+    refine_record.write_frame_files = killed
     refine.FrameWriter = lambda threaded: writer(False)
     try:
         with pytest.raises(KeyboardInterrupt):
             yield
     finally:
-        refine.write_frame_files, refine.FrameWriter = write, writer
+        refine_record.write_frame_files, refine.FrameWriter = write, writer

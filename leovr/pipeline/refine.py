@@ -36,7 +36,7 @@ from tqdm import tqdm
 from leovr.config import RefineConfig
 from leovr.data.io import atomic_write
 from leovr.data.records import Frame
-from leovr.data.run_info import png_name, run_identity, start_run
+from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.lidar.accumulate import ScanHistory
@@ -70,11 +70,11 @@ from leovr.pipeline.refine_outputs import (
     input_label,
     single_frame_generator,
     timing_record,
-    write_frame_files,
     write_outputs,
 )
 from leovr.pipeline.refine_passes import whole_recording_passes
 from leovr.pipeline.refine_photometric import PhotometricStep
+from leovr.pipeline.refine_record import RunRecord
 from leovr.pipeline.refine_scoring import RunScoring
 from leovr.pipeline.refine_prepare import ConeSteps, PreparedFrame, PrepareStage
 from leovr.threads import single_threaded_blas
@@ -143,14 +143,8 @@ class RefineRun:
         self.seq, self.cfg, self.out, self.progress = seq, cfg, Path(out), progress
         self.ccfg = ccfg = completion_config(cfg)
         self.indices = indices = frame_indices(len(seq), ccfg)
-        self.state_path = self.out / "progress.json"
-        self.state = Progress.load(self.state_path) if resume and self.state_path.is_file() else Progress()
-        # a resumed run replays its finished frames through the front end and the window (their outputs are
-        # kept, not rewritten) so that the window, the landmarks and KISS-ICP's map are the uninterrupted run's
-        self.names = seq.frame_numbers()
-        self.done = {
-            i for i in indices if i in self.state.poses and (self.out / "depth" / png_name(self.names, i)).is_file()
-        }
+        names = seq.frame_numbers()
+        self.record = RunRecord(self.out, names, indices, resume)  # what is finished; a resume replays it
         self.has_lidar = has_lidar = seq.has_lidar and cfg.input != "none"
         self.generator = generator_method(ccfg) if cfg.depth_source == "generator" else classical_source
         first = seq[indices[0]]
@@ -168,8 +162,6 @@ class RefineRun:
         )
         # generator depth, its log uncertainty, and the road's scale for it (camera only)
         self.pending: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
-        self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
-        self.unwritten: list[tuple[str, dict[str, np.ndarray]]] = []  # finished frames' depth maps, to write
         self.empty: list[int] = []  # frames whose LiDAR input has no return inside the image
         self.scoring = RunScoring(seq, cfg, ccfg, self.out, score, first)  # evaluation beside the outputs
         stamps = seq.timestamps()
@@ -181,7 +173,7 @@ class RefineRun:
             resume,
             input=cfg.input if has_lidar else "none",
             sequence=str(Path(seq.path).resolve()),
-            frame_numbers=self.names,
+            frame_numbers=names,
             **({} if has_lidar else {"camera_height_m": self.front.camera_height}),
         )
         self.frame_dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.1
@@ -197,8 +189,8 @@ class RefineRun:
     def run(self, pool: dict[str, DepthMetricAccumulator] | None, collect: dict[int, FrameScore] | None) -> dict:
         """Every frame through the window, then the whole-recording passes and the outputs; the metrics."""
         desc = f"refine {input_label(self.cfg.input, self.has_lidar)} (window {self.cfg.window})"
-        if self.done:
-            desc += f", replaying {len(self.done)} finished"
+        if self.record.done:
+            desc += f", replaying {len(self.record.done)} finished"
         # frame k+1 is read and run through the generator in a second thread while frame k's front end (without
         # earlier scans) and graph run (ONNX Runtime and OpenCV leave the interpreter lock); its inputs are
         # known when it starts (`step`), so the results are those of a sequential run
@@ -229,7 +221,7 @@ class RefineRun:
             left = self.graph.flush()
             if not self.cfg.causal:
                 self.finish(left)
-                self.write_finished()
+                self.record.write(self.writer)
         return self.conclude(pool, collect)
 
     def step(self, ahead: Lookahead[PreparedFrame, Frame], n: int, i: int) -> None:
@@ -245,7 +237,7 @@ class RefineRun:
             if not self.has_lidar and ahead.threaded:
                 next_read = ahead.future(self.indices[n + 1])
             self.stage.read_sweep_ahead(self.indices[n + 1])  # beside this frame's front end
-        if self.has_lidar and i not in self.done and not (p.sample.sparse > 0).any():
+        if self.has_lidar and i not in self.record.done and not (p.sample.sparse > 0).any():
             self.empty.append(i)
         self.judge_sensor(p.sample)
         self.history.add(i, p.sample.kept_points)
@@ -264,7 +256,7 @@ class RefineRun:
             self.submit_next(ahead, n, fi)
         self.pending[i] = p.depth, p.log_sigma, self.front.depth_scale
         t_base, c_base = time.perf_counter(), time.process_time()  # scoring and baselines: not a frame's time
-        self.scoring.frame(i, p.sample, i in self.done, self.has_lidar, bool(self.history.frames), self.writer)
+        self.scoring.frame(i, p.sample, i in self.record.done, self.has_lidar, bool(self.history.frames), self.writer)
         t2b, c2b = time.perf_counter(), time.process_time()
         left = self.graph.add_frame(fi)
         t3 = time.perf_counter()
@@ -276,11 +268,12 @@ class RefineRun:
         wall = 1000.0 * ((t4 - self.t_end) - (t2b - t_base))
         cpu = 1000.0 * ((c4 - self.c_end) - (c2b - c_base))  # every thread's CPU time over the same span
         self.t_end, self.c_end = time.perf_counter(), time.process_time()
-        if i not in self.done or i not in self.state.times:  # a resumed frame's record completed by its replay
-            self.state.sources[i] = self.front.sources[-1]
+        state = self.record.state
+        if i not in self.record.done or i not in state.times:  # a resumed frame's record completed by its replay
+            state.sources[i] = self.front.sources[-1]
             if self.front.prev is not None and self.front.prev.T_icp is not None:
-                self.state.icp_poses[i] = self.front.prev.T_icp.ravel().tolist()
-            self.state.times[i] = [
+                state.icp_poses[i] = self.front.prev.T_icp.ravel().tolist()
+            state.times[i] = [
                 p.generator_ms,
                 1000.0 * (t2 - t1),
                 1000.0 * (t3 - t2b),
@@ -288,7 +281,7 @@ class RefineRun:
                 wall,
                 cpu,
             ]
-        self.write_finished()  # after the frame's record: a causal frame is finished in its own step
+        self.record.write(self.writer)  # after the frame's record: a causal frame is finished in its own step
 
     def front_end(self, n: int, i: int, p: PreparedFrame) -> FrameInput:
         """Frame i's initial pose and observations for the graph, with its pair motions and motion-stereo
@@ -313,7 +306,7 @@ class RefineRun:
             icp_guess=guess,
         )
         fi.pair_motions = p.pairs
-        if i not in self.done and self.cone.runs(self.cfg.photometric.enabled, sample):
+        if i not in self.record.done and self.cone.runs(self.cfg.photometric.enabled, sample):
             self.photometric.keep(i, sample)
         return fi
 
@@ -355,8 +348,8 @@ class RefineRun:
 
         for r in results:
             gen_depth, log_sigma, scale = self.pending.pop(r.index)
-            if r.index in self.done:
-                self.replayed[r.index] = r.T_world_cam
+            if r.index in self.record.done:
+                self.record.replayed[r.index] = r.T_world_cam
                 continue
             refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
             if r.index in self.photometric:  # where no return lies, the depth its neighbours' images agree with
@@ -364,41 +357,30 @@ class RefineRun:
             self.scoring.depth(r.index, gen_depth, refined)
             # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
             sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
-            self.state.poses[r.index] = r.T_world_cam.ravel().tolist()
-            self.unwritten.append(
-                (png_name(self.names, r.index), {"depth_generator": gen_depth, "depth": refined, "sigma": sigma})
+            self.record.finished(
+                r.index, r.T_world_cam, {"depth_generator": gen_depth, "depth": refined, "sigma": sigma}
             )
-
-    def write_finished(self) -> None:
-        """The finished frames' files, each followed by the progress record as it stands now (a resume never
-        finds a pose without its files, nor a finished frame without its record)."""
-        for name, maps in self.unwritten:
-            self.writer.submit(write_frame_files, self.out, name, maps, self.state_path, self.state.text())
-        self.unwritten.clear()
 
     def latest_poses(self, indices_kept: list[int]) -> dict[int, np.ndarray]:
         """The graph's current pose of each frame still in the window, else the pose it left with."""
         out = {}
         for j in indices_kept:
-            if j in self.graph.poses:
-                out[j] = self.graph.poses[j]
-            elif j in self.replayed:
-                out[j] = self.replayed[j]
-            elif j in self.state.poses:
-                out[j] = np.array(self.state.poses[j]).reshape(4, 4)
+            T = self.graph.poses.get(j)
+            T = T if T is not None else self.record.pose(j)
+            if T is not None:
+                out[j] = T
         return out
 
     def conclude(self, pool: dict[str, DepthMetricAccumulator] | None, collect: dict[int, FrameScore] | None) -> dict:
         """After the last frame: the single-frame generator's scores, warnings, the whole-recording passes,
         the landmarks, the pose baselines and the accumulated fills, then the outputs and metrics."""
-        seq, cfg, indices, state = self.seq, self.cfg, self.indices, self.state
+        seq, cfg, indices, state = self.seq, self.cfg, self.indices, self.record.state
         if self.empty:
             warn_empty_input(seq, self.empty)
-        if self.replayed:
-            check_replay(self.out, state, self.replayed)
+        self.record.check_replay()
         landmarks, seen_by = self.graph.all_landmarks()
         whole_recording_passes(seq, cfg, self.out, indices, state, landmarks, seen_by)
-        state.save(self.state_path)
+        self.record.save()
         atomic_write(self.out / "landmarks.npy", lambda tmp: np.save(tmp, landmarks))
         atomic_write(self.out / "landmarks_frame.npy", lambda tmp: np.save(tmp, seen_by))
         lidar_backed = self.graph.lidar_backed()
