@@ -50,6 +50,11 @@ PAIR_OFFSETS = (1, 2, 3)  # pair factors to the frames this many before (frames)
 # on a cone KISS-ICP can slip by tens of degrees in a fast turn while sure of itself
 # (docs/decisions/0011-tuned-settings.md)
 ICP_GATE_DEG = 3.0
+# ... and one whose direction of travel is this far (deg) from the images' (the pair motion's essential matrix),
+# where both travel at least ICP_DIRECTION_MIN_M: a cone's registration slides sideways while sure of itself, and
+# over a shorter baseline the images' direction is the less sure (docs/decisions/0013-icp-direction-gate.md)
+ICP_DIRECTION_GATE_DEG = 3.0
+ICP_DIRECTION_MIN_M = 1.0
 
 
 def X(i: int) -> int:
@@ -62,6 +67,16 @@ def C(i: int) -> int:
 
 def L(k: int) -> int:
     return gtsam.symbol("l", k)
+
+
+def direction_agrees(t_images: np.ndarray, t_icp: np.ndarray) -> bool:
+    """Whether two motions' translations point within ICP_DIRECTION_GATE_DEG of each other; true when either is
+    shorter than ICP_DIRECTION_MIN_M (a direction read over a short baseline says little)."""
+    la, lb = float(np.linalg.norm(t_images)), float(np.linalg.norm(t_icp))
+    if min(la, lb) < ICP_DIRECTION_MIN_M:
+        return True
+    cos = float(t_images @ t_icp) / (la * lb)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))) <= ICP_DIRECTION_GATE_DEG
 
 
 @dataclass
@@ -282,7 +297,8 @@ class WindowGraph:
         one: chaining only consecutive motions would lose that and drift); covariances from the
         registration (`LidarOdometry.covariance`). A motion whose rotation lies more than `ICP_GATE_DEG` from
         the images' (the pair motion to that frame, else the front end's motion chained through the window) is
-        left out: a registration that slipped (a cone LiDAR in a fast turn) is still sure of itself."""
+        left out: a registration that slipped (a cone LiDAR in a fast turn) is still sure of itself; so is one whose
+        direction of travel lies more than `ICP_DIRECTION_GATE_DEG` from the pair motion's (`direction_agrees`)."""
         i = f.index
         self.icp_poses = {j: v for j, v in self.icp_poses.items() if j in self.poses}
         for j, (Tj, cov_j) in self.icp_poses.items():
@@ -294,7 +310,10 @@ class WindowGraph:
                     if f.T_prev_rel is not None and self.last in self.poses
                     else invert_T(self.poses[j]) @ f.T_init
                 )
-            if rotation_angle_deg(ref[:3, :3].T @ motion[:3, :3]) > ICP_GATE_DEG:
+            pair = f.pair_motions.get(j)
+            if rotation_angle_deg(ref[:3, :3].T @ motion[:3, :3]) > ICP_GATE_DEG or (
+                pair is not None and not direction_agrees(pair[:3, 3], motion[:3, 3])
+            ):
                 self.icp_rejected += 1
                 continue
             graph.add(
