@@ -232,7 +232,8 @@ def test_a_kiss_icp_motion_that_slipped_from_the_images_rotation_is_left_out():
 def _sliding_icp_run(step_m: float) -> tuple[float, int]:
     """A straight drive of `step_m` a frame whose KISS-ICP motions slide 8 degrees sideways (as a cone's
     registration does along a hedge) while sure of themselves; the images' pair motions to the frames before (every
-    one in the window) point straight ahead, and so does the front end. Returns the largest sideways error (m) and the motions left out."""
+    one in the window) point straight ahead, and so does the front end. Returns the largest sideways error (m) and
+    the motions left out."""
     from leovr.config import RefineConfig
     from odometry.window_graph import FrameInput, WindowGraph
 
