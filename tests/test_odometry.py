@@ -189,13 +189,23 @@ def test_icp_window_factors_make_the_graph_follow_the_lidar_motion():
     assert err < 0.1, err
 
 
+def _icp_frame(i: int, T: np.ndarray, rel, icp: np.ndarray, cov: np.ndarray, pairs: dict):
+    """A frame for the window graph with no visual factor: its initial pose and front-end motion, KISS-ICP's pose
+    (exact at frame 0, `cov` after) and its pair motions (earlier frame -> T_j_i)."""
+    from odometry.window_graph import FrameInput
+
+    icp_pose = (icp, np.zeros((6, 6)) if i == 0 else cov)
+    empty = (np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None)
+    return FrameInput(i, T, *empty, rel, None, icp_pose, pair_motions=pairs)
+
+
 def test_a_kiss_icp_motion_that_slipped_from_the_images_rotation_is_left_out():
     """KISS-ICP slips by 10 degrees at frame 5 (as a cone LiDAR's registration does in a rendered lap's fast turns)
     while sure of itself: its motions across the slip disagree with the images' rotation and are left out, so the
     poses stay with the images and the front end; the motions after the slip, among themselves right, stay in."""
     from leovr.config import RefineConfig
     from leovr.geometry import rotation_angle_deg
-    from odometry.window_graph import FrameInput, WindowGraph
+    from odometry.window_graph import WindowGraph
 
     cfg = RefineConfig(window=4, graph={"depth_factors": False})
     graph = WindowGraph(cfg, K, SHAPE)
@@ -206,22 +216,7 @@ def test_a_kiss_icp_motion_that_slipped_from_the_images_rotation_is_left_out():
     for i, T in enumerate(truth):
         rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
         icp = slip @ T if i >= 5 else T  # its map turned by the slip: later motions among themselves right
-        pairs = {i - 1: rel} if i else {}
-        f = FrameInput(
-            i,
-            T,
-            np.zeros(SHAPE),
-            np.full(SHAPE, 0.1),
-            [],
-            {},
-            None,
-            None,
-            rel,
-            None,
-            (icp, np.zeros((6, 6)) if i == 0 else cov),
-            pair_motions=pairs,
-        )
-        done += graph.add_frame(f)
+        done += graph.add_frame(_icp_frame(i, T, rel, icp, cov, {i - 1: rel} if i else {}))
     done += graph.flush()
     est = {r.index: r.T_world_cam for r in done}
     assert graph.icp_rejected >= 3
@@ -235,7 +230,7 @@ def _sliding_icp_run(step_m: float) -> tuple[float, int]:
     one in the window) point straight ahead, and so does the front end. Returns the largest sideways error (m) and
     the motions left out."""
     from leovr.config import RefineConfig
-    from odometry.window_graph import FrameInput, WindowGraph
+    from odometry.window_graph import WindowGraph
 
     graph = WindowGraph(RefineConfig(window=3, graph={"depth_factors": False}), K, SHAPE)  # pairs reach each frame
     truth = [make_T(t=[0, 0, step_m * i]) for i in range(10)]
@@ -245,21 +240,8 @@ def _sliding_icp_run(step_m: float) -> tuple[float, int]:
     done = []
     for i, T in enumerate(truth):
         rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
-        f = FrameInput(
-            i,
-            T,
-            np.zeros(SHAPE),
-            np.full(SHAPE, 0.1),
-            [],
-            {},
-            None,
-            None,
-            rel,
-            None,
-            (icp[i], np.zeros((6, 6)) if i == 0 else cov),
-            pair_motions={j: np.linalg.inv(truth[j]) @ T for j in range(max(i - 3, 0), i)},
-        )
-        done += graph.add_frame(f)
+        pairs = {j: np.linalg.inv(truth[j]) @ T for j in range(max(i - 3, 0), i)}
+        done += graph.add_frame(_icp_frame(i, T, rel, icp[i], cov, pairs))
     done += graph.flush()
     est = {r.index: r.T_world_cam for r in done}
     return max(abs(est[i][0, 3] - truth[i][0, 3]) for i in range(10)), graph.icp_rejected
