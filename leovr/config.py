@@ -73,9 +73,6 @@ class TrainConfig(_Model):
     sigma_epochs: int = Field(2, ge=0)  # second phase: uncertainty head only, depth path frozen
     loss: Literal["l1", "l2"] = "l1"  # depth loss, masked on valid ground truth
     smoothness: float = Field(0.0, ge=0)  # weight of edge-aware smoothness (optional)
-    ratio_min: float = 0.005  # density-agnostic input (SLIM): share of ground-truth pixels drawn, at least ...
-    ratio_max: float = 0.30  # ... and at most
-    native_prob: float = Field(0.5, ge=0, le=1)  # share of samples using the sequence's own LiDAR pattern
     # LiDAR branch: SLIM partial convolutions | pre-interpolated input
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
@@ -100,7 +97,6 @@ class SelfSupConfig(_Model):
     lr: float = Field(1e-4, gt=0)  # learning rate
     lr_step_epochs: int = Field(6, ge=1)  # learning rate multiplied by lr_gamma every this many epochs
     lr_gamma: float = Field(0.5, gt=0, le=1)  # ... by this factor
-    alpha: float = Field(0.8, ge=0, le=1)  # eq. 17: alpha/2 (1 - SSIM) + (1 - alpha) L1
     weight_feature: float = Field(0.4, ge=0)  # lambda_f, eq. 22
     weight_refined: float = Field(0.1, ge=0)  # lambda_r
     weight_smooth: float = Field(0.2, ge=0)  # lambda_s
@@ -110,15 +106,8 @@ class SelfSupConfig(_Model):
     # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
     target_loss: Literal["log_l1", "l2"] = "log_l1"
     flow_mask: bool = True  # eq. 19 motion-optical-flow mask on the photometric loss
-    flow_lambda_px: float = Field(1.0, gt=0)  # lambda: largest distance (px) of the flow end point to its epipolar line
-    flow_method: Literal["dis", "farneback"] = "dis"  # OpenCV optical flow
     rigid_mask: bool = True  # also drop pixels whose flow disagrees with the rigid flow of the graph's pose and depth
-    rigid_abs_px: float = Field(0.5, gt=0)  # rigid test tolerance: px ...
-    rigid_rel: float = Field(0.3, ge=0)  # ... plus this share of the rigid flow's depth-dependent part
-    # initialisation stage: rigid and depth tests only this close to a LiDAR return (0: everywhere)
-    rigid_support_px: float = Field(4.0, ge=0)
     depth_mask: bool = False  # drop pixels whose depth, moved into the neighbour, disagrees with the neighbour's depth
-    depth_mask_rel: float = Field(0.05, gt=0, lt=1)  # depth test tolerance, relative
     # monodepth2: per-pixel minimum over the neighbours, pixels that match better unwarped dropped
     auto_mask: bool = True
     # Gaussian NLL of the uncertainty head at the LiDAR-backed landmarks (0: head untrained)
@@ -129,12 +118,8 @@ class SelfSupConfig(_Model):
     max_frames: int | None = Field(None, ge=1)  # first frames of each sequence only (None = all)
     loop_closure: bool = True  # pose quality assurance (Sec. IV-B) in every graph pass
     loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
-    # a landmark counts as visible in frame i when last observed within this many frames
-    landmark_frames: int = Field(4, ge=0)
     # L_f on LiDAR-backed landmarks only (triangulated-only ones carry metres of error)
     landmarks_lidar_only: bool = True
-    # L_r uses a frame when its refined depth is within this of the landmarks (median)
-    refined_agree_rel: float = Field(0.05, gt=0)
     # LiDAR branch: SLIM partial convolutions | pre-interpolated input
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
@@ -142,7 +127,6 @@ class SelfSupConfig(_Model):
     channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
     blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
     init_checkpoint: str | None = None  # start from these weights instead of random ones
-    rerun_frames: int = Field(2, ge=1)  # frames logged to --rerun each epoch
     seed: int = Field(0, ge=0)  # seeds sampling and initialisation
 
     @field_validator("input")
@@ -195,7 +179,6 @@ class MapConfig(_Model):
     # pixels whose 3 x 3 neighbourhood spans more than a factor 1 + edge_jump in depth (a depth edge) are left out;
     # None keeps them (docs/decisions/0011-tuned-settings.md)
     edge_jump: float | None = Field(0.03, gt=0.0)
-    trunc_voxels: float = Field(4.0, gt=0.0)  # the signed distance is truncated at this many voxels
     # voxels observed this many times or fewer are not part of the surface (Open3D keeps the voxels whose summed
     # weight exceeds it): 1, the default, takes a surface seen by two frames or more
     min_weight: float = Field(1.0, ge=0.0)

@@ -10,6 +10,9 @@ import torch
 import torch.nn.functional as F
 
 
+ALPHA = 0.8  # eq. 17: alpha/2 (1 - SSIM) + (1 - alpha) L1
+
+
 def ssim_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """(1 - SSIM) / 2 per pixel over 3 x 3 windows (reflection padded), in [0, 1]."""
     c1, c2 = 0.01**2, 0.03**2
@@ -22,7 +25,7 @@ def ssim_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return ((1 - ssim) / 2).clamp(0, 1)
 
 
-def photometric_error(a: torch.Tensor, b: torch.Tensor, alpha: float = 0.8) -> torch.Tensor:
+def photometric_error(a: torch.Tensor, b: torch.Tensor, alpha: float = ALPHA) -> torch.Tensor:
     """Eq. 17: alpha/2 (1 - SSIM) + (1 - alpha) |a - b|_1, averaged over channels: B x 1 x H x W."""
     return (alpha * ssim_distance(a, b) + (1 - alpha) * (a - b).abs()).mean(1, keepdim=True)
 

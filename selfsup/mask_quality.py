@@ -36,6 +36,7 @@ from selfsup.supervision import (
     keep_mask,
     mover_keep,
     pair_tests,
+    RIGID_SUPPORT_PX,
     rigid_support,
     train_frames,
 )
@@ -55,15 +56,13 @@ VARIANTS = (
 
 
 @torch.no_grad()
-def auto_keep(
-    frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth: np.ndarray, alpha: float
-) -> np.ndarray:
+def auto_keep(frame: TrainFrame, neighbour: TrainFrame, T_j_i: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """monodepth2's auto-mask of one pair: True where the neighbour warped with `depth` matches the
     frame better than the unwarped neighbour."""
     img, nb = image_tensor(frame.image)[None], image_tensor(neighbour.image)[None]
     d = torch.from_numpy(depth.astype(np.float32))[None, None]
     warped, _ = warp_image(nb, d, torch.from_numpy(T_j_i).float()[None], torch.from_numpy(frame.K).float()[None])
-    return (photometric_error(img, warped, alpha) < photometric_error(img, nb, alpha))[0, 0].numpy()
+    return (photometric_error(img, warped) < photometric_error(img, nb))[0, 0].numpy()
 
 
 def score_masks(
@@ -85,7 +84,7 @@ def score_masks(
     graph = graph_pass(blind, cfg, Path(work), checkpoint, len(frames), pose_pass, progress)
     filled = [graph_depth_at(graph, f) for f in frames]
     if checkpoint is None:  # as the trainer's first stage: the classical fill only near returns
-        depth = [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(filled, frames)]
+        depth = [rigid_support(d, f.sparse, RIGID_SUPPORT_PX) for d, f in zip(filled, frames)]
     else:
         depth = filled
     rigid_cfg = cfg.model_copy(update={"rigid_mask": True, "depth_mask": True})
@@ -110,7 +109,7 @@ def score_masks(
             plain = pair_tests(frames, graph.poses, depth, eq19_cfg, k, j)  # eq. 19 alone: the plain flow
             # with the depth-based tests: the initialised flow
             t = pair_tests(frames, graph.poses, depth, rigid_cfg, k, j)
-            auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth, cfg.alpha)
+            auto = auto_keep(f, frames[j], invert_T(graph.poses[j]) @ graph.poses[k], net_depth)
             region = t.inside & has_depth
             both = mover_keep(t, True, True)
             # the tests as the trainer runs them: the rigid test's flow, else the plain flow (and then its own depth

@@ -29,6 +29,18 @@ from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from selfsup.motion_mask import PairKeep, movers, pair_keep
 
+# The masks and targets' fixed settings (LeoVR Sec. IV; chosen on development data):
+FLOW_LAMBDA_PX = 1.0  # eq. 19's lambda: largest distance (px) of the flow end point to its epipolar line
+FLOW_METHOD = "dis"  # OpenCV optical flow (dis | farneback)
+# the rigid test: a pixel's flow within this many px, plus RIGID_REL of the rigid flow's depth-dependent part, of the
+# rigid flow of the graph's pose and depth
+RIGID_ABS_PX = 0.5
+RIGID_REL = 0.3
+RIGID_SUPPORT_PX = 4.0  # initialisation stage: rigid and depth tests only this close to a LiDAR return (0: everywhere)
+DEPTH_MASK_REL = 0.05  # depth test tolerance, relative
+LANDMARK_FRAMES = 4  # a landmark counts as visible in frame i when last observed within this many frames
+REFINED_AGREE_REL = 0.05  # L_r uses a frame when its refined depth is within this of the landmarks (median)
+
 
 class PosePass(Protocol):
     """The window graph over a sequence (the application's `leovr.pipeline.refine.run_refine`): writes
@@ -219,11 +231,11 @@ def pair_tests(
         T_j_i,
         frames[k].K,
         (depth[k], depth[j]) if with_depth else None,
-        cfg.flow_lambda_px,
-        cfg.rigid_abs_px,
-        cfg.rigid_rel,
-        cfg.flow_method,
-        depth_rel=cfg.depth_mask_rel,
+        FLOW_LAMBDA_PX,
+        RIGID_ABS_PX,
+        RIGID_REL,
+        FLOW_METHOD,
+        depth_rel=DEPTH_MASK_REL,
         rigid=cfg.rigid_mask,
         depth_test=cfg.depth_mask,
     )
@@ -263,7 +275,7 @@ def build_supervision(
     n = len(frames)
     keep = graph.landmark_lidar if cfg.landmarks_lidar_only else np.ones(len(graph.landmarks), bool)
     fdepth = [
-        landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], cfg.landmark_frames)
+        landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], LANDMARK_FRAMES)
         for k, f in enumerate(frames)
     ]
     graph_depth = (
@@ -274,14 +286,14 @@ def build_supervision(
     rigid_depth = (
         graph_depth
         if with_refined
-        else [rigid_support(d, f.sparse, cfg.rigid_support_px) for d, f in zip(graph_depth, frames)]
+        else [rigid_support(d, f.sparse, RIGID_SUPPORT_PX) for d, f in zip(graph_depth, frames)]
     )
     refined: list[np.ndarray | None] = [None] * n
     use = np.zeros(n, bool)
     if with_refined:
         for k in range(n):
             refined[k] = graph_depth[k]
-            use[k] = refined_agrees(refined[k], fdepth[k], cfg.refined_agree_rel)
+            use[k] = refined_agrees(refined[k], fdepth[k], REFINED_AGREE_REL)
     prev: list[np.ndarray | None] = [None] * n
     nxt: list[np.ndarray | None] = [None] * n
     if moving is not None or cfg.flow_mask or cfg.rigid_mask or cfg.depth_mask:

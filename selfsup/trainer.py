@@ -52,6 +52,9 @@ from selfsup.warp import warp_image
 TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "sparse", "mask_kept", "refined_used")
 
 
+RERUN_FRAMES = 2  # frames logged to --rerun each epoch
+
+
 def init_epochs(cfg: SelfSupConfig) -> int:
     return int(round(cfg.epochs * cfg.init_fraction))
 
@@ -82,9 +85,9 @@ def photometric_term(
     for side in ("prev", "next"):
         w, inside = warp_image(b[side], depth, b[f"T_{side}"], b["K"])
         keep = inside & (b[f"mask_{side}"] > 0.5)
-        err = photometric_error(img, w, cfg.alpha)
+        err = photometric_error(img, w)
         if cfg.auto_mask:
-            keep = keep & (err.detach() < photometric_error(img, b[side], cfg.alpha))
+            keep = keep & (err.detach() < photometric_error(img, b[side]))
         warped.append(w)
         masks.append(keep)
         errors.append(err)
@@ -144,7 +147,7 @@ class _Rerun:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.rec.save(str(path))
         n = len(dataset)
-        self.picks = sorted({int(round(x)) for x in np.linspace(0, n - 1, min(cfg.rerun_frames, n))})
+        self.picks = sorted({int(round(x)) for x in np.linspace(0, n - 1, min(RERUN_FRAMES, n))})
 
     @torch.no_grad()
     def log(
@@ -157,7 +160,7 @@ class _Rerun:
             b = {k: v[None] for k, v in dataset[j].items()}
             depth, _ = forward_padded(model, b["image"], b["sparse"])
             _, _, extra = batch_terms(depth, b, cfg, refine)
-            pe = photometric_error(b["image"], extra["warped_prev"], cfg.alpha)[0, 0]
+            pe = photometric_error(b["image"], extra["warped_prev"])[0, 0]
             k, i = (int(x) for x in b["key"][0])
             base = f"train/seq{k}/frame{i:06d}"
             to_u8 = lambda t: (t.clamp(0, 1) * 255).byte().permute(1, 2, 0).numpy()  # noqa: E731

@@ -15,6 +15,12 @@ from leovr.errors import DataError
 from leovr.lidar.projection import sparse_depth
 
 
+# density-agnostic input (SLIM): the share of samples that use the sequence's own LiDAR pattern; the others draw a
+# uniform share of the ground-truth pixels in this range
+NATIVE_PROB = 0.5
+DENSITY_RATIO = (0.005, 0.30)
+
+
 def split_entries(root: Path, split: str) -> list[dict]:
     """Manifest records (scenario, lidar, light, seed, ...) of one split, with `path` made absolute."""
     manifest = root / "manifest.json"

@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from leovr.config import SelfSupConfig, TrainConfig
 from leovr.data.io import atomic_write, check_output_dir
-from leovr.depth.dataset import DepthSamples, split_sequences
+from leovr.depth.dataset import DENSITY_RATIO, NATIVE_PROB, DepthSamples, split_sequences
 from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator, GeneratorConfig
 from leovr.errors import DataError
@@ -140,8 +140,8 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     prior, image_edges = cfg.output != "absolute", cfg.prior_edges == "image"
     train_set = DepthSamples(
         split_sequences(root, "train"),
-        (cfg.ratio_min, cfg.ratio_max),
-        cfg.native_prob,
+        DENSITY_RATIO,
+        NATIVE_PROB,
         cfg.max_frames,
         cfg.seed,
         with_prior=prior,

@@ -32,6 +32,9 @@ SIGMA_SCALE = 256.0  # sigma/ PNGs: uint16 = metres x 256, as the depth maps
 MAX_BLOCKS = 150_000
 
 
+TRUNC_VOXELS = 4.0  # the signed distance is truncated at this many voxels
+
+
 class TsdfMap:
     """A growing voxel-block TSDF volume: `add` frames, then `mesh`. Past MAX_BLOCKS the surface so far is kept as a
     mesh and a new volume takes the frames that follow (where the two meet, each holds its side of the surface)."""
@@ -72,7 +75,7 @@ class TsdfMap:
         d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, np.float32)))
         intr = o3c.Tensor(np.asarray(K, np.float64))
         extr = o3c.Tensor(np.linalg.inv(np.asarray(T_world_cam, np.float64)))
-        kw = {"depth_scale": 1.0, "depth_max": self.s.max_depth_m, "trunc_voxel_multiplier": self.s.trunc_voxels}
+        kw = {"depth_scale": 1.0, "depth_max": self.s.max_depth_m, "trunc_voxel_multiplier": TRUNC_VOXELS}
         try:
             blocks = self.grid.compute_unique_block_coordinates(d, intr, extr, **kw)
         except RuntimeError as exc:  # Open3D samples the depth map sparsely: a few valid pixels may touch no block
