@@ -189,7 +189,8 @@ def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_pa
     for name, rel in (("mcap", 1e-5), ("ros1", 1e-5), ("sweep_start", 1e-3)):  # point times moved by < 1 ns
         for key, mae in runs["folder"][0].items():
             assert runs[name][0][key] == pytest.approx(mae, rel=rel), (name, key)
-        assert runs[name][1] == pytest.approx(runs["folder"][1], rel=rel)
+        # the ATE to 1e-5 m too: the poses pass through a quaternion in a bag (1e-6 m, above), against 5 cm of ATE
+        assert runs[name][1] == pytest.approx(runs["folder"][1], rel=rel, abs=1e-5)
     assert runs["folder"][0]["refined"] < runs["folder"][0]["nearest"]
 
 
