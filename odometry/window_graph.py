@@ -303,14 +303,13 @@ class WindowGraph:
         self.icp_poses = {j: v for j, v in self.icp_poses.items() if j in self.poses}
         for j, (Tj, cov_j) in self.icp_poses.items():
             motion = invert_T(Tj) @ T
-            ref = f.pair_motions.get(j)
+            pair = ref = f.pair_motions.get(j)
             if ref is None:  # the front end's motion from the window's newest frame, chained back to frame j
                 ref = (
                     invert_T(self.poses[j]) @ self.poses[self.last] @ f.T_prev_rel
                     if f.T_prev_rel is not None and self.last in self.poses
                     else invert_T(self.poses[j]) @ f.T_init
                 )
-            pair = f.pair_motions.get(j)
             if rotation_angle_deg(ref[:3, :3].T @ motion[:3, :3]) > ICP_GATE_DEG or (
                 pair is not None and not direction_agrees(pair[:3, 3], motion[:3, 3])
             ):

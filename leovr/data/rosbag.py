@@ -44,7 +44,7 @@ from leovr.data.bag_salvage import SalvagedBag, storage_files
 from leovr.data.bag_time import increasing, pair_by_span, point_time_scale
 from leovr.data.io import associate
 from leovr.data.records import Frame
-from leovr.data.sequence import Sequence
+from leovr.data.sequence import RecordedSequence
 from leovr.errors import DataError, brief
 from leovr.geometry import poses_at
 
@@ -108,7 +108,7 @@ class _Index:
     log_span: dict[str, tuple[int, int]] = field(default_factory=dict)  # topic -> first and last log time read
 
 
-class RosbagSequence(Sequence):
+class RosbagSequence(RecordedSequence):
     """A ROS 1 or ROS 2 bag read as a sequence of camera + LiDAR frames (module docstring)."""
 
     name = "rosbag"
@@ -409,12 +409,6 @@ class RosbagSequence(Sequence):
     def _num_frames(self) -> int:
         return len(self._images)
 
-    def timestamps(self) -> np.ndarray:
-        return self._times.copy()
-
-    def pose(self, i: int) -> np.ndarray | None:
-        return None if self._poses is None else self._poses[i]
-
     def _message(self, topic: str, log_ns: int, stamp_ns: int) -> tuple[Any, str]:
         """The message of `topic` logged at `log_ns` with header stamp `stamp_ns`."""
         with self._lock:
@@ -449,16 +443,7 @@ class RosbagSequence(Sequence):
                     points, times = rm.decode_cloud(cloud, int(self._stamps_ns[i]), self.time_scale)
                 except rm.MessageError as exc:
                     raise DataError(self.path, f"{self.lidar} scan of frame {i}: {exc}") from exc
-        return Frame(
-            index=i,
-            timestamp=float(self._times[i]),
-            image=image,
-            K=self.K,
-            T_cam_lidar=self.T_cam_lidar,
-            points=points,
-            point_times=times,
-            T_world_cam=None if self._poses is None else self._poses[i],
-        )
+        return self._frame(i, image, points, times)
 
     # -- what `leovr info` prints ---------------------------------------------------------------------------
 

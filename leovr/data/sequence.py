@@ -117,43 +117,20 @@ class Sequence(ABC):
         )
 
 
-class FileSequence(Sequence):
-    """A sequence backed by per-frame image and scan files, timestamps and optional poses.
+class RecordedSequence(Sequence):
+    """A recording with one camera calibration, per-frame times and optional poses: readers fill `_times`, `_poses`
+    (F x 4 x 4 or None), `K` and `T_cam_lidar`; `_frame` builds frame i from its image and scan."""
 
-    Readers fill `image_files`, `scan_files` (empty without LiDAR), `_times`, `_poses` (F x 4 x 4 or
-    None), `K` and `T_cam_lidar`, and `sweeps` where the recording stamps the start and end of each
-    spinning LiDAR's sweep (F x 2, seconds from the frame's image; each point's time then follows from its
-    azimuth); loading a frame is then the same for all of them.
-    """
-
-    sweeps: np.ndarray | None = None
-
-    image_files: list[Path]
-    scan_files: list[Path]
     _times: np.ndarray
     _poses: np.ndarray | None
     K: np.ndarray
     T_cam_lidar: np.ndarray
 
-    def _num_frames(self) -> int:
-        return len(self.image_files)
-
     def timestamps(self) -> np.ndarray:
         return self._times.copy()
 
-    def image_path(self, i: int) -> Path | None:
-        return self.image_files[i]
-
     def pose(self, i: int) -> np.ndarray | None:
         return None if self._poses is None else self._poses[i]
-
-    def _load(self, i: int) -> Frame:
-        points = read_point_file(self.scan_files[i], 4) if self.scan_files else None
-        times = None
-        if points is not None and self.sweeps is not None:
-            start, end = self.sweeps[i]
-            times = start + azimuth_times(points, end - start)
-        return self._frame(i, read_image(self.image_files[i]), points, times)
 
     def _frame(
         self, i: int, image: np.ndarray, points: np.ndarray | None, point_times: np.ndarray | None = None, **extra
@@ -170,6 +147,35 @@ class FileSequence(Sequence):
             T_world_cam=None if self._poses is None else self._poses[i],
             **extra,
         )
+
+
+class FileSequence(RecordedSequence):
+    """A sequence backed by per-frame image and scan files, timestamps and optional poses.
+
+    Readers fill `image_files`, `scan_files` (empty without LiDAR), `_times`, `_poses` (F x 4 x 4 or
+    None), `K` and `T_cam_lidar`, and `sweeps` where the recording stamps the start and end of each
+    spinning LiDAR's sweep (F x 2, seconds from the frame's image; each point's time then follows from its
+    azimuth); loading a frame is then the same for all of them.
+    """
+
+    sweeps: np.ndarray | None = None
+
+    image_files: list[Path]
+    scan_files: list[Path]
+
+    def _num_frames(self) -> int:
+        return len(self.image_files)
+
+    def image_path(self, i: int) -> Path | None:
+        return self.image_files[i]
+
+    def _load(self, i: int) -> Frame:
+        points = read_point_file(self.scan_files[i], 4) if self.scan_files else None
+        times = None
+        if points is not None and self.sweeps is not None:
+            start, end = self.sweeps[i]
+            times = start + azimuth_times(points, end - start)
+        return self._frame(i, read_image(self.image_files[i]), points, times)
 
 
 class SequenceView(Sequence):

@@ -32,6 +32,7 @@ class RunScoring:
         from odometry.mono_vo import MonoVO
 
         self.seq, self.cfg, self.ccfg, self.out, self.score, self.first = seq, cfg, ccfg, out, score, first
+        self.names = seq.frame_numbers()
         self.scored: dict[int, FrameScore] = {}
         self.textbook = MonoVO(first.K) if cfg.compare else None  # the `mono_vo` baseline on the same images
 
@@ -48,7 +49,7 @@ class RunScoring:
             fs.own_input = (*np.nonzero(sample.sparse), sample.sparse[sample.sparse > 0])
         if has_lidar and not finished:
             ipb = complete_depth(sample.sparse, "ipbasic")
-            writer.submit(write_depth_png, self.out / "depth_ipbasic" / png_name(self.seq.frame_numbers(), i), ipb)
+            writer.submit(write_depth_png, self.out / "depth_ipbasic" / png_name(self.names, i), ipb)
             if fs is not None:
                 fs.add("ipbasic", ipb)
                 fs.add("nearest", complete_depth(sample.sparse, "nearest"))
