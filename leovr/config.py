@@ -117,9 +117,6 @@ class SelfSupConfig(_Model):
     train_focal_px: float | None = 260.0
     max_frames: int | None = Field(None, ge=1)  # first frames of each sequence only (None = all)
     loop_closure: bool = True  # pose quality assurance (Sec. IV-B) in every graph pass
-    loop_min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
-    # L_f on LiDAR-backed landmarks only (triangulated-only ones carry metres of error)
-    landmarks_lidar_only: bool = True
     # LiDAR branch: SLIM partial convolutions | pre-interpolated input
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage

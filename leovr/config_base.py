@@ -36,8 +36,6 @@ class FrameSelection(_Model):
     step: int = Field(1, ge=1)  # every n-th frame
     # ground-truth distance bins (m) the depth error is also reported in (increasing; the last may be .inf)
     bins: list[Annotated[float, Field(allow_inf_nan=True)]] = list(LEOVR_BINS)
-    parallax_window: int = 7  # held-out point dropped when a return in this window (px, side) is nearer ...
-    parallax_rel: float = 0.15  # ... by more than this fraction (LiDAR-camera parallax filter)
 
     @field_validator("input")
     @classmethod

@@ -103,23 +103,9 @@ class CameraOnlyConfig(_Model):
     """The camera-only profile, used without LiDAR (`--input none`, or a recording without one): the metric
     step length from the road or the generator, and looser graph priors."""
 
-    depth_sigma_log: float = 0.2  # how far one frame's depth-based step length may be off (log)
-    track_sigma_log: float = 0.05  # how far the tracks' relative scale may be off (log)
-    speed_sigma_log: float = 0.005  # step-length change per frame (log; inertia; chosen on development clips)
-    # the epipolar motion's rotation sigma in the graph (rad): its precision (thousands of sub-pixel tracks), not
-    # the reprojection factors' on ORB matches, which pulled the heading off where it was looser
-    odometry_sigma_rad: float = Field(0.0003, gt=0)
-    odometry_sigma_rel: float = 0.05  # its translation sigma per metre of step
     # the camera's height above the road (m), which sets the metric scale; None: the recording's own
     # (KITTI: 1.65 m); 0: off (scale from the generator)
     camera_height_m: float | None = Field(None, ge=0)
-    ground_sigma_log: float = Field(0.08, gt=0)  # one frame's road-based step length, log sigma at 20 road corners
-    # the epipolar motion's translation sigma per metre of step where the road gave its length
-    ground_odometry_sigma_rel: float = Field(0.001, gt=0)
-    # road scale: landmarks triangulated from the metric motion where the rays part by this angle (deg),
-    # else seeded from the generator's depth (docs/decisions/0008-camera-only-loose-priors.md)
-    ground_triangulation_min_deg: float = Field(0.3, gt=0)
-    triangulated_prior_rel: float = Field(1.0, gt=0)  # ... and their depth prior, sigma / depth
     # ORB features per frame in place of `frontend.n_features`: the graph marginalises a leaving frame's landmarks
     # into one dense factor, whose cost grows with them; half as many keep the ATE at less time
     # (docs/decisions/0011-tuned-settings.md)

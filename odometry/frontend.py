@@ -39,6 +39,16 @@ GENERATOR_LANDMARK_PRIOR_REL = 1.0
 # share of their median (odometry.lidar_assoc.associate)
 ASSOC_RADIUS_PX = 5.0
 ASSOC_MAX_REL_SPREAD = 0.1
+# Camera only (docs/decisions/0008-camera-only-loose-priors.md): the epipolar motion enters the graph with the
+# rotation sigma of its precision (thousands of sub-pixel tracks), not the reprojection factors' on ORB matches,
+# which pulled the heading off where it was looser (rad)
+MONO_ODOMETRY_SIGMA_RAD = 0.0003
+MONO_ODOMETRY_SIGMA_REL = 0.05  # its translation sigma per metre of step
+MONO_GROUND_ODOMETRY_SIGMA_REL = 0.001  # ... where the road plane gave the step's length
+# where the road gave the step, landmarks are triangulated from the metric motion once their rays part by this
+# angle (deg; else seeded from the generator's depth) and get this depth prior (sigma / depth)
+MONO_GROUND_TRIANGULATION_MIN_DEG = 0.3
+MONO_TRIANGULATED_PRIOR_REL = 1.0
 
 
 @dataclass
@@ -74,19 +84,7 @@ class FrontEnd:
         self.icp = (
             LidarOdometry(self.T_cam_lidar, cov_inflation=cfg.graph.icp_cov_inflation) if self.use_lidar else None
         )
-        camera_only = cfg.camera_only
-        self.mono = (
-            None
-            if self.use_lidar
-            else MonoMotion(
-                self.K,
-                camera_only.depth_sigma_log,
-                camera_only.track_sigma_log,
-                camera_only.speed_sigma_log,
-                camera_height=self.camera_height,
-                ground_sigma_log=camera_only.ground_sigma_log,
-            )
-        )
+        self.mono = None if self.use_lidar else MonoMotion(self.K, camera_height=self.camera_height)
 
     @property
     def depth_scale(self) -> float:
@@ -196,7 +194,7 @@ class FrontEnd:
                     T_rel,
                     p.feats.uv[ia],
                     feats.uv[ib],
-                    cfg.camera_only.ground_triangulation_min_deg if road else 1.0,
+                    MONO_GROUND_TRIANGULATION_MIN_DEG if road else 1.0,
                 )
             else:
                 inl = reprojection_inliers(T_init, obj, img, self.K, cfg.frontend.pnp_reproj_px)
@@ -290,7 +288,7 @@ class FrontEnd:
                 self.next_landmark += 1
                 new_landmarks[k] = obj[m]
                 if road_placed[m]:
-                    prior_rel[k] = self.cfg.camera_only.triangulated_prior_rel
+                    prior_rel[k] = MONO_TRIANGULATED_PRIOR_REL
                 elif self.use_lidar and p.lidar_cam[a] is None:
                     prior_rel[k] = GENERATOR_LANDMARK_PRIOR_REL
                 observations.append(
@@ -305,12 +303,12 @@ class FrontEnd:
         """Initial pose without LiDAR, its source and its between-factor covariance: the epipolar motion with
         its filtered step length; where that failed, PnP on the landmarks if its motion passes the
         epipolar test of the matches; else constant velocity."""
-        cfg, camera_only = self.cfg, self.cfg.camera_only
+        cfg = self.cfg
         if step.scale_source != "constant_speed":
             length = float(np.linalg.norm(step.T_rel[:3, 3]))
             ground = step.scale_source.startswith("ground")
-            rel = camera_only.ground_odometry_sigma_rel if ground else camera_only.odometry_sigma_rel
-            sigmas = np.r_[np.full(3, camera_only.odometry_sigma_rad), np.full(3, max(rel * length, 0.01))]
+            rel = MONO_GROUND_ODOMETRY_SIGMA_REL if ground else MONO_ODOMETRY_SIGMA_REL
+            sigmas = np.r_[np.full(3, MONO_ODOMETRY_SIGMA_RAD), np.full(3, max(rel * length, 0.01))]
             return T_prev @ step.T_rel, f"epipolar ({step.scale_source})", np.diag(sigmas**2)
         T_pnp = pnp_pose(obj, img, self.K, cfg.frontend.pnp_reproj_px)[0]
         if T_pnp is not None and epipolar_agrees(invert_T(T_prev) @ T_pnp, uv0, uv1, self.K):

@@ -89,7 +89,8 @@ class MonoMotion:
     K: np.ndarray
     depth_sigma_log: float = 0.2  # how far one frame's depth-based step length may be off (log)
     track_sigma_log: float = 0.05  # how far the relative scale of tracked corners may be off (log)
-    speed_sigma_log: float = 0.02  # how much the step length changes from one frame to the next (log)
+    # how much the step length changes from one frame to the next (log; inertia; chosen on development clips)
+    speed_sigma_log: float = 0.005
     min_parallax_px: float = 1.0  # below: the camera stands
     max_corners: int = 2000
     camera_height: float | None = None  # metres above the road; None: no road-plane scale

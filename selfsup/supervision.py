@@ -141,7 +141,7 @@ def graph_pass(
             input=cfg.input,
             end=n_frames,
             seed=cfg.seed,
-            loop=LoopConfig(enabled=cfg.loop_closure, min_gap=cfg.loop_min_gap),
+            loop=LoopConfig(enabled=cfg.loop_closure),
             generator_focal_px=cfg.train_focal_px,
             depth_source="ipbasic" if checkpoint is None else "generator",
             # forced on with a generator (not `auto`): L_r needs a correction field that can move
@@ -273,7 +273,7 @@ def build_supervision(
     `moving` (a bound for benchmarks, never a method): each frame's true moving mask at the training
     resolution; the photometric mask is then exactly its complement, in place of every configured test."""
     n = len(frames)
-    keep = graph.landmark_lidar if cfg.landmarks_lidar_only else np.ones(len(graph.landmarks), bool)
+    keep = graph.landmark_lidar  # L_f on LiDAR-backed landmarks only: triangulated-only ones carry metres of error
     fdepth = [
         landmark_depth(f, graph.poses[k], graph.landmarks[keep], graph.landmark_frame[keep], LANDMARK_FRAMES)
         for k, f in enumerate(frames)

@@ -135,9 +135,9 @@ def test_a_vehicle_driving_along_fails_the_parallax_test():
 
 def test_with_the_road_triangulated_landmarks_get_the_loose_prior(drive):
     """Where the road gave the step, landmarks whose rays part by at least
-    `camera_only.ground_triangulation_min_deg` are placed by the metric motion and get the loose depth prior;
+    `MONO_GROUND_TRIANGULATION_MIN_DEG` are placed by the metric motion and get the loose depth prior;
     without a camera height (scale from the generator's depth) every landmark keeps the default prior."""
-    from odometry.frontend import FrontEnd
+    from odometry.frontend import MONO_TRIANGULATED_PRIOR_REL, FrontEnd
     from odometry.window_graph import WindowGraph
 
     _, frames = drive
@@ -152,7 +152,7 @@ def test_with_the_road_triangulated_landmarks_get_the_loose_prior(drive):
             depth = 0.7 * np.where(f.depth > 0, f.depth, 100.0)  # a generator has depth everywhere (sky: far)
             fi = front.process(i, f.image, depth, np.log(0.1 * depth), None, None, graph)
             assert set(fi.landmark_prior_rel) <= set(fi.new_landmarks)
-            assert all(r == cfg.camera_only.triangulated_prior_rel for r in fi.landmark_prior_rel.values())
+            assert all(r == MONO_TRIANGULATED_PRIOR_REL for r in fi.landmark_prior_rel.values())
             n_new, n_loose = n_new + len(fi.new_landmarks), n_loose + len(fi.landmark_prior_rel)
             graph.add_frame(fi)
         flagged[h] = (n_loose, n_new)
@@ -339,15 +339,7 @@ def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
     n = min(40, len(seq))
     cfg = RefineConfig(input="none")
     gen = generator_method(completion_config(cfg))
-    mono = cfg.camera_only
-    mm = MonoMotion(
-        seq[0].K,
-        mono.depth_sigma_log,
-        mono.track_sigma_log,
-        mono.speed_sigma_log,
-        camera_height=road_height(seq, cfg),
-        ground_sigma_log=mono.ground_sigma_log,
-    )
+    mm = MonoMotion(seq[0].K, camera_height=road_height(seq, cfg))
     icp = LidarOdometry(seq[0].T_cam_lidar)
     poses, ref = [np.eye(4)], []
     for i in range(n):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import minimum_filter
 
+# a held-out point is dropped when a return within this window (px, side) is nearer by more than this fraction
 PARALLAX_WINDOW = 7
 PARALLAX_REL = 0.15
 

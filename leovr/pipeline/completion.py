@@ -22,7 +22,7 @@ from leovr.data.sequence import Sequence
 from leovr.depth.fills import complete_depth
 from leovr.errors import DataError, brief
 from leovr.eval.depth_metrics import DepthMetricAccumulator
-from leovr.eval.heldout import parallax_filter
+from leovr.eval.heldout import PARALLAX_REL, PARALLAX_WINDOW, parallax_filter
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
 from leovr.paths import shipped_checkpoint
@@ -57,7 +57,7 @@ def heldout_truth(frame: Frame, heldout: np.ndarray, cfg: CompleteConfig, scan: 
     shared data README)."""
     held = sparse_depth(heldout, frame.K, frame.T_cam_lidar, frame.shape)
     every = sparse_depth(frame.points if scan is None else scan, frame.K, frame.T_cam_lidar, frame.shape)
-    return parallax_filter(held, every, cfg.parallax_window, cfg.parallax_rel)
+    return parallax_filter(held, every)
 
 
 def with_truth(sample: EvalSample, cfg: CompleteConfig) -> EvalSample:
@@ -161,8 +161,8 @@ def ground_truth_note(kind: str, cfg: CompleteConfig) -> str:
     if kind == "none":
         return "none (the whole scan is the input, no points held out)"
     return (
-        f"held-out LiDAR points; each dropped when a return within a {cfg.parallax_window}x{cfg.parallax_window} "
-        f"window is nearer by more than {cfg.parallax_rel:.0%} (LiDAR-camera parallax filter)"
+        f"held-out LiDAR points; each dropped when a return within a {PARALLAX_WINDOW}x{PARALLAX_WINDOW} "
+        f"window is nearer by more than {PARALLAX_REL:.0%} (LiDAR-camera parallax filter)"
     )
 
 

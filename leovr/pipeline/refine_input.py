@@ -125,7 +125,5 @@ def frame_sample(
     if has_points:
         scan = truth_scan(seq, i, raw)
         every = sparse_depth(f.points if scan is None else scan(), f.K, f.T_cam_lidar, f.shape)
-        return EvalSample(
-            f, empty, parallax_filter(every, every, ccfg.parallax_window, ccfg.parallax_rel), "heldout", None
-        )
+        return EvalSample(f, empty, parallax_filter(every, every), "heldout", None)
     return EvalSample(f, empty, empty, "none", None)
