@@ -38,7 +38,8 @@ from leovr.pipeline.refine import run_refine
 from leovr.sim.dataset import RECIPES, Recipe, default_root, make_dataset
 from selfsup.mask_quality import VARIANTS, score_masks
 from selfsup.supervision import train_frames
-from selfsup.trainer import config_changes, train_selfsup
+from selfsup.train_state import config_changes
+from selfsup.trainer import train_selfsup
 
 NO_MASKS = {"flow_mask": False, "rigid_mask": False, "depth_mask": False, "auto_mask": False}  # the "no mask" variants
 # --quick: one short sequence per scenario in each split, rendered on demand (a fresh clone has no dataset)

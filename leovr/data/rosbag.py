@@ -32,7 +32,7 @@ from __future__ import annotations
 import os
 import threading
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,12 +40,15 @@ import cv2
 import numpy as np
 
 from leovr.data import ros_messages as rm
+from leovr.data.bag_calibration import camera_model, lidar_extrinsic
+from leovr.data.bag_index import BagIndex, index_bag
 from leovr.data.bag_salvage import SalvagedBag, storage_files
 from leovr.data.bag_time import increasing, pair_by_span, point_time_scale
+from leovr.data.bag_topics import BagTopic, bag_topics, pick_info_topic, pick_topic
 from leovr.data.io import associate
 from leovr.data.records import Frame
 from leovr.data.sequence import RecordedSequence
-from leovr.errors import DataError, brief
+from leovr.errors import DataError
 from leovr.geometry import poses_at
 
 ROS2_SUFFIXES = (".mcap", ".db3")
@@ -84,30 +87,6 @@ def _bag_root(path: Path) -> Path:
     return path
 
 
-@dataclass
-class _Topic:
-    name: str
-    msgtype: str
-    count: int
-    connections: list[Any] = field(default_factory=list)
-
-
-@dataclass
-class _Index:
-    """What one pass over the bag's stamps found."""
-
-    images: list[tuple[int, int]] = field(default_factory=list)  # (log time, header stamp), ns
-    clouds: list[tuple[int, int]] = field(default_factory=list)
-    spans: list[tuple[float, float, bool] | None] = field(default_factory=list)  # each cloud's point times
-    poses: list[tuple[int, np.ndarray, str]] = field(default_factory=list)  # (stamp ns, T_world_body, body frame)
-    info: Any = None
-    tree: rm.FrameTree = field(default_factory=rm.FrameTree)
-    camera_frame: str = ""
-    lidar_frame: str = ""
-    damaged: str = ""  # why the pass stopped early, when it did
-    log_span: dict[str, tuple[int, int]] = field(default_factory=dict)  # topic -> first and last log time read
-
-
 class RosbagSequence(RecordedSequence):
     """A ROS 1 or ROS 2 bag read as a sequence of camera + LiDAR frames (module docstring)."""
 
@@ -121,18 +100,40 @@ class RosbagSequence(RecordedSequence):
         self._pid = -1
         self.salvaged = ""  # where a damaged bag stops, when it does
         reader = self._open()
-        self.topics = self._topics(reader)
-        self.camera = self._pick(rm.IMAGE_TYPES, self.choice.camera, "camera", "--camera-topic")
-        self.lidar = self._pick((rm.CLOUD_TYPE,), self.choice.lidar, "point cloud", "--lidar-topic", required=False)
-        self.info_topic = self._pick_info()
-        self.pose_topic = self._pick(
-            (*rm.POSE_TYPES,), self.choice.poses, "pose", "--pose-topic", required=False, ambiguous_ok=True
+        self.topics = bag_topics(reader)
+        self.camera = pick_topic(
+            self.path,
+            self.topics,
+            rm.IMAGE_TYPES,
+            self.choice.camera,
+            "camera",
+            "--camera-topic",
+            salvaged=self.salvaged,
         )
-        idx = self._index(reader)
+        self.lidar = pick_topic(
+            self.path, self.topics, (rm.CLOUD_TYPE,), self.choice.lidar, "point cloud", "--lidar-topic", required=False
+        )
+        self.info_topic = pick_info_topic(self.path, self.topics, self.camera, self.choice.camera_info)
+        self.pose_topic = pick_topic(
+            self.path,
+            self.topics,
+            (*rm.POSE_TYPES,),
+            self.choice.poses,
+            "pose",
+            "--pose-topic",
+            required=False,
+            ambiguous_ok=True,
+        )
+        idx = index_bag(reader, self.path, self.topics, self.camera, self.lidar, self.info_topic, self.pose_topic)
         self._log_span = idx.log_span
-        self._setup_camera(idx)
+        self.K, self._maps = camera_model(self.path, self.camera, self.info_topic, idx.info)
+        self._mono_shift: int | None = None
         self._pair(idx)
-        self.T_cam_lidar = self._extrinsic(idx) if self.lidar is not None else np.eye(4)
+        self.T_cam_lidar = (
+            lidar_extrinsic(self.path, idx.tree, idx.camera_frame, idx.lidar_frame, self.choice.extrinsic)
+            if self.lidar is not None
+            else np.eye(4)
+        )
         self._poses = self._camera_poses(idx)
         self.has_lidar = self.lidar is not None
         self.has_poses = self._poses is not None
@@ -142,7 +143,7 @@ class RosbagSequence(RecordedSequence):
         if self.damaged:
             warnings.warn(f"{self.path}: {self.damaged}; the {len(self)} frames before it are read", stacklevel=2)
 
-    # -- opening and topics -------------------------------------------------------------------------------
+    # -- opening --------------------------------------------------------------------------------------------
 
     def _open(self) -> Any:
         """The bag's reader, opened once per process (a forked worker opens its own)."""
@@ -175,131 +176,9 @@ class RosbagSequence(RecordedSequence):
             self.salvaged = f"damaged, {bag.damaged}{_repair_hint(self.path)}"
         return bag
 
-    def _topics(self, reader: Any) -> dict[str, _Topic]:
-        topics: dict[str, _Topic] = {}
-        for c in reader.connections:
-            t = topics.setdefault(c.topic, _Topic(c.topic, c.msgtype, 0))
-            t.count += int(c.msgcount)
-            t.connections.append(c)
-        return topics
+    # -- pairing and poses ----------------------------------------------------------------------------------
 
-    def _pick(
-        self,
-        types: tuple[str, ...],
-        named: str | None,
-        what: str,
-        option: str,
-        required: bool = True,
-        ambiguous_ok: bool = False,
-    ) -> str | None:
-        """The topic of one of `types`: the one named, else the only candidate."""
-        found = sorted(t.name for t in self.topics.values() if t.msgtype in types and t.count > 0)
-        if named is not None:
-            if named not in self.topics:
-                raise DataError(self.path, f"no topic {named} (topics of a {what}: {brief(found, 8) or 'none'})")
-            if self.topics[named].msgtype not in types:
-                raise DataError(
-                    self.path, f"topic {named} is a {self.topics[named].msgtype}, not a {what} ({' or '.join(types)})"
-                )
-            return named
-        if len(found) == 1:
-            return found[0]
-        if not found:
-            if required:
-                damaged = f"; {self.salvaged}" if self.salvaged else ""
-                raise DataError(self.path, f"no {what} topic ({' or '.join(types)}) in this bag{damaged}")
-            return None
-        if ambiguous_ok:
-            warnings.warn(
-                f"{self.path}: {len(found)} {what} topics ({', '.join(found)}); none used, name one with {option}",
-                stacklevel=3,
-            )
-            return None
-        raise DataError(self.path, f"{len(found)} {what} topics ({', '.join(found)}): choose one with {option}")
-
-    def _pick_info(self) -> str | None:
-        """The camera's CameraInfo: the one named, the only one, or the one beside the image topic."""
-        infos = sorted(t.name for t in self.topics.values() if t.msgtype == rm.INFO_TYPE and t.count > 0)
-        if self.choice.camera_info is not None or len(infos) <= 1:
-            return self._pick(
-                (rm.INFO_TYPE,), self.choice.camera_info, "camera info", "--camera-info-topic", required=False
-            )
-        ns = self.camera.rsplit("/", 1)[0]
-        beside = [t for t in infos if t.rsplit("/", 1)[0] == ns]
-        if len(beside) == 1:
-            return beside[0]
-        raise DataError(
-            self.path, f"{len(infos)} camera info topics ({', '.join(infos)}): choose one with --camera-info-topic"
-        )
-
-    # -- the index pass -------------------------------------------------------------------------------------
-
-    def _index(self, reader: Any) -> _Index:
-        """One pass over the bag's messages of the chosen topics: stamps, calibration, static transforms."""
-        idx = _Index()
-        wanted = {self.camera, self.lidar, self.info_topic, self.pose_topic, "/tf_static", "tf_static"} - {None}
-        conns = [c for t in wanted if t in self.topics for c in self.topics[t].connections]
-        n = 0
-        try:
-            for conn, log_ns, raw in reader.messages(connections=conns):
-                n += 1
-                topic = conn.topic
-                first = idx.log_span.get(topic, (log_ns, log_ns))[0]
-                idx.log_span[topic] = (first, log_ns)
-                if topic == self.info_topic and idx.info is not None:
-                    continue
-                msg = reader.deserialize(raw, conn.msgtype)
-                if topic == self.camera:
-                    idx.images.append((log_ns, rm.stamp_ns(msg)))
-                    idx.camera_frame = idx.camera_frame or str(msg.header.frame_id)
-                elif topic == self.lidar:
-                    idx.clouds.append((log_ns, rm.stamp_ns(msg)))
-                    idx.spans.append(rm.cloud_time_range(msg))
-                    idx.lidar_frame = idx.lidar_frame or str(msg.header.frame_id)
-                elif topic == self.info_topic:
-                    idx.info = msg
-                elif topic == self.pose_topic:
-                    T, body = rm.pose_matrix(msg, conn.msgtype)
-                    idx.poses.append((rm.stamp_ns(msg), T, body))
-                elif conn.msgtype == rm.TF_TYPE:
-                    idx.tree.add(msg)
-        except Exception as exc:  # a truncated or damaged bag: what came before it stays usable
-            idx.damaged = f"unreadable after message {n} ({type(exc).__name__}: {exc})"
-        if not idx.images:
-            raise DataError(
-                self.path, f"no image could be read from {self.camera}" + (f": {idx.damaged}" if idx.damaged else "")
-            )
-        return idx
-
-    def _setup_camera(self, idx: _Index) -> None:
-        """Intrinsics from the CameraInfo, with the undistortion maps when the lens distorts."""
-        if idx.info is None:
-            raise DataError(
-                self.path, f"no camera info for {self.camera} (sensor_msgs/CameraInfo): the camera matrix is needed"
-            )
-        try:
-            K, D, model, (h, w) = rm.camera_intrinsics(idx.info)
-        except rm.MessageError as exc:
-            raise DataError(self.path, f"{self.info_topic}: {exc}") from exc
-        self._maps = None
-        self._mono_shift: int | None = None
-        if len(D) and np.any(D != 0):
-            if model in ("plumb_bob", "rational_polynomial"):
-                Knew = cv2.getOptimalNewCameraMatrix(K, D, (w, h), 0.0)[0]
-                self._maps = cv2.initUndistortRectifyMap(K, D, None, Knew, (w, h), cv2.CV_32FC1)
-            elif model in ("equidistant", "fisheye"):
-                Knew = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D[:4], (w, h), np.eye(3))
-                self._maps = cv2.fisheye.initUndistortRectifyMap(K, D[:4], np.eye(3), Knew, (w, h), cv2.CV_32FC1)
-            else:
-                raise DataError(
-                    self.path,
-                    f"{self.info_topic}: distortion model {model!r} is not read "
-                    "(plumb_bob, rational_polynomial, equidistant)",
-                )
-            K = Knew
-        self.K = np.asarray(K, np.float64)
-
-    def _pair(self, idx: _Index) -> None:
+    def _pair(self, idx: BagIndex) -> None:
         """Each image with the sweep whose point times span its stamp, else the nearest (module docstring)."""
         keep_img = increasing(self.path, self.camera, [s for _, s in idx.images])
         images = [idx.images[k] for k in keep_img]
@@ -362,22 +241,7 @@ class RosbagSequence(RecordedSequence):
         self._times = (self._stamps_ns - self._stamps_ns[0]) * 1e-9
         self.unpaired = int((self._scan < 0).sum()) if self.lidar is not None else 0
 
-    def _extrinsic(self, idx: _Index) -> np.ndarray:
-        """T_cam_lidar: from the extrinsic file when given, else chained through /tf_static."""
-        if self.choice.extrinsic is not None:
-            return read_extrinsic(Path(self.choice.extrinsic))
-        T = idx.tree.between(idx.camera_frame, idx.lidar_frame)
-        if T is None:
-            frames = brief(idx.tree.frames, 8) or "no /tf_static"
-            raise DataError(
-                self.path,
-                f"no transform from the LiDAR's frame {idx.lidar_frame!r} to the camera's "
-                f"{idx.camera_frame!r} ({frames}); give one with --extrinsic FILE "
-                "(T_cam_lidar, 12 or 16 numbers)",
-            )
-        return T
-
-    def _camera_poses(self, idx: _Index) -> np.ndarray | None:
+    def _camera_poses(self, idx: BagIndex) -> np.ndarray | None:
         """The camera's pose at each image's stamp (F x 4 x 4), None without usable poses."""
         if not idx.poses:
             return None
@@ -455,7 +319,7 @@ class RosbagSequence(RecordedSequence):
             use |= {t: "extrinsic" for t in ("/tf_static", "tf_static")}
         bag_span = max((self._reader.end_time - self._reader.start_time) * 1e-9, 1e-9)
 
-        def rate(t: _Topic) -> float:
+        def rate(t: BagTopic) -> float:
             a, b = self._log_span.get(t.name, (0, 0))
             span = (b - a) * 1e-9 if b > a else bag_span
             return round((t.count - 1) / span, 2) if t.count > 1 else 0.0
@@ -495,23 +359,3 @@ def _repair_hint(path: Path) -> str:
     if ".db3" in storage:
         return " (`sqlite3 FILE .recover` salvages a SQLite file's rows)"
     return ""
-
-
-def read_extrinsic(path: Path) -> np.ndarray:
-    """T_cam_lidar from a text file of 12 (3 x 4) or 16 (4 x 4) numbers."""
-    try:
-        vals = np.array(path.read_text().replace(",", " ").split(), np.float64)
-    except OSError as exc:
-        raise DataError(path, f"cannot read the extrinsic: {exc.strerror or exc}") from exc
-    except ValueError:
-        raise DataError(path, "an extrinsic file holds 12 or 16 numbers (T_cam_lidar)") from None
-    if len(vals) not in (12, 16) or not np.isfinite(vals).all():
-        raise DataError(path, f"an extrinsic file holds 12 or 16 finite numbers (T_cam_lidar), not {len(vals)}")
-    T = np.eye(4)
-    T[:3] = vals[:12].reshape(3, 4)
-    if len(vals) == 16 and not np.allclose(vals[12:], [0, 0, 0, 1]):
-        raise DataError(path, "the last row of a 4 x 4 extrinsic must be 0 0 0 1")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
-        raise DataError(path, "the extrinsic's rotation block is not a rotation")
-    return T
