@@ -56,7 +56,8 @@ class AccumulationConfig(_Model):
 class MotionStereoConfig(_Model):
     """Motion stereo (odometry.motion_stereo): image corners triangulated over the frames before and after
     correct the generator's depth where a cone LiDAR does not reach; its other settings are constants of
-    odometry.motion_stereo, chosen on development data only."""
+    odometry.motion_stereo, odometry.frame_tracks and odometry.corner_correction, chosen on development data
+    only."""
 
     # image corners outside the LiDAR's reach, triangulated over +-16 frames, correct the generator's depth;
     # auto: cone LiDAR only; needs a LiDAR (docs/decisions/0005-motion-stereo-cone-only.md)

@@ -14,6 +14,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
+import cv2
 import numpy as np
 
 from leovr.config import RefineConfig
@@ -27,7 +28,7 @@ from odometry.initial_pose import (
 )
 from odometry.lidar_assoc import associate
 from odometry.mono_motion import MonoMotion, MonoStep, rotation_parallax, sampson_px, triangulate
-from odometry.window_graph import FrameInput, Observation, WindowGraph, convex_hull_mask
+from odometry.window_graph import FrameInput, Observation, WindowGraph
 
 
 # With a LiDAR, a landmark seeded from the generator's depth (no return at its pixel) gets this depth prior (sigma /
@@ -374,3 +375,12 @@ def epipolar_agrees(
     if np.linalg.norm(T_rel[:3, 3]) < 1e-3:
         return True
     return float(np.mean(sampson_px(T_rel, uv0, uv1, K) < px)) >= min_fraction
+
+
+def convex_hull_mask(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Pixels inside the convex hull of the points (the trusted region); empty with fewer than 3."""
+    mask = np.zeros(shape, np.uint8)
+    if len(uv) >= 3:
+        hull = cv2.convexHull(np.round(uv).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 1)
+    return mask.astype(bool)

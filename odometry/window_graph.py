@@ -14,17 +14,14 @@ camera-only window (its leaving pose is no leaf of the Bayes tree).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 
-import cv2
 import gtsam
 import numpy as np
 
 from leovr.config import RefineConfig
-from leovr.geometry import invert_T, rotation_angle_deg
+from leovr.geometry import invert_T
 from odometry.depth_field import CorrectionGrid
-from odometry.mono_vo import relative_motion
 from odometry.factors import (
     DepthConsistency,
     FrameDepth,
@@ -33,6 +30,9 @@ from odometry.factors import (
     lidar_point_factor,
     projection_factor,
 )
+from odometry.leaving_observations import conditioned_observations
+from odometry.motion_gates import icp_agrees, pair_agrees
+from odometry.window_recovery import anchor_landmarks
 
 # The solver and the correction field, fixed (docs/decisions/0011-tuned-settings.md, 0002-no-lm-retries.md):
 LM_ITERATIONS = 3  # Levenberg-Marquardt iterations per update
@@ -42,19 +42,7 @@ GRID_ROWS, GRID_COLS = 8, 14  # depth correction field: log-depth offsets per fr
 CONSISTENCY_SAMPLES = 300  # pixels per depth-consistency factor, resampled each update
 LIDAR_DEPTH_SAMPLES = 400  # own LiDAR returns on the correction field
 PRIOR_SIGMA_MIN, PRIOR_SIGMA_MAX = 0.02, 0.5  # the generator prior on the field: sigma / depth per cell, clipped
-# a pair motion whose rotation is this far (deg) from both the initial pose's and the front end's essential matrix
-# is left out (docs/decisions/0006-pair-factors-cone-only.md)
-PAIR_GATE_DEG = 3.0
 PAIR_OFFSETS = (1, 2, 3)  # pair factors to the frames this many before (frames)
-# a KISS-ICP motion whose rotation is this far (deg) from the images' is left out of the window (`_icp_factors`):
-# on a cone KISS-ICP can slip by tens of degrees in a fast turn while sure of itself
-# (docs/decisions/0011-tuned-settings.md)
-ICP_GATE_DEG = 3.0
-# ... and one whose direction of travel is this far (deg) from the images' (the pair motion's essential matrix),
-# where both travel at least ICP_DIRECTION_MIN_M: a cone's registration slides sideways while sure of itself, and
-# over a shorter baseline the images' direction is the less sure (docs/decisions/0013-icp-direction-gate.md)
-ICP_DIRECTION_GATE_DEG = 3.0
-ICP_DIRECTION_MIN_M = 1.0
 
 
 def X(i: int) -> int:
@@ -67,16 +55,6 @@ def C(i: int) -> int:
 
 def L(k: int) -> int:
     return gtsam.symbol("l", k)
-
-
-def direction_agrees(t_images: np.ndarray, t_icp: np.ndarray) -> bool:
-    """Whether two motions' translations point within ICP_DIRECTION_GATE_DEG of each other; true when either is
-    shorter than ICP_DIRECTION_MIN_M (a direction read over a short baseline says little)."""
-    la, lb = float(np.linalg.norm(t_images)), float(np.linalg.norm(t_icp))
-    if min(la, lb) < ICP_DIRECTION_MIN_M:
-        return True
-    cos = float(t_images @ t_icp) / (la * lb)
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))) <= ICP_DIRECTION_GATE_DEG
 
 
 @dataclass
@@ -110,7 +88,7 @@ class FrameInput:
     # landmark id -> its prior's sigma per metre of depth where it differs from `landmark_prior_rel`
     landmark_prior_rel: dict[int, float] = field(default_factory=dict)
     # earlier frame j -> T_j_i (4 x 4): this frame's motion to j read from the images (essential matrix, LiDAR
-    # length; odometry.motion_stereo.pair_motions), a between factor where j is still in the window
+    # length; odometry.frame_tracks.pair_motions), a between factor where j is still in the window
     pair_motions: dict[int, np.ndarray] = field(default_factory=dict)
     # the front end's feature matches with the previous frame: (its index, its pixels, this frame's pixels); a
     # second opinion on the rotation where a pair motion and the initial pose disagree (`_pair_factors`)
@@ -166,7 +144,7 @@ class WindowGraph:
         self.frame_landmarks: dict[int, set[int]] = {}  # frame -> landmarks it observed
         self.pairs: list[_Pair] = []
         self.icp_poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self.icp_rejected = 0  # KISS-ICP motions left out by the images' rotation (`_icp_factors`)
+        self.icp_rejected = 0  # KISS-ICP motions left out by the images' (`_icp_factors`)
         self.last: int | None = None
         # the correction field's depth factors; `auto` is on until the caller knows the sensor (refine: a
         # spinning LiDAR turns them off)
@@ -255,16 +233,16 @@ class WindowGraph:
     def _pair_factors(self, f: FrameInput, graph: gtsam.NonlinearFactorGraph) -> None:
         """The images' motions from this frame to earlier frames of the window: rotation to
         `pair_sigma_rad`, translation to `pair_sigma_rel` of its length, Huber-robust (a pair's essential
-        matrix is sometimes far off). A pair whose rotation is more than PAIR_GATE_DEG from the front end's
-        initial pose is kept only if the essential matrix of the front end's own matches with the previous
-        frame agrees with it instead: in a fast turn either the pair's tracks or the initial pose can be the
-        one that failed (Huber still lets a 100-sigma outlier pull the pose)."""
+        matrix is sometimes far off). A pair whose rotation disagrees with the front end's initial pose is kept
+        only if the essential matrix of the front end's own matches with the previous frame agrees with it
+        instead (`pair_agrees`): in a fast turn either the pair's tracks or the initial pose can be the one that
+        failed (Huber still lets a 100-sigma outlier pull the pose)."""
         g = self.cfg.graph
         second: list[np.ndarray | None] = []  # the matches' rotation, computed once and only when needed
         for j, T in f.pair_motions.items():
             if j not in self.poses:
                 continue
-            if PAIR_GATE_DEG > 0 and not self._pair_agrees(f, j, T, second):
+            if not pair_agrees(T, j, f.T_init, f.matches_prev, self.poses, self.K, second):
                 continue
             length = float(np.linalg.norm(T[:3, 3]))
             base = gtsam.noiseModel.Diagonal.Sigmas(
@@ -273,46 +251,18 @@ class WindowGraph:
             noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345), base)
             graph.add(gtsam.BetweenFactorPose3(X(j), X(f.index), gtsam.Pose3(T), noise))
 
-    def _pair_agrees(self, f: FrameInput, j: int, T: np.ndarray, second: list[np.ndarray | None]) -> bool:
-        """Whether pair j's rotation lies within PAIR_GATE_DEG of the initial pose's, or else of the rotation
-        of the essential matrix of the front end's matches with the previous frame (chained to j through the
-        window's poses)."""
-        gate = PAIR_GATE_DEG
-        R_pair = T[:3, :3]
-        if rotation_angle_deg(R_pair.T @ (invert_T(self.poses[j]) @ f.T_init)[:3, :3]) <= gate:
-            return True
-        if f.matches_prev is None or f.matches_prev[0] not in self.poses:
-            return False
-        if not second:
-            motion, _ = relative_motion(f.matches_prev[1], f.matches_prev[2], self.K, method=cv2.USAC_ACCURATE)
-            second.append(None if motion is None else motion[:3, :3])
-        if second[0] is None:
-            return False
-        R_ref = (invert_T(self.poses[j]) @ self.poses[f.matches_prev[0]])[:3, :3] @ second[0]
-        return rotation_angle_deg(R_pair.T @ R_ref) <= gate
-
     def _icp_factors(self, f: FrameInput, T: np.ndarray, cov: np.ndarray, graph: gtsam.NonlinearFactorGraph) -> None:
         """KISS-ICP as the pose prior: its motion from every frame still in the window to this one
         (KISS-ICP registers against a local map, so its motion over several frames is as precise as over
         one: chaining only consecutive motions would lose that and drift); covariances from the
-        registration (`LidarOdometry.covariance`). A motion whose rotation lies more than `ICP_GATE_DEG` from
-        the images' (the pair motion to that frame, else the front end's motion chained through the window) is
-        left out: a registration that slipped (a cone LiDAR in a fast turn) is still sure of itself; so is one whose
-        direction of travel lies more than `ICP_DIRECTION_GATE_DEG` from the pair motion's (`direction_agrees`)."""
+        registration (`LidarOdometry.covariance`). A motion that disagrees with the images' (the pair motion to
+        that frame, else the front end's motion chained through the window; `icp_agrees`) is left out: a
+        registration that slipped or slid (a cone LiDAR in a fast turn) is still sure of itself."""
         i = f.index
         self.icp_poses = {j: v for j, v in self.icp_poses.items() if j in self.poses}
         for j, (Tj, cov_j) in self.icp_poses.items():
             motion = invert_T(Tj) @ T
-            pair = ref = f.pair_motions.get(j)
-            if ref is None:  # the front end's motion from the window's newest frame, chained back to frame j
-                ref = (
-                    invert_T(self.poses[j]) @ self.poses[self.last] @ f.T_prev_rel
-                    if f.T_prev_rel is not None and self.last in self.poses
-                    else invert_T(self.poses[j]) @ f.T_init
-                )
-            if rotation_angle_deg(ref[:3, :3].T @ motion[:3, :3]) > ICP_GATE_DEG or (
-                pair is not None and not direction_agrees(pair[:3, 3], motion[:3, 3])
-            ):
+            if not icp_agrees(motion, j, f.pair_motions.get(j), f.T_init, f.T_prev_rel, self.poses, self.last):
                 self.icp_rejected += 1
                 continue
             graph.add(
@@ -349,78 +299,15 @@ class WindowGraph:
         except (RuntimeError, IndexError) as exc:
             if not self.incremental and "ndetermin" not in str(exc):
                 raise
-            self._anchor_landmarks(f.index, exc)
+            centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
+            self.smoother = anchor_landmarks(self.smoother, self._new_smoother, self.incremental, centre, f.index, exc)
         self.last = f.index
         return self._collect()
-
-    def _anchor_landmarks(self, index: int, failure: Exception, rel: float = 1.0) -> None:
-        """gtsam found the window's system (nearly) indeterminate, which loose landmark priors (camera only)
-        can make it: give every landmark of the window a depth prior of `rel` per metre at its current
-        estimate and update again. Batch: in place first (the failed update's factors and values are already
-        in the smoother), then, if the system is still indeterminate (a landmark left without factors while
-        the window marginalised), rebuilt. iSAM2 (Gauss-Newton, undamped) is left half-updated by a failed
-        update (its Bayes tree lacks the new variables, and the next update fails on them too): its window is
-        always rebuilt, a new smoother given the old one's factors, linearisation point and time stamps, with
-        the landmark priors."""
-        reason = "indeterminate" if "ndetermin" in str(failure) else "could not be updated"
-        warnings.warn(
-            f"frame {index}: the window's system was {reason}; every landmark got a depth prior of "
-            f"{rel} per metre" + (" and the window was rebuilt" if self.incremental else ""),
-            stacklevel=3,
-        )
-        if not self.incremental:
-            try:
-                self.smoother.update(
-                    self._landmark_priors(self.smoother.calculateEstimate(), rel),
-                    gtsam.Values(),
-                    gtsam.FixedLagSmootherKeyTimestampMap(),
-                )
-                return
-            except (RuntimeError, IndexError):
-                pass
-        try:
-            self._rebuild(rel)
-        except (RuntimeError, IndexError) as exc:  # not the landmarks: a pose or a depth field without support
-            raise RuntimeError(
-                f"frame {index}: the window's system stayed indeterminate after every landmark got a "
-                f"depth prior ({str(exc).strip().splitlines()[0]})"
-            ) from exc
-
-    def _landmark_priors(self, est: gtsam.Values, rel: float) -> gtsam.NonlinearFactorGraph:
-        """A prior on every landmark of `est`, `rel` per metre of its distance from the newest pose."""
-        centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
-        graph = gtsam.NonlinearFactorGraph()
-        for key in est.keys():
-            if gtsam.Symbol(key).chr() == ord("l"):
-                P = est.atPoint3(key)
-                sigma = rel * max(1.0, float(np.linalg.norm(P - centre)))
-                graph.add(gtsam.PriorFactorPoint3(key, P, gtsam.noiseModel.Isotropic.Sigma(3, sigma)))
-        return graph
-
-    def _rebuild(self, rel: float) -> None:
-        """A new smoother from the old one's factors, estimate (iSAM2: linearisation point) and time stamps,
-        with a prior on every landmark."""
-        old = self.smoother
-        est = old.getLinearizationPoint() if self.incremental else old.calculateEstimate()
-        graph = self._landmark_priors(est, rel)
-        factors = old.getFactors()
-        for n in range(factors.size()):
-            if factors.at(n) is not None:
-                graph.add(factors.at(n))
-        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-        for key, stamp in old.timestamps().items():
-            stamps.insert((key, stamp))
-        self.smoother = self._new_smoother()
-        self.smoother.update(graph, est, stamps)
 
     def _condition_leaving(self, newest: int, graph: gtsam.NonlinearFactorGraph) -> list[int]:
         """Observations, by the frames about to leave the window, of landmarks that stay in it: returns their
         indices in the smoother's graph (to remove) and adds to `graph` each one conditioned on the leaving
-        pose (a linear factor on the landmark alone, taken at the current estimate). Marginalised as they
-        were, they tied every such landmark to every other in one dense factor (about 300 keys, 1000
-        dimensions on a KITTI frame) that each later update linearised and eliminated again; conditioned,
-        each landmark keeps the anchor the old frame gave it and the graph stays sparse. The leaving pose's
-        own uncertainty is what this leaves out. `condition_leaving=False` marginalises."""
+        pose (`conditioned_observations`). `condition_leaving=False` marginalises."""
         if not self.condition_leaving:
             return []
         cutoff = newest - (self.cfg.window - 0.5)  # the smoother marginalises keys stamped before this
@@ -433,29 +320,8 @@ class WindowGraph:
         }
         if not staying:
             return []
-        poses = {X(i): i for i in leaving}
-        factors = self.smoother.getFactors()
-        drop = []
-        for n in range(factors.size()):
-            fac = factors.at(n)
-            if fac is None:
-                continue
-            keys = fac.keys()
-            if len(keys) != 2 or keys[0] not in poses or keys[1] not in staying:
-                continue  # projection and LiDAR point factors are keyed (pose, landmark)
-            values = gtsam.Values()
-            values.insert(keys[0], gtsam.Pose3(self.poses[poses[keys[0]]]))
-            values.insert(keys[1], self.landmarks[gtsam.Symbol(keys[1]).index()])
-            A, b = fac.linearize(values).jacobian()  # whitened, columns [pose 6 | landmark 3]
-            point = gtsam.Values()
-            point.insert(keys[1], values.atPoint3(keys[1]))
-            graph.add(
-                gtsam.LinearContainerFactor(
-                    gtsam.JacobianFactor(keys[1], A[:, 6:], b, gtsam.noiseModel.Unit.Create(len(b))), point
-                )
-            )
-            drop.append(n)
-        return drop
+        poses = {X(i): self.poses[i] for i in leaving}
+        return conditioned_observations(self.smoother.getFactors(), poses, staying, self.landmarks, graph)
 
     def _collect(self) -> list[FrameResult]:
         est = self.smoother.calculateEstimate()
@@ -506,12 +372,3 @@ class WindowGraph:
 
     def has_landmark(self, k: int) -> bool:
         return k in self.landmarks
-
-
-def convex_hull_mask(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Pixels inside the convex hull of the points (the trusted region); empty with fewer than 3."""
-    mask = np.zeros(shape, np.uint8)
-    if len(uv) >= 3:
-        hull = cv2.convexHull(np.round(uv).astype(np.int32))
-        cv2.fillConvexPoly(mask, hull, 1)
-    return mask.astype(bool)

@@ -10,12 +10,12 @@ from leovr.config import SimulateConfig
 from leovr.data import open_sequence
 from leovr.lidar.projection import sparse_depth
 from leovr.sim.simulate import simulate
+from odometry.corner_correction import corrected_depth
+from odometry.frame_tracks import GrayImages
 from odometry.motion_stereo import (
     LIDAR_GAP_PX,
     Corners,
-    GrayImages,
     agree_with_neighbours,
-    corrected_depth,
     motion_stereo_depth,
     neighbour_frames,
 )
@@ -142,7 +142,7 @@ def test_refine_runs_motion_stereo_with_a_cone_lidar_only(drive, tmp_path, monke
 def test_pair_motions_match_the_true_motion_and_take_their_length_from_the_lidar(drive):
     """The images' motion from frame 4 to earlier frames (window graph factors): rotation and direction
     from the tracks, length from the frame's returns; wrong returns give a wrong length."""
-    from odometry.motion_stereo import pair_motions
+    from odometry.frame_tracks import pair_motions
 
     seq, frames = drive
     f = frames[4]
@@ -164,7 +164,7 @@ def test_pair_motions_match_the_true_motion_and_take_their_length_from_the_lidar
 
 
 def test_returns_at_takes_the_nearest_return_within_the_radius():
-    from odometry.motion_stereo import returns_at
+    from odometry.frame_tracks import returns_at
 
     rng = np.random.default_rng(3)
     sparse = np.zeros((40, 60), np.float32)
@@ -186,7 +186,7 @@ def test_returns_at_takes_the_nearest_return_within_the_radius():
 def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, monkeypatch):
     """Motion stereo and the pair motions of one frame track its corners into each neighbour once, with the
     same results as on their own, whatever the order the neighbours are asked in."""
-    import odometry.motion_stereo as ms
+    import odometry.frame_tracks as ft
 
     seq, frames = drive
     f = frames[4]
@@ -195,15 +195,15 @@ def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, mon
     neighbours = neighbour_frames(4, list(range(9)), OFFSETS)
     alone = motion_stereo_depth(4, neighbours, images, f.K, own)
     # the pairs alone, asked farthest first: each rung tracks its rung below first
-    pairs_alone = ms.pair_motions(
-        4, [1, 2, 3], images, f.K, own, tracks=ms.FrameTracks(4, images, f.K, own, neighbours)
+    pairs_alone = ft.pair_motions(
+        4, [1, 2, 3], images, f.K, own, tracks=ft.FrameTracks(4, images, f.K, own, neighbours)
     )
     tracked = []
-    real_track = ms.track
-    monkeypatch.setattr(ms, "track", lambda g0, g1, c: tracked.append(1) or real_track(g0, g1, c))
-    tracks = ms.FrameTracks(4, images, f.K, own, neighbours)
+    real_track = ft.track
+    monkeypatch.setattr(ft, "track", lambda g0, g1, c: tracked.append(1) or real_track(g0, g1, c))
+    tracks = ft.FrameTracks(4, images, f.K, own, neighbours)
     shared = motion_stereo_depth(4, neighbours, images, f.K, own, tracks=tracks)
-    pairs = ms.pair_motions(4, [3, 2, 1], images, f.K, own, tracks=tracks)
+    pairs = ft.pair_motions(4, [3, 2, 1], images, f.K, own, tracks=tracks)
     assert len(tracked) == len(neighbours)  # frames 3, 2 and 1 are motion stereo's neighbours too
     np.testing.assert_array_equal(shared, alone)
     assert sorted(pairs) == sorted(pairs_alone) == [1, 2, 3]
@@ -214,7 +214,7 @@ def test_frame_tracks_share_the_tracks_of_motion_stereo_and_the_pairs(drive, mon
 def test_a_farther_neighbour_tracks_only_the_corners_its_nearer_one_tracked(drive, monkeypatch):
     """Along motion stereo's neighbours, frame i + 4 is asked only for the corners that reached i + 2 (and
     came back), and so on outwards; the corners kept are about those of tracking every corner everywhere."""
-    import odometry.motion_stereo as ms
+    import odometry.frame_tracks as ft
 
     seq, frames = drive
     f = frames[4]
@@ -222,9 +222,9 @@ def test_a_farther_neighbour_tracks_only_the_corners_its_nearer_one_tracked(driv
     images = GrayImages(lambda j: frames[j].image, keep=16)
     neighbours = neighbour_frames(4, list(range(9)), [1, 2, 4])
     asked = []
-    real_track = ms.track
-    monkeypatch.setattr(ms, "track", lambda g0, g1, c: asked.append(len(c)) or real_track(g0, g1, c))
-    tracks = ms.FrameTracks(4, images, f.K, own, neighbours)
+    real_track = ft.track
+    monkeypatch.setattr(ft, "track", lambda g0, g1, c: asked.append(len(c)) or real_track(g0, g1, c))
+    tracks = ft.FrameTracks(4, images, f.K, own, neighbours)
     ladder = motion_stereo_depth(4, neighbours, images, f.K, own, tracks=tracks)
     n = len(tracks.corners)
     assert asked[:2] == [n, n]  # frames 3 and 5: every corner
@@ -232,7 +232,7 @@ def test_a_farther_neighbour_tracks_only_the_corners_its_nearer_one_tracked(driv
         ok_far, ok_near = tracks._track(far)[1], tracks._track(near)[1]
         assert not (ok_far & ~ok_near).any(), (far, near)
     assert max(asked[2:]) < n  # the farther ones: fewer
-    every = motion_stereo_depth(4, neighbours, images, f.K, own, tracks=ms.FrameTracks(4, images, f.K, own))
+    every = motion_stereo_depth(4, neighbours, images, f.K, own, tracks=ft.FrameTracks(4, images, f.K, own))
     both = (ladder > 0) & (every > 0)
     assert abs((ladder > 0).sum() - (every > 0).sum()) < 0.15 * (every > 0).sum()
     assert both.sum() > 0.8 * (every > 0).sum()

@@ -362,12 +362,12 @@ def _pair_run(pair_error_deg: float, gate_deg: float, matches_follow_pair: bool)
         c = (pts - T_cam[:3, 3]) @ T_cam[:3, :3]
         return (c @ K.T)[:, :2] / c[:, 2:]
 
-    import odometry.window_graph as wg
+    import odometry.motion_gates as gates
 
     graph = WindowGraph(RefineConfig(window=4, graph={"depth_factors": False}), K, SHAPE)
     done = []
     with pytest.MonkeyPatch.context() as m:
-        m.setattr(wg, "PAIR_GATE_DEG", gate_deg)
+        m.setattr(gates, "PAIR_GATE_DEG", gate_deg)
         for i, T in enumerate(truth):
             rel = None if i == 0 else np.linalg.inv(truth[i - 1]) @ T
             f = FrameInput(i, T, np.zeros(SHAPE), np.full(SHAPE, 0.1), [], {}, None, None, rel)

@@ -19,7 +19,7 @@ class PhotometricStep:
     leave the window."""
 
     def __init__(self, seq: Sequence, cfg: RefineConfig, indices: list[int], K: np.ndarray) -> None:
-        from odometry.motion_stereo import GrayImages
+        from odometry.frame_tracks import GrayImages
 
         self.cfg, self.indices, self.K = cfg, indices, K
         self.position = {j: n for n, j in enumerate(indices)}

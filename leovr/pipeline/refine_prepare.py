@@ -23,7 +23,7 @@ from leovr.pipeline.lookahead import Lookahead, done_future
 from leovr.pipeline.refine_input import frame_sample, stereo_image
 
 if TYPE_CHECKING:
-    from odometry.motion_stereo import FrameTracks
+    from odometry.frame_tracks import FrameTracks
     from odometry.sweep_motion import ImagesMotion
 
 Generator = Callable[[EvalSample], tuple[np.ndarray, np.ndarray]]  # sample -> depth, log sigma
@@ -90,7 +90,7 @@ class PrepareStage:
         cone: ConeSteps,
         frames: Lookahead,
     ) -> None:
-        from odometry.motion_stereo import GrayImages
+        from odometry.frame_tracks import GrayImages
         from odometry.window_graph import PAIR_OFFSETS
         from odometry.sweep_motion import SweepMotion
 
@@ -243,7 +243,7 @@ class PrepareStage:
     ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray], np.ndarray | None]:
         """The generator's depth and log sigma on the sample (with the earlier scans that agree with it),
         moved towards the motion-stereo corners, the pair motions, and the corners."""
-        from odometry.motion_stereo import EDGE_PX, RANGE_LOG, SPREAD, SUPPORT, corrected_depth
+        from odometry.corner_correction import EDGE_PX, RANGE_LOG, SPREAD, SUPPORT, corrected_depth
 
         cfg, stereo, K = self.cfg, self.stereo, sample.frame.K
         if earlier is not None:
@@ -293,7 +293,7 @@ class PrepareStage:
         """Frame i's corners tracked into its neighbours with each pair's rotation and direction, or None where its
         image is not read yet: a frame not met as a neighbour before takes its own decoded image (`_tracked`),
         as a sequential run does. Runs in the tracks thread, which alone touches `stereo_images`."""
-        from odometry.motion_stereo import FrameTracks
+        from odometry.frame_tracks import FrameTracks
 
         if i not in self.stereo_images.images:
             return None
@@ -316,7 +316,8 @@ class PrepareStage:
         earlier frames, from one set of corner tracks (`ahead`: started by `track_ahead`, used when it tracked
         the same neighbours). `own`: the frame's returns (each pair's length); `seen`: with the earlier scans
         (no corner near a return)."""
-        from odometry.motion_stereo import FrameTracks, motion_stereo_depth, pair_motions
+        from odometry.frame_tracks import FrameTracks, pair_motions
+        from odometry.motion_stereo import motion_stereo_depth
 
         neighbours, earlier = self._neighbours(i, with_stereo, with_pairs)
         tracks = None if ahead is None else ahead.result()
