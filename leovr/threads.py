@@ -29,3 +29,10 @@ def single_threaded_blas(fn: F) -> F:
             return fn(*args, **kwargs)
 
     return wrapper  # type: ignore[return-value]
+
+
+def torch_threads() -> int:
+    """torch's intra-op thread count: above one, the refine run reads and writes in worker threads."""
+    import torch
+
+    return torch.get_num_threads()

@@ -81,7 +81,7 @@ def test_adapted_scores_join_on_the_pixels_both_runs_hold():
 
     from leovr.bench.real import add_adapted
     from leovr.pipeline.completion import EvalSample
-    from leovr.pipeline.refine import FrameScore
+    from leovr.pipeline.refine_outputs import FrameScore
 
     def score(points: dict[tuple[int, int], float]) -> FrameScore:
         gt = np.zeros((5, 6), np.float32)

@@ -9,7 +9,7 @@ import pytest
 
 from leovr.bench.speed import growth, run_speed_bench
 from leovr.bench.config import BenchSpeedConfig
-from leovr.pipeline.refine import TIMED, timing_record
+from leovr.pipeline.refine_outputs import TIMED, timing_record
 
 
 def test_growth_is_one_for_a_flat_series_and_grows_with_a_rising_one():

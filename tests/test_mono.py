@@ -41,7 +41,7 @@ def test_the_camera_only_profile_puts_its_graph_settings_over_refine_graph():
     `refine.camera_only.graph` (by default a loose landmark prior and depth-consistency sigma); the front end
     with `refine.camera_only.n_features` ORB features."""
     from leovr.config import CameraOnlyGraphConfig, GraphConfig
-    from leovr.pipeline.refine import camera_only_config
+    from leovr.pipeline.refine_input import camera_only_config
 
     assert set(CameraOnlyGraphConfig.model_fields) <= set(GraphConfig.model_fields)
     cfg = RefineConfig(
@@ -332,7 +332,7 @@ def test_traffic_ahead_does_not_turn_the_camera_only_motion_backwards():
     every step from frame 31 on. Every step goes forward and the track is metric. The shared clip now ends at
     frame 23, before the trucks leave: it checks the creeping steps that lead up to them."""
     from leovr.pipeline.completion import EvalSample, generator_method
-    from leovr.pipeline.refine import completion_config, road_height
+    from leovr.pipeline.refine_input import completion_config, road_height
     from odometry.initial_pose import LidarOdometry
 
     seq = open_sequence(kitti_raw_dir())

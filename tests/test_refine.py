@@ -123,7 +123,7 @@ def test_refined_depth_is_scored_as_the_png_holds_it(tmp_path, monkeypatch):
 def test_the_kiss_icp_baseline_is_kiss_icp_alone_deskewing_the_raw_scans_itself(refined):
     from leovr.data.kitti_common import read_kitti_poses
     from leovr.pipeline.kiss_baseline import kiss_icp_trajectory
-    from leovr.pipeline.refine import completion_config
+    from leovr.pipeline.refine_input import completion_config
     from odometry.initial_pose import LidarOdometry
 
     seq_dir, out, m = refined
@@ -259,7 +259,7 @@ def test_a_corrupt_frame_met_by_the_generator_thread_names_the_file_and_keeps_fi
     import shutil
 
     from leovr.errors import LeovrError
-    from leovr.pipeline.refine import torch_threads
+    from leovr.threads import torch_threads
 
     seq_dir, _, _ = refined
     assert torch_threads() > 1  # the threaded path (a one-thread process reads in line)

@@ -30,7 +30,9 @@ from leovr.depth.fills import complete_depth
 from leovr.errors import DataError
 from leovr.eval.map_metrics import COVER_M, NEAR_M, distances_to_mesh, distances_to_points, map_scores
 from leovr.geometry import back_project, transform_points
-from leovr.pipeline.refine import FrameScore, completion_config, frame_sample, run_refine
+from leovr.pipeline.refine import run_refine
+from leovr.pipeline.refine_input import completion_config, frame_sample
+from leovr.pipeline.refine_outputs import FrameScore
 from leovr.pipeline.tsdf_map import SIGMA_SCALE, TsdfMap, map_depth, peak_memory_mb
 from odometry.loop.validate import umeyama
 

@@ -39,7 +39,9 @@ from leovr.errors import DataError
 from leovr.geometry import invert_T
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.pipeline.completion import ground_truth_note
-from leovr.pipeline.refine import FrameScore, completion_config, frame_sample, run_refine
+from leovr.pipeline.refine import run_refine
+from leovr.pipeline.refine_input import completion_config, frame_sample
+from leovr.pipeline.refine_outputs import FrameScore
 from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE
 
 # generator: the shipped generator as it ran in refine (with earlier scans for a cone LiDAR, Mid-40-like);

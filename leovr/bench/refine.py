@@ -21,7 +21,8 @@ from leovr.data import open_sequence
 from leovr.depth.dataset import split_entries
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.paths import kitti_odometry_dir, kitti_raw_clips, shared_data_dir
-from leovr.pipeline.refine import TIMED, run_refine
+from leovr.pipeline.refine import run_refine
+from leovr.pipeline.refine_outputs import TIMED
 from leovr.sim.dataset import Recipe, default_root, make_dataset
 
 QUICK_RECIPE = Recipe("refine_quick", {"test": 3}, ("mid40", "vlp16"), ("day",), 8)

@@ -24,7 +24,9 @@ from leovr.config import RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.depth.fills import complete_depth
 from leovr.paths import kitti_raw_clips
-from leovr.pipeline.refine import CPU, TIMED, WALL, completion_config, frame_sample, run_refine
+from leovr.pipeline.refine import run_refine
+from leovr.pipeline.refine_input import completion_config, frame_sample
+from leovr.pipeline.refine_outputs import CPU, TIMED, WALL
 from leovr.sim.simulate import simulate
 
 STAGES = (*TIMED, "total_ms", WALL, CPU)

@@ -19,7 +19,8 @@ from leovr.data.io import atomic_write, write_text
 from leovr.data.kitti_common import read_kitti_poses
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.geometry import invert_T
-from leovr.pipeline.refine import completion_config, frame_sample, run_refine
+from leovr.pipeline.refine import run_refine
+from leovr.pipeline.refine_input import completion_config, frame_sample
 from leovr.pipeline.tsdf_map import map_run
 from leovr.sim.simulate import simulate
 from leovr.viz.recording import write_recording

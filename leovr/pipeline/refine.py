@@ -49,69 +49,17 @@ from leovr.pipeline.completion import (
 )
 from leovr.pipeline.frame_writer import FrameWriter
 from leovr.pipeline.lookahead import Lookahead
-from leovr.pipeline.refine_input import (
-    camera_only_config,
-    classical_source,
-    completion_config,
-    frame_sample,
-    road_height,
-    stereo_image,
-)
-from leovr.pipeline.refine_outputs import (
-    CPU,
-    PNG_FOLDER,
-    SCORED,
-    TIMED,
-    WALL,
-    FrameScore,
-    Progress,
-    check_replay,
-    frame_score,
-    input_label,
-    single_frame_generator,
-    timing_record,
-    write_outputs,
-)
+from leovr.pipeline.refine_input import camera_only_config, classical_source, completion_config, road_height
+from leovr.pipeline.refine_outputs import FrameScore, input_label, write_outputs
 from leovr.pipeline.refine_passes import whole_recording_passes
 from leovr.pipeline.refine_photometric import PhotometricStep
 from leovr.pipeline.refine_record import RunRecord
 from leovr.pipeline.refine_scoring import RunScoring
 from leovr.pipeline.refine_prepare import ConeSteps, PreparedFrame, PrepareStage
-from leovr.threads import single_threaded_blas
+from leovr.threads import single_threaded_blas, torch_threads
 
 if TYPE_CHECKING:
     from odometry.window_graph import FrameInput, FrameResult
-
-__all__ = [  # the names other modules import from here
-    "run_refine",
-    "RefineRun",
-    "FrameScore",
-    "Progress",
-    "frame_sample",
-    "completion_config",
-    "classical_source",
-    "stereo_image",
-    "TIMED",
-    "WALL",
-    "CPU",
-    "SCORED",
-    "PNG_FOLDER",
-    "write_outputs",
-    "timing_record",
-    "frame_score",
-    "input_label",
-    "check_replay",
-    "road_height",
-    "camera_only_config",
-    "single_frame_generator",
-    "torch_threads",
-]
-
-
-def torch_threads() -> int:
-    import torch
-
-    return torch.get_num_threads()
 
 
 @single_threaded_blas

@@ -27,7 +27,8 @@ from leovr.data.run_info import run_depth_scale, run_frame_png
 from leovr.errors import DataError, brief
 from leovr.geometry import back_project, invert_T, transform_points
 from leovr.pipeline.completion import prepare_sample
-from leovr.pipeline.refine import CPU, TIMED, WALL, completion_config
+from leovr.pipeline.refine_input import completion_config
+from leovr.pipeline.refine_outputs import CPU, TIMED, WALL
 
 COLOURS = {"ground_truth": (40, 200, 80), "leovr": (255, 140, 0), "kiss_icp": (60, 120, 255)}
 LANDMARK_COLOUR = (0, 150, 170)  # dark cyan: visible on the dark and the light theme
