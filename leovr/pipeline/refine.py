@@ -176,7 +176,9 @@ class RefineRun:
         """Frame i (the n-th selected): the front end, the next frame handed to the generator stage, scoring
         and the classical baselines, the window update and the frames leaving it; its times kept."""
         if not ahead.pending:
-            ahead.submit(self.stage.prepare, i, self.front.velocity if self.front.prev is not None else None, None)
+            ahead.submit(
+                self.stage.prepare, i, self.front.sweep_velocity if self.front.prev is not None else None, None
+            )
         p = ahead.result()
         following = n + 1 < len(self.indices)
         next_read = None  # camera only: the next frame's read, held before its preparation takes it (`prefetch_motion`)
@@ -283,7 +285,7 @@ class RefineRun:
             earlier = self.history.gather(poses, fi.T_init @ self.front.velocity)
         # until the front end has measured a step: the first two scans' own motion
         first = n == 0 or (fi is None and n == 1)
-        velocity = self.stage.start if first and self.stage.start is not None else self.front.velocity
+        velocity = self.stage.start if first and self.stage.start is not None else self.front.sweep_velocity
         ahead.submit(self.stage.prepare, self.indices[n + 1], velocity, earlier)
 
     def finish(self, results: list[FrameResult]) -> None:
