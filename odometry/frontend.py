@@ -72,10 +72,10 @@ class FrontEnd:
     prev: _Prev | None = None
     next_landmark: int = 0
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
-    # the last step as KISS-ICP measured it (registered against its map), else `velocity`: the motion the next
-    # sweep is deskewed with. The initial pose is PnP's wherever it reprojects more matches, and its step length
-    # wobbles with the depth along the view (1.0-2.0 m for a 1.16 m step on kitti_raw_0013); a sweep deskewed
-    # over a wrong length registers with the opposite error, and the two feed each other
+    # the motion the next sweep is deskewed with: with a spinning LiDAR the last step as KISS-ICP measured it
+    # (registered against its map), else `velocity`. The initial pose is PnP's wherever it reprojects more matches,
+    # and its step length wobbles with the depth along the view; a sweep deskewed over a wrong length registers
+    # with the opposite error, and the two feed each other (docs/decisions/0014-deskew-with-kiss-icp-step.md)
     sweep_velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
@@ -222,7 +222,8 @@ class FrontEnd:
                 prior_rel,
             )
             self.velocity = T_rel
-            self.sweep_velocity = invert_T(p.T_icp) @ T_icp if T_icp is not None and p.T_icp is not None else T_rel
+            registered = T_icp is not None and p.T_icp is not None and self.icp.spinning
+            self.sweep_velocity = invert_T(p.T_icp) @ T_icp if registered else T_rel
         self.sources.append(source)
         lidar_uvz = None
         if sparse is not None and self.use_lidar:
