@@ -50,6 +50,10 @@ MONO_GROUND_ODOMETRY_SIGMA_REL = 0.001  # ... where the road plane gave the step
 # angle (deg; else seeded from the generator's depth) and get this depth prior (sigma / depth)
 MONO_GROUND_TRIANGULATION_MIN_DEG = 0.3
 MONO_TRIANGULATED_PRIOR_REL = 1.0
+# a spinning LiDAR's sweep is deskewed over the mean length of KISS-ICP's last steps (this many): a sweep deskewed
+# over a wrong length registers with the opposite error and the two feed each other; averaging damps that loop
+# (docs/decisions/0014-deskew-with-kiss-icp-step.md)
+SWEEP_STEP_FRAMES = 4
 
 
 @dataclass
@@ -73,10 +77,11 @@ class FrontEnd:
     next_landmark: int = 0
     velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     # the motion the next sweep is deskewed with: with a spinning LiDAR the last step as KISS-ICP measured it
-    # (registered against its map), else `velocity`. The initial pose is PnP's wherever it reprojects more matches,
-    # and its step length wobbles with the depth along the view; a sweep deskewed over a wrong length registers
-    # with the opposite error, and the two feed each other (docs/decisions/0014-deskew-with-kiss-icp-step.md)
+    # (registered against its map) over the mean length of its last SWEEP_STEP_FRAMES steps, else `velocity`. The
+    # initial pose is PnP's wherever it reprojects more matches, and its step length wobbles with the depth along the
+    # view (docs/decisions/0014-deskew-with-kiss-icp-step.md)
     sweep_velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
+    _icp_lengths: list[float] = field(default_factory=list)  # KISS-ICP's last step lengths (m)
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
     # camera only: the road's scale of the last processed frame's generator depth (read once the next frame's motion
@@ -222,8 +227,7 @@ class FrontEnd:
                 prior_rel,
             )
             self.velocity = T_rel
-            registered = T_icp is not None and p.T_icp is not None and self.icp.spinning
-            self.sweep_velocity = invert_T(p.T_icp) @ T_icp if registered else T_rel
+            self.sweep_velocity = self._sweep_step(T_icp, T_rel)
         self.sources.append(source)
         lidar_uvz = None
         if sparse is not None and self.use_lidar:
@@ -251,6 +255,17 @@ class FrontEnd:
             prior_rel,
             matches_prev=matches_prev,
         )
+
+    def _sweep_step(self, T_icp: np.ndarray | None, T_rel: np.ndarray) -> np.ndarray:
+        """The camera motion the next sweep is deskewed with (`sweep_velocity`)."""
+        if T_icp is None or self.prev.T_icp is None or not self.icp.spinning:
+            return T_rel
+        step = invert_T(self.prev.T_icp) @ T_icp
+        self._icp_lengths = (self._icp_lengths + [float(np.linalg.norm(step[:3, 3]))])[-SWEEP_STEP_FRAMES:]
+        length = float(np.linalg.norm(step[:3, 3]))
+        if length > 1e-9:
+            step[:3, 3] *= float(np.mean(self._icp_lengths)) / length
+        return step
 
     def _lidar_pose(
         self, T_prev: np.ndarray, T_icp: np.ndarray | None, obj: np.ndarray, img: np.ndarray
