@@ -112,9 +112,9 @@ def test_refine_predicts_kiss_icp_with_the_images_motion_only_where_it_overruled
 @needs_posed_drive
 def test_a_spinning_lidars_sweep_is_deskewed_over_kiss_icps_step_length(tmp_path, monkeypatch):
     """Real drive, VLP-16-like: the step each sweep is deskewed over (the generator stage's `motion`, KISS-ICP's
-    last step) has the true step's length to 4 % rms over 40 frames. The front end's initial pose is PnP's wherever
-    it reprojects more matches, and its step length wobbles with the matched depth (7 % rms over the same frames); a
-    sweep deskewed over that registers with the opposite error."""
+    last steps' mean length) has the true step's length to 4 % rms over 40 frames. The front end's initial pose is
+    PnP's wherever it reprojects more matches, and its step length wobbles with the matched depth (7 % rms over the
+    same frames); a sweep deskewed over that registers with the opposite error."""
     from leovr.config import RefineConfig
     from leovr.pipeline.refine import run_refine
     from leovr.pipeline.refine_prepare import PrepareStage
