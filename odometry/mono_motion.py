@@ -302,3 +302,41 @@ class MonoMotion:
         T[:3, 3] *= length
         self._carry(T, X * length, front, p1[good])
         return MonoStep(T, len(good), parallax, source)
+
+
+def parallax_agrees(
+    T_rel: np.ndarray,
+    X0: np.ndarray,
+    uv0: np.ndarray,
+    uv1: np.ndarray,
+    K: np.ndarray,
+    max_ratio: float = 3.0,
+    min_px: float = 3.0,
+) -> np.ndarray:
+    """Per match: whether its parallax (the displacement left once the rotation is taken out) is
+    within `max_ratio` of the parallax its depth-seeded point `X0` (first camera) predicts under the
+    motion T_rel; matches whose predicted parallax is under `min_px` are not judged (the depth is
+    too uncertain to tell)."""
+    if not len(uv0):
+        return np.zeros(0, bool)
+    T_1_0 = invert_T(T_rel)
+    X1 = X0 @ T_1_0[:3, :3].T + T_1_0[:3, 3]
+    ahead = X1[:, 2] > 1e-3
+    proj = (X1 @ K.T)[:, :2] / np.where(ahead, X1[:, 2], 1.0)[:, None]
+    predicted = rotation_parallax(uv0, proj, T_1_0[:3, :3], K)
+    seen = rotation_parallax(uv0, uv1, T_1_0[:3, :3], K)
+    judged = ahead & (predicted >= min_px)
+    ratio = seen / np.maximum(predicted, 1e-9)
+    return ~judged | ((ratio >= 1.0 / max_ratio) & (ratio <= max_ratio))
+
+
+def epipolar_agrees(
+    T_rel: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, px: float = 2.0, min_fraction: float = 0.5
+) -> bool:
+    """Whether most matches satisfy the epipolar geometry of a candidate motion (a PnP pose built on
+    wrong depth does not); a motion too small to define an epipolar geometry is not refused."""
+    if len(uv0) < 8:
+        return False
+    if np.linalg.norm(T_rel[:3, 3]) < 1e-3:
+        return True
+    return float(np.mean(sampson_px(T_rel, uv0, uv1, K) < px)) >= min_fraction

@@ -18,7 +18,7 @@ from leovr.geometry import invert_T
 from leovr.paths import kitti_odometry_dir, kitti_raw_dir
 from leovr.pipeline.refine import run_refine
 from leovr.sim.simulate import simulate
-from odometry.frontend import epipolar_agrees, parallax_agrees, sampson_px
+from odometry.mono_motion import epipolar_agrees, parallax_agrees, sampson_px
 from odometry.mono_motion import MonoMotion
 from odometry.mono_vo import gray, mono_vo_poses, relative_motion, track
 from tests.conftest import killed_after_saves, needs_shared
