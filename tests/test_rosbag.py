@@ -163,13 +163,12 @@ def test_the_kitti_clip_round_trips_through_a_bag_bit_identical(tmp_path, fmt):
 @needs_posed_drive
 def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_path):
     """`leovr refine` on the clip as an MCAP bag, as one whose scans are stamped at their sweep's start, and as a
-    ROS 1 bag, and on the bag's frames written to a folder:
-    the same metrics (to 1e-5: the folder keeps the ground-truth poses as text, which the held-out truth's deskew
-    reads, and the poses' last digits reach the generator's input through the deskew motion; measured 2.3e-6 on
-    the generator's MAE, 3e-8 on the nearest fill's). (Against the KITTI folder itself the extrinsic differs by 2e-8,
-    KITTI's
-    rectified calibration being that far from a rotation, which /tf_static's quaternion cannot carry: depth MAE
-    then moves by about 0.1 %.)"""
+    ROS 1 bag, and on the bag's frames written to a folder: the same metrics (to 1e-4: the folder keeps the
+    ground-truth poses and the extrinsic as text, whose last digits reach the held-out truth's deskew and, through
+    KISS-ICP's step in the camera, the deskew of the input: 1e-7 m on the deskew motion moves a few returns across a
+    pixel; measured 1.4e-5 on the generator's MAE). (Against the KITTI folder itself the extrinsic differs by 2e-8,
+    KITTI's rectified calibration being that far from a rotation, which /tf_static's quaternion cannot carry: depth
+    MAE then moves by about 0.1 %.)"""
     from leovr.config import RefineConfig
     from leovr.data import write_native
     from leovr.pipeline.refine import run_refine
@@ -186,7 +185,7 @@ def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_pa
     for name, path in seqs.items():
         m = run_refine(open_sequence(path), RefineConfig(input="vlp16"), tmp_path / f"run_{name}", progress=False)
         runs[name] = ({k: v["mae_m"] for k, v in m["depth"].items()}, m["trajectory"]["leovr"]["ate_m"])
-    for name, rel in (("mcap", 1e-5), ("ros1", 1e-5), ("sweep_start", 1e-3)):  # point times moved by < 1 ns
+    for name, rel in (("mcap", 1e-4), ("ros1", 1e-4), ("sweep_start", 1e-3)):  # point times moved by < 1 ns
         for key, mae in runs["folder"][0].items():
             assert runs[name][0][key] == pytest.approx(mae, rel=rel), (name, key)
         # the ATE to 1e-5 m too: the poses pass through a quaternion in a bag (1e-6 m, above), against 5 cm of ATE
