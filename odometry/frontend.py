@@ -261,8 +261,8 @@ class FrontEnd:
         if T_icp is None or self.prev.T_icp is None or not self.icp.spinning:
             return T_rel
         step = invert_T(self.prev.T_icp) @ T_icp
-        self._icp_lengths = (self._icp_lengths + [float(np.linalg.norm(step[:3, 3]))])[-SWEEP_STEP_FRAMES:]
         length = float(np.linalg.norm(step[:3, 3]))
+        self._icp_lengths = (self._icp_lengths + [length])[-SWEEP_STEP_FRAMES:]
         if length > 1e-9:
             step[:3, 3] *= float(np.mean(self._icp_lengths)) / length
         return step
