@@ -87,7 +87,6 @@ class LoopConfig(_Model):
 
     enabled: bool = False  # after the window pass: bag-of-words loops, validation, global pose graph
     min_gap: int = Field(30, ge=2)  # loop candidates at least this many frames older
-    odometry_cauchy: float = Field(1.0, gt=0)  # loop pose graph: odometry factors under a Cauchy kernel (sigmas)
     vocabulary: str | None = None  # ORB vocabulary (.npz); None = the shipped one
 
 

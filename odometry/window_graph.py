@@ -32,6 +32,7 @@ from odometry.factors import (
 )
 from odometry.leaving_observations import conditioned_observations
 from odometry.motion_gates import icp_agrees, pair_agrees
+from odometry.step_covariance import window_step_covariances
 from odometry.window_recovery import anchor_landmarks
 
 # The solver and the correction field, fixed (docs/decisions/0011-tuned-settings.md, 0002-no-lm-retries.md):
@@ -100,6 +101,8 @@ class FrameResult:
     index: int
     T_world_cam: np.ndarray
     log_offset: np.ndarray  # H x W log-depth correction
+    # 6 x 6 covariance of the step from the frame before (odometry.step_covariance), as the window last had it
+    step_cov: np.ndarray | None = None
 
 
 @dataclass
@@ -144,6 +147,8 @@ class WindowGraph:
         self.frame_landmarks: dict[int, set[int]] = {}  # frame -> landmarks it observed
         self.pairs: list[_Pair] = []
         self.icp_poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # frame -> covariance of the step into it (odometry.step_covariance), kept for loop closure
+        self.step_cov: dict[int, np.ndarray] = {}
         self.icp_rejected = 0  # KISS-ICP motions left out by the images' (`_icp_factors`)
         self.last: int | None = None
         # the correction field's depth factors; `auto` is on until the caller knows the sensor (refine: a
@@ -302,7 +307,13 @@ class WindowGraph:
             centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
             self.smoother = anchor_landmarks(self.smoother, self._new_smoother, self.incremental, centre, f.index, exc)
         self.last = f.index
-        return self._collect()
+        done = self._collect()
+        if self.cfg.loop.enabled:  # the loop pass weighs each odometry step by them
+            keys = {i: X(i) for i in self.poses}
+            self.step_cov |= window_step_covariances(
+                self.smoother.getFactors(), self.smoother.calculateEstimate(), keys, self.poses
+            )
+        return done
 
     def _condition_leaving(self, newest: int, graph: gtsam.NonlinearFactorGraph) -> list[int]:
         """Observations, by the frames about to leave the window, of landmarks that stay in it: returns their
@@ -345,7 +356,7 @@ class WindowGraph:
         T, c = self.poses.pop(i), self.fields.pop(i)
         self.depths.pop(i, None)
         self.frame_landmarks.pop(i, None)
-        return FrameResult(i, T, self.grid.upsample(c))
+        return FrameResult(i, T, self.grid.upsample(c), self.step_cov.pop(i, None))
 
     def current(self, i: int) -> FrameResult:
         """Frame i's estimate now, the frame staying in the window (a causal run's output for its newest frame)."""

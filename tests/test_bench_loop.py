@@ -63,7 +63,7 @@ def test_the_ideal_loops_close_a_drifted_lap_with_the_runs_own_pose_graph(tmp_pa
     loops = [{"frame": 39, "candidate": 0, "accepted": True}, {"frame": 38, "candidate": 1, "accepted": False}]
     (tmp_path / "loops.json").write_text(json.dumps({"loops": loops, "ms_per_query": 1.0}))
     before = trajectory_metrics(np.stack(drifted), np.stack(gt))["ate_m"]
-    ideal = ideal_loop_ate(tmp_path, gt, odo_cauchy=1.0)
+    ideal = ideal_loop_ate(tmp_path, gt)
     assert before > 0.4 and ideal < 0.1 * before, (before, ideal)
     (tmp_path / "loops.json").write_text(json.dumps({"loops": loops[1:], "ms_per_query": 1.0}))
-    assert ideal_loop_ate(tmp_path, gt, odo_cauchy=1.0) is None
+    assert ideal_loop_ate(tmp_path, gt) is None

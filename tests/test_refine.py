@@ -158,6 +158,27 @@ def test_refine_resumes_after_an_interruption(refined, tmp_path):
 
 
 @pytest.mark.slow
+@needs_posed_drive
+def test_loop_closure_on_a_drive_without_revisits_keeps_its_poses_and_records_each_steps_covariance(tmp_path):
+    """The real drive with poses never comes back: with loop closure on, no loop is accepted and the poses are the
+    window's. Every frame but the first leaves with the window's covariance of the step into it (the loop pose
+    graph's odometry weights): symmetric, positive definite, a translation sigma of millimetres to decimetres."""
+    from leovr.config import LoopConfig
+
+    cfg = RefineConfig(input="vlp16", end=12, loop=LoopConfig(enabled=True))
+    run_refine(open_sequence(KITTI_RAW_POSES), cfg, tmp_path, progress=False)
+    assert not any(r["accepted"] for r in json.loads((tmp_path / "loops.json").read_text())["loops"])
+    state = json.loads((tmp_path / "progress.json").read_text())
+    assert state["poses"] == state["poses_no_loop"] and len(state["poses"]) == 12
+    covs = state["step_covariances"]
+    assert sorted(map(int, covs)) == list(range(1, 12))
+    for c in covs.values():
+        C = np.array(c).reshape(6, 6)
+        assert np.allclose(C, C.T, atol=1e-9 * np.abs(C).max()) and np.linalg.eigvalsh(C).min() > 0
+        assert 1e-3 < np.sqrt(np.trace(C[3:, 3:]) / 3) < 0.3
+
+
+@pytest.mark.slow
 @needs_shared
 def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_path):
     """KITTI raw, VLP-16-like input, 8 frames: killed after 4 frames were finished (later ones were already

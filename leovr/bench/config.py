@@ -70,7 +70,7 @@ class BenchLoopConfig(_Model):
     quick_frames: int = Field(120, ge=10)  # --quick: one LiDAR, one seed
     speed_kmh: float = 80.0  # driving speed (km/h)
     loop_min_gap: int = 30  # loop candidates at least this many frames older
-    kitti_raw: str | None = None  # KITTI raw clip; None = the shared one (skipped when absent)
+    kitti_raw: str | None = None  # KITTI raw clip; None = every shared drive (none when absent)
     kitti_odometry: str | None = None  # KITTI odometry clip; None = the shared one (skipped when absent)
 
 

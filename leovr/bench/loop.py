@@ -23,7 +23,7 @@ from leovr.bench.config import BenchLoopConfig
 from leovr.config import LoopConfig, RefineConfig, SimulateConfig
 from leovr.data import open_sequence
 from leovr.geometry import invert_T, rotation_angle_deg
-from leovr.paths import kitti_odometry_dir, kitti_raw_dir, shipped_vocabulary
+from leovr.paths import kitti_odometry_dir, kitti_raw_clips, shipped_vocabulary
 from leovr.pipeline.refine import run_refine
 from leovr.sim.simulate import simulate
 
@@ -79,14 +79,15 @@ def loop_truth(run: Path, gt: list[np.ndarray] | None, min_gap: int) -> dict:
     return out
 
 
-def ideal_loop_ate(run: Path, gt: list[np.ndarray], odo_cauchy: float) -> float | None:
+def ideal_loop_ate(run: Path, gt: list[np.ndarray]) -> float | None:
     """The ATE the run's pose graph reaches given the true relative poses at the accepted loops' frame pairs
     (the same poses before loop closure, the same graph): the bound the detected loops are measured against.
     None without an accepted loop."""
     from leovr.eval.trajectory import trajectory_metrics
     from odometry.loop.pose_graph import optimise_pose_graph
 
-    before = json.loads((run / "progress.json").read_text()).get("poses_no_loop") or {}
+    progress = json.loads((run / "progress.json").read_text())
+    before, covs = progress.get("poses_no_loop") or {}, progress.get("step_covariances") or {}
     indices = sorted(int(k) for k in before)
     at = {i: n for n, i in enumerate(indices)}
     loops = [
@@ -97,7 +98,8 @@ def ideal_loop_ate(run: Path, gt: list[np.ndarray], odo_cauchy: float) -> float 
     if not loops:
         return None
     poses = np.stack([np.array(before[str(i)]).reshape(4, 4) for i in indices])
-    corrected = optimise_pose_graph(poses, loops, odo_cauchy=odo_cauchy)
+    step_cov = [np.array(covs[str(i)]).reshape(6, 6) if str(i) in covs else None for i in indices]
+    corrected = optimise_pose_graph(poses, loops, step_cov)
     return float(trajectory_metrics(corrected, np.stack([gt[i] for i in indices]))["ate_m"])
 
 
@@ -129,7 +131,7 @@ def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progres
             if "leovr" in t:
                 r["ate_loop_m"] = t["leovr"]["ate_m"]
                 r["ate_no_loop_m"] = t.get("leovr_no_loop", t["leovr"])["ate_m"]
-                if gt is not None and (ideal := ideal_loop_ate(work / tag, gt, rcfg.loop.odometry_cauchy)) is not None:
+                if gt is not None and (ideal := ideal_loop_ate(work / tag, gt)) is not None:
                     r["ate_ideal_loops_m"] = ideal
             return r
 
@@ -143,11 +145,10 @@ def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progres
                 results[f"synthetic_{lidar}_s{seed}"] = lap(lidar, seed)
             for seed in [] if quick else cfg.tuning_seeds:
                 tuning[f"synthetic_{lidar}_s{seed}"] = lap(lidar, seed)
-        raw = Path(cfg.kitti_raw) if cfg.kitti_raw else kitti_raw_dir()
-        if raw.exists():
-            results["kitti_raw_vlp16"] = one(
-                open_sequence(raw), base.model_copy(update={"input": "vlp16"}), "kitti_raw"
-            )
+        for raw in [Path(cfg.kitti_raw)] if cfg.kitti_raw else kitti_raw_clips():  # every shared drive
+            if raw.exists():
+                vlp16 = base.model_copy(update={"input": "vlp16"})
+                results[f"{raw.name}_vlp16"] = one(open_sequence(raw), vlp16, raw.name)
         odo = Path(cfg.kitti_odometry) if cfg.kitti_odometry else kitti_odometry_dir()
         if odo.exists():
             results["kitti_odometry"] = one(open_sequence(odo), base, "kitti_odometry")

@@ -42,9 +42,10 @@ def loop_pass(
     poses: np.ndarray,
     min_gap: int = 30,
     vocabulary: str | Path | None = None,
-    odo_cauchy: float = 1.0,
+    step_cov: list[np.ndarray | None] | None = None,
 ) -> tuple[np.ndarray, list[dict], float]:
-    """Detect, validate and close loops; returns (corrected poses, loop records, ms per query)."""
+    """Detect, validate and close loops; returns (corrected poses, loop records, ms per query). `step_cov`: the
+    window's covariance of the step into each of `poses` (None where it has none), the odometry's weights."""
     voc = Vocabulary.load(vocabulary or shipped_vocabulary())
     det = LoopDetector(min_gap=min_gap)
     feats, pts, records, loops, t_query = {}, {}, [], [], []
@@ -81,7 +82,7 @@ def loop_pass(
     for r, ok in zip(validated, keep):
         r["consistent"] = r["accepted"] = ok
     loops = [lp for lp, ok in zip(loops, keep) if ok]
-    corrected = optimise_pose_graph(poses, loops, odo_cauchy=odo_cauchy) if loops else poses
+    corrected = optimise_pose_graph(poses, loops, step_cov) if loops else poses
     ms = 1000.0 * float(np.mean(t_query)) if t_query else 0.0
     write_text(
         run / "loops.json",

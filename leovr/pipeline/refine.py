@@ -307,9 +307,8 @@ class RefineRun:
             self.scoring.depth(r.index, gen_depth, refined)
             # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
             sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
-            self.record.finished(
-                r.index, r.T_world_cam, {"depth_generator": gen_depth, "depth": refined, "sigma": sigma}
-            )
+            maps = {"depth_generator": gen_depth, "depth": refined, "sigma": sigma}
+            self.record.finished(r.index, r.T_world_cam, maps, r.step_cov)
 
     def latest_poses(self, indices_kept: list[int]) -> dict[int, np.ndarray]:
         """The graph's current pose of each frame still in the window, else the pose it left with."""

@@ -84,6 +84,8 @@ class Progress:
     sources: dict[int, str] = field(default_factory=dict)
     poses_no_loop: dict[int, list[float]] = field(default_factory=dict)  # before loop closure, when it ran
     times: dict[int, list[float]] = field(default_factory=dict)  # frame -> ms per stage of TIMED
+    # frame -> the window's 6 x 6 covariance of the step into it, row by row (odometry.step_covariance)
+    step_covariances: dict[int, list[float]] = field(default_factory=dict)
 
     @classmethod
     def load(cls, path: Path) -> "Progress":
@@ -92,18 +94,20 @@ class Progress:
             if not isinstance(d, dict):
                 raise ValueError("not a JSON object")
             d.setdefault("poses_no_loop", {})  # only runs with loop closure have it
+            d.setdefault("step_covariances", {})
             keyed = {
                 name: {int(k): v for k, v in d[name].items()}
-                for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times")
+                for name in ("poses", "icp_poses", "sources", "poses_no_loop", "times", "step_covariances")
             }
-            for name in ("poses", "icp_poses", "poses_no_loop"):  # 16 finite numbers each (a 4 x 4 pose)
+            # 16 finite numbers each (a 4 x 4 pose), 36 for a covariance
+            for name, size in (("poses", 16), ("icp_poses", 16), ("poses_no_loop", 16), ("step_covariances", 36)):
                 bad = [
                     i
                     for i, T in keyed[name].items()
-                    if not isinstance(T, list) or len(T) != 16 or not np.isfinite(np.asarray(T, float)).all()
+                    if not isinstance(T, list) or len(T) != size or not np.isfinite(np.asarray(T, float)).all()
                 ]
                 if bad:
-                    raise ValueError(f"{name} of frame {bad[0]} is not 16 finite numbers")
+                    raise ValueError(f"{name} of frame {bad[0]} is not {size} finite numbers")
             return cls(**keyed)
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise DataError(path, f"cannot resume from this progress file: {exc}") from exc
@@ -113,6 +117,11 @@ class Progress:
 
     def save(self, path: Path) -> None:
         write_text(path, self.text())
+
+    def covariances(self, indices: list[int]) -> list[np.ndarray | None]:
+        """The window's 6 x 6 covariance of the step into each of `indices` (None where it has none)."""
+        kept = self.step_covariances
+        return [np.array(kept[i]).reshape(6, 6) if i in kept else None for i in indices]
 
     def stacked(self, name: str, indices: list[int]) -> np.ndarray | None:
         """The poses kept under `name` ("poses", "poses_no_loop") as F x 4 x 4 in the order

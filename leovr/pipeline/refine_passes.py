@@ -47,6 +47,7 @@ def whole_recording_passes(
         from leovr.pipeline.loops import loop_pass
 
         before, loop = state.stacked("poses", indices), cfg.loop
-        corrected, _, _ = loop_pass(seq, out, indices, before, loop.min_gap, loop.vocabulary, loop.odometry_cauchy)
+        step_cov = state.covariances(indices)
+        corrected, _, _ = loop_pass(seq, out, indices, before, loop.min_gap, loop.vocabulary, step_cov)
         state.poses_no_loop = {i: T.ravel().tolist() for i, T in zip(indices, before)}
         move_poses(state, indices, before, corrected, landmarks, seen_by)

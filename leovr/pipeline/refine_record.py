@@ -27,9 +27,14 @@ class RunRecord:
         self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
         self.unwritten: list[tuple[str, dict[str, np.ndarray]]] = []  # finished frames' depth maps, to write
 
-    def finished(self, i: int, T_world_cam: np.ndarray, maps: dict[str, np.ndarray]) -> None:
-        """Frame i left the window: its pose recorded, its depth maps (folder -> array) queued for writing."""
+    def finished(
+        self, i: int, T_world_cam: np.ndarray, maps: dict[str, np.ndarray], step_cov: np.ndarray | None = None
+    ) -> None:
+        """Frame i left the window: its pose (and how sure the window was of the step into it) recorded, its
+        depth maps (folder -> array) queued for writing."""
         self.state.poses[i] = T_world_cam.ravel().tolist()
+        if step_cov is not None:
+            self.state.step_covariances[i] = step_cov.ravel().tolist()
         self.unwritten.append((png_name(self.names, i), maps))
 
     def write(self, writer: FrameWriter) -> None:

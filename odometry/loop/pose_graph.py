@@ -10,6 +10,9 @@ import numpy as np
 
 from leovr.geometry import invert_T
 
+ODOMETRY_SIGMA_M = 0.05  # the median odometry step's translation sigma (m)
+ODOMETRY_SIGMA_RAD = 0.01  # without the window's covariances: every step's rotation sigma (rad)
+
 
 def diagonal(rot: float, trans: float) -> gtsam.noiseModel.Base:
     """Pose3 noise: `rot` rad on the rotation, `trans` m on the translation (gtsam's tangent order)."""
@@ -46,21 +49,40 @@ def solve_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n:
     return np.stack([res.atPose3(k).matrix() for k in range(n)])
 
 
+def odometry_noises(step_cov: list[np.ndarray | None] | None, n: int) -> list[gtsam.noiseModel.Base]:
+    """The noise of each of the n - 1 odometry steps (step k into pose k at index k - 1): the sliding window's
+    covariance of that step, scaled by one factor per run so that the median translation sigma is
+    ODOMETRY_SIGMA_M. The window treats its factors as independent, so its covariances come out several times too
+    small (on the rendered laps 2.5-5x); what the graph takes from them is their size along the run (a loop's
+    correction goes where the window was least sure) and their shape (the rotation known far better than the
+    translation). A step without one gets the median per-axis variance; a run without any, ODOMETRY_SIGMA_RAD
+    and ODOMETRY_SIGMA_M."""
+    given = [np.asarray(c, float).reshape(6, 6) for c in (step_cov or [])[1:n] if c is not None]
+    if not given:
+        return [diagonal(ODOMETRY_SIGMA_RAD, ODOMETRY_SIGMA_M)] * (n - 1)
+    variances = np.median([np.diag(c) for c in given], axis=0)
+    scale = ODOMETRY_SIGMA_M**2 / np.median([np.trace(c[3:, 3:]) / 3 for c in given])
+    out = []
+    for k in range(1, n):
+        c = step_cov[k] if step_cov is not None and k < len(step_cov) else None
+        cov = np.diag(variances) if c is None else np.asarray(c, float).reshape(6, 6)
+        out.append(gtsam.noiseModel.Gaussian.Covariance(scale * (cov + cov.T) / 2))
+    return out
+
+
 def optimise_pose_graph(
     poses: np.ndarray,
     loops: list[tuple[int, int, np.ndarray]],
-    odo_sigma=(0.01, 0.05),
+    step_cov: list[np.ndarray | None] | None = None,
     loop_sigma=(0.02, 0.1),
-    odo_cauchy: float = 1.0,
 ) -> np.ndarray:
-    """`poses` F x 4 x 4 camera-to-world; `loops` (i, j, T_j_i): camera i seen from camera j.
-    Returns the corrected F x 4 x 4 poses.
+    """`poses` F x 4 x 4 camera-to-world; `loops` (i, j, T_j_i): camera i seen from camera j; `step_cov` the
+    window's covariance of the step into each pose (None where it has none; `odometry_noises`). Returns the
+    corrected F x 4 x 4 poses.
 
-    `odo_cauchy`: the odometry factors' Cauchy constant (in sigmas). A
-    front-end step that failed grossly (a tuning lap's fast turn: one step 5 m off) then gives way to the
-    validated loops instead of holding them back and spreading its error over the lap; the loops keep their
+    The odometry factors are Gaussian: a robust kernel over them, at the scale the window's covariances give,
+    let steps give way that were right and bent the lap where the loops pulled hardest. The loops keep their
     Huber kernel, and `consistent_loops` has already asked each of them for a neighbour that agrees."""
-    M = gtsam.noiseModel.mEstimator
-    odo = robust(M.Cauchy.Create(odo_cauchy), diagonal(*odo_sigma))
-    lc = robust(M.Huber.Create(1.345), diagonal(*loop_sigma))
-    return solve_pose_graph(*build_pose_graph(poses, loops, lambda k: odo, lc), len(poses))
+    noises = odometry_noises(step_cov, len(poses))
+    lc = robust(gtsam.noiseModel.mEstimator.Huber.Create(1.345), diagonal(*loop_sigma))
+    return solve_pose_graph(*build_pose_graph(poses, loops, lambda k: noises[k - 1], lc), len(poses))
