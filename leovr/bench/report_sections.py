@@ -149,7 +149,9 @@ def render_loop(doc: dict) -> tuple[list[str], list[str]]:
                     num(mean_err),
                     num(r.get("ate_no_loop_m")),
                     num(r.get("ate_loop_m")),
+                    ratio(r.get("ate_loop_m"), r.get("ate_no_loop_m")),
                     num(r.get("ate_ideal_loops_m")),
+                    ratio(r.get("ate_loop_m"), r.get("ate_ideal_loops_m")),
                     num(r.get("ms_per_query"), 1),
                 ]
             )
@@ -163,7 +165,9 @@ def render_loop(doc: dict) -> tuple[list[str], list[str]]:
         "mean loop error (m)",
         "ATE no loops (m)",
         "ATE with loops (m)",
+        "with ÷ no loops",
         "ATE ideal loops (m)",
+        "with ÷ ideal loops",
         "ms/query",
     ]
     note = [
