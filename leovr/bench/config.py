@@ -67,7 +67,7 @@ class BenchLoopConfig(_Model):
     seeds: list[int] = [3300, 3301]
     tuning_seeds: list[int] = [3000, 3001]  # the validation thresholds were tuned on these: reported apart
     frames: int = Field(130, ge=10)  # frames per drive; at 80 km/h a lap of the city loop is about 110 frames
-    quick_frames: int = Field(120, ge=10)  # --quick: one LiDAR, one seed
+    quick_frames: int = Field(120, ge=10)  # --quick: one seed per LiDAR
     speed_kmh: float = 80.0  # driving speed (km/h)
     loop_min_gap: int = 30  # loop candidates at least this many frames older
     kitti_raw: str | None = None  # KITTI raw clip; None = every shared drive (none when absent)

@@ -116,7 +116,6 @@ def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progres
     started = time.time()
     results, tuning = {}, {}
     frames = cfg.quick_frames if quick else cfg.frames
-    lidars = cfg.lidars[:1] if quick else cfg.lidars
     seeds = cfg.seeds[:1] if quick else cfg.seeds
     base = RefineConfig(input="full", loop=LoopConfig(enabled=True, min_gap=cfg.loop_min_gap))
     with tempfile.TemporaryDirectory() as tmp:
@@ -140,7 +139,7 @@ def run_loop_bench(out: Path, cfg: BenchLoopConfig, quick: bool = False, progres
             simulate(sim, work / f"seq_{lidar}_{seed}", progress=progress)
             return one(open_sequence(work / f"seq_{lidar}_{seed}"), base, f"{lidar}_{seed}")
 
-        for lidar in lidars:
+        for lidar in cfg.lidars:
             for seed in seeds:
                 results[f"synthetic_{lidar}_s{seed}"] = lap(lidar, seed)
             for seed in [] if quick else cfg.tuning_seeds:
