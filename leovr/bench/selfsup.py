@@ -190,15 +190,16 @@ def _minutes(run: Path, add: float = 0.0) -> float:
     return total
 
 
-def datasets(cfg: BenchSelfSupConfig, quick: bool, progress: bool) -> tuple[Path, Path]:
-    """(root of the dynamic / city_loop sequences, root of the traffic sequences). --quick renders its
-    own small set (one short sequence per scenario and split), so it runs on a fresh clone; the full
-    run reads the default recipe (tools/make_dataset.py) and renders the traffic recipe when missing."""
-    if quick:
+def datasets(cfg: BenchSelfSupConfig, quick: bool, progress: bool) -> tuple[Path | None, Path | None]:
+    """(root of the dynamic / city_loop sequences, of the traffic sequences), None where no part in `cfg.parts`
+    reads it (the KITTI part reads neither). --quick renders its own small set (one short sequence per scenario and
+    split): it runs on a fresh clone; else the default recipe (tools/make_dataset.py), the traffic one rendered."""
+    synthetic, traffic = "synthetic" in cfg.parts, "traffic" in cfg.parts
+    if quick and (synthetic or traffic):
         root = make_dataset(QUICK_RECIPE, Path(cfg.dataset) if cfg.dataset else None, progress=progress)
         return root, root
-    root = Path(cfg.dataset) if cfg.dataset else default_root() / "default"
-    return root, make_dataset(RECIPES["traffic"], progress=progress)
+    root = (Path(cfg.dataset) if cfg.dataset else default_root() / "default") if synthetic else None
+    return root, make_dataset(RECIPES["traffic"], progress=progress) if traffic else None
 
 
 def score_paths(checkpoint: Path, tests: list[Sequence], cfg: BenchSelfSupConfig, bins: list[float]) -> dict:
@@ -209,9 +210,8 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     started = time.time()
     work = Path(out).with_name(Path(out).stem + "_work")
     root, traffic_root = datasets(cfg, quick, progress)
-    n_train = 1 if quick else cfg.train_sequences
-    train = pick_sequences(root, "train", cfg, n_train)
-    test_paths = pick_sequences(root, "test", cfg, 1 if quick else cfg.test_sequences)
+    train = pick_sequences(root, "train", cfg, 1 if quick else cfg.train_sequences) if root else []
+    test_paths = pick_sequences(root, "test", cfg, 1 if quick else cfg.test_sequences) if root else []
     shorten = (lambda s: SequenceView(s, list(range(min(len(s), cfg.quick_frames))))) if quick else (lambda s: s)
     epochs = cfg.quick_epochs if quick else cfg.epochs
     base = base_config(cfg, epochs, cfg.quick_frames if quick else None)
@@ -238,7 +238,7 @@ def run_selfsup_bench(out: Path, cfg: BenchSelfSupConfig, quick: bool = False, p
     body = {
         "quick": quick,
         "parts": cfg.parts,
-        "train_sequences": [str(p.relative_to(root)) for p in train],
+        "train_sequences": [str(p.relative_to(root)) for p in train],  # empty without the synthetic part
         "test_sequences": [str(p.relative_to(root)) for p in test_paths],
         **traffic_body,
         "epochs": epochs,
