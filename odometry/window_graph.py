@@ -133,6 +133,8 @@ class WindowGraph:
     # a leaving frame's observations of landmarks that stay: conditioned on its pose (with LiDAR), else marginalised
     # (camera only: conditioning carried the leaving pose's pitch error on to the landmarks that stay)
     condition_leaving: bool = True
+    # each leaving frame's step covariance (odometry.step_covariance), for loop closure's pose graph
+    step_covariances: bool = False
 
     def __post_init__(self) -> None:
         self.grid = CorrectionGrid(GRID_ROWS, GRID_COLS, *self.shape)
@@ -308,7 +310,7 @@ class WindowGraph:
             self.smoother = anchor_landmarks(self.smoother, self._new_smoother, self.incremental, centre, f.index, exc)
         self.last = f.index
         done = self._collect()
-        if self.cfg.loop.enabled:  # the loop pass weighs each odometry step by them
+        if self.step_covariances:
             keys = {i: X(i) for i in self.poses}
             self.step_cov |= window_step_covariances(
                 self.smoother.getFactors(), self.smoother.calculateEstimate(), keys, self.poses

@@ -105,8 +105,15 @@ class RefineRun:
             use_lidar=has_lidar,
             camera_height=None if has_lidar else road_height(seq, cfg),
         )
+        # the loop pass weighs each step by the window's covariance of it; camera only they come out alike (the road
+        # plane sets every step's length), so the marginals that would double the graph's time are left out
         self.graph = WindowGraph(
-            ocfg, first.K, first.shape, rng=np.random.default_rng(cfg.seed), condition_leaving=has_lidar
+            ocfg,
+            first.K,
+            first.shape,
+            rng=np.random.default_rng(cfg.seed),
+            condition_leaving=has_lidar,
+            step_covariances=cfg.loop.enabled and has_lidar,
         )
         # generator depth, its log uncertainty, and the road's scale for it (camera only)
         self.pending: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
