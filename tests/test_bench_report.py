@@ -93,3 +93,18 @@ def test_bench_json_records_the_commit(tmp_path: Path):
     doc = write_bench(tmp_path / "b.json", "demo", {}, time.time(), argv=["leovr", "bench", "demo"])
     assert "commit" in doc and (doc["commit"] is None or isinstance(doc["commit"], str) and doc["commit"])
     assert json.loads((tmp_path / "b.json").read_text())["commit"] == doc["commit"]
+
+
+def test_a_selfsup_run_of_the_kitti_part_alone_names_no_synthetic_or_traffic_data():
+    """`leovr bench selfsup --parts kitti`: the section lists only what ran."""
+    from leovr.bench.report_sections import render_selfsup
+
+    held_out = {"untrained": {"mae_m": 0.598}, "kitti_cold_start": {"mae_m": 0.97}}
+    doc = {
+        "parts": ["kitti"],
+        "train_sequences": [],
+        "results": {"kitti_raw": {"input": "vlp16", "held_out": held_out}},
+    }
+    data, body = render_selfsup(doc)
+    assert data == [] and not any("traffic" in line for line in body)
+    assert any(line.startswith("| kitti_cold_start | 0.970") for line in body)

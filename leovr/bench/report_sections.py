@@ -266,12 +266,13 @@ def render_batch(doc: dict) -> tuple[list[str], list[str]]:
 def render_selfsup(doc: dict) -> tuple[list[str], list[str]]:
     """Self-supervised against supervised, the masks on the traffic scenario, the KITTI cold start."""
     res = doc.get("results") or {}
-    data = [
-        f"training: {listing(doc.get('train_sequences'))}; test: {listing(doc.get('test_sequences'))}; "
-        f"{doc.get('epochs', '-')} epochs",
-        f"traffic: training {listing(doc.get('traffic_train_sequences'))}; test "
-        f"{listing(doc.get('traffic_test_sequences'))}",
-    ]
+    data = []  # the parts that ran (`--parts`)
+    if doc.get("train_sequences"):
+        train, test = listing(doc.get("train_sequences")), listing(doc.get("test_sequences"))
+        data.append(f"training: {train}; test: {test}; {doc.get('epochs', '-')} epochs")
+    if doc.get("traffic_train_sequences"):
+        train, test = listing(doc.get("traffic_train_sequences")), listing(doc.get("traffic_test_sequences"))
+        data.append(f"traffic: training {train}; test {test}")
     minutes, dyn = res.get("train_minutes") or {}, res.get("dynamic_only") or {}
     syn = res.get("synthetic_metrics") or {}
     rows = [
@@ -302,11 +303,12 @@ def render_selfsup(doc: dict) -> tuple[list[str], list[str]]:
     )
     tr = {k: v for k, v in (res.get("traffic_only") or {}).items() if not k.endswith("_gain")}
     rows = [[m, num(v), ratio(v, tr.get("selfsup_nomask")), num(minutes.get(f"traffic_{m}"), 1)] for m, v in tr.items()]
-    body += [
-        "`traffic` scenario (movers along the epipolar lines; `eq19_only`: the LeoVR paper's eq. 19 test alone; "
-        "`oracle_mask`: the true moving mask, a bound):",
-        "",
-    ]
+    if rows:
+        body += [
+            "`traffic` scenario (movers along the epipolar lines; `eq19_only`: the LeoVR paper's eq. 19 test alone; "
+            "`oracle_mask`: the true moving mask, a bound):",
+            "",
+        ]
     body += table(["model", "MAE (m)", "MAE ÷ selfsup_nomask", "train min"], rows)
     k = res.get("kitti_raw") or {}
     rows = [
