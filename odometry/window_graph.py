@@ -309,12 +309,11 @@ class WindowGraph:
             centre = self.poses.get(self.last, np.eye(4))[:3, 3] if self.last is not None else np.zeros(3)
             self.smoother = anchor_landmarks(self.smoother, self._new_smoother, self.incremental, centre, f.index, exc)
         self.last = f.index
-        done = self._collect()
+        est = self.smoother.calculateEstimate()
+        done = self._collect(est)
         if self.step_covariances:
             keys = {i: X(i) for i in self.poses}
-            self.step_cov |= window_step_covariances(
-                self.smoother.getFactors(), self.smoother.calculateEstimate(), keys, self.poses
-            )
+            self.step_cov |= window_step_covariances(self.smoother.getFactors(), est, keys, self.poses)
         return done
 
     def _condition_leaving(self, newest: int, graph: gtsam.NonlinearFactorGraph) -> list[int]:
@@ -336,8 +335,7 @@ class WindowGraph:
         poses = {X(i): self.poses[i] for i in leaving}
         return conditioned_observations(self.smoother.getFactors(), poses, staying, self.landmarks, graph)
 
-    def _collect(self) -> list[FrameResult]:
-        est = self.smoother.calculateEstimate()
+    def _collect(self, est: gtsam.Values) -> list[FrameResult]:
         live = {i for i in self.poses} | {self.last}
         done = []
         for i in sorted(live):

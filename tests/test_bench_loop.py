@@ -42,6 +42,7 @@ def test_the_ideal_loops_close_a_drifted_lap_with_the_runs_own_pose_graph(tmp_pa
     from scipy.spatial.transform import Rotation
 
     from leovr.bench.loop import ideal_loop_ate
+    from leovr.pipeline.refine_outputs import Progress
     from leovr.eval.trajectory import trajectory_metrics
 
     n = 40
@@ -57,9 +58,7 @@ def test_the_ideal_loops_close_a_drifted_lap_with_the_runs_own_pose_graph(tmp_pa
     drifted = [gt[0]]
     for k in range(1, n):
         drifted.append(drifted[-1] @ np.linalg.inv(gt[k - 1]) @ gt[k] @ turn)
-    (tmp_path / "progress.json").write_text(
-        json.dumps({"poses_no_loop": {str(k): T.ravel().tolist() for k, T in enumerate(drifted)}})
-    )
+    Progress(poses_no_loop={k: T.ravel().tolist() for k, T in enumerate(drifted)}).save(tmp_path / "progress.json")
     loops = [{"frame": 39, "candidate": 0, "accepted": True}, {"frame": 38, "candidate": 1, "accepted": False}]
     (tmp_path / "loops.json").write_text(json.dumps({"loops": loops, "ms_per_query": 1.0}))
     before = trajectory_metrics(np.stack(drifted), np.stack(gt))["ate_m"]

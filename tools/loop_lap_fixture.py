@@ -14,22 +14,19 @@ from pathlib import Path
 import numpy as np
 
 from leovr.data import open_sequence
+from leovr.pipeline.refine_outputs import Progress
 
 
 def main(run: Path, seq_dir: Path, out: Path) -> None:
-    state = json.loads((run / "progress.json").read_text())
-    indices = sorted(int(k) for k in state["poses_no_loop"])
+    state = Progress.load(run / "progress.json")
+    indices = sorted(state.poses_no_loop)
     at = {i: n for n, i in enumerate(indices)}
-    poses = np.stack([np.array(state["poses_no_loop"][str(i)]).reshape(4, 4) for i in indices])
-    covs = state["step_covariances"]
-    step_cov = np.stack(
-        [np.array(covs[str(i)]).reshape(6, 6) if str(i) in covs else np.full((6, 6), np.nan) for i in indices]
-    )
+    step_cov = np.stack([np.full((6, 6), np.nan) if c is None else c for c in state.covariances(indices)])
     loops = [r for r in json.loads((run / "loops.json").read_text())["loops"] if r["accepted"]]
     seq = open_sequence(seq_dir)
     np.savez_compressed(
         out,
-        poses=poses,
+        poses=state.stacked("poses_no_loop", indices),
         step_cov=step_cov,
         loop_pairs=np.array([(at[r["frame"]], at[r["candidate"]]) for r in loops]),
         loop_T=np.stack([np.array(r["T_j_i"]) for r in loops]),

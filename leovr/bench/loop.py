@@ -84,11 +84,11 @@ def ideal_loop_ate(run: Path, gt: list[np.ndarray]) -> float | None:
     (the same poses before loop closure, the same graph): the bound the detected loops are measured against.
     None without an accepted loop."""
     from leovr.eval.trajectory import trajectory_metrics
+    from leovr.pipeline.refine_outputs import Progress
     from odometry.loop.pose_graph import optimise_pose_graph
 
-    progress = json.loads((run / "progress.json").read_text())
-    before, covs = progress.get("poses_no_loop") or {}, progress.get("step_covariances") or {}
-    indices = sorted(int(k) for k in before)
+    state = Progress.load(run / "progress.json")
+    indices = sorted(state.poses_no_loop)
     at = {i: n for n, i in enumerate(indices)}
     loops = [
         (at[r["frame"]], at[r["candidate"]], invert_T(gt[r["candidate"]]) @ gt[r["frame"]])
@@ -97,9 +97,7 @@ def ideal_loop_ate(run: Path, gt: list[np.ndarray]) -> float | None:
     ]
     if not loops:
         return None
-    poses = np.stack([np.array(before[str(i)]).reshape(4, 4) for i in indices])
-    step_cov = [np.array(covs[str(i)]).reshape(6, 6) if str(i) in covs else None for i in indices]
-    corrected = optimise_pose_graph(poses, loops, step_cov)
+    corrected = optimise_pose_graph(state.stacked("poses_no_loop", indices), loops, state.covariances(indices))
     return float(trajectory_metrics(corrected, np.stack([gt[i] for i in indices]))["ate_m"])
 
 

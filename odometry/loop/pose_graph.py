@@ -57,17 +57,15 @@ def odometry_noises(step_cov: list[np.ndarray | None] | None, n: int) -> list[gt
     correction goes where the window was least sure) and their shape (the rotation known far better than the
     translation). A step without one gets the median per-axis variance; a run without any, ODOMETRY_SIGMA_RAD
     and ODOMETRY_SIGMA_M."""
-    given = [np.asarray(c, float).reshape(6, 6) for c in (step_cov or [])[1:n] if c is not None]
+    steps = (list(step_cov or []) + [None] * n)[1:n]
+    steps = [None if c is None else np.asarray(c, float).reshape(6, 6) for c in steps]
+    given = [c for c in steps if c is not None]
     if not given:
         return [diagonal(ODOMETRY_SIGMA_RAD, ODOMETRY_SIGMA_M)] * (n - 1)
-    variances = np.median([np.diag(c) for c in given], axis=0)
+    median = np.diag(np.median([np.diag(c) for c in given], axis=0))
     scale = ODOMETRY_SIGMA_M**2 / np.median([np.trace(c[3:, 3:]) / 3 for c in given])
-    out = []
-    for k in range(1, n):
-        c = step_cov[k] if step_cov is not None and k < len(step_cov) else None
-        cov = np.diag(variances) if c is None else np.asarray(c, float).reshape(6, 6)
-        out.append(gtsam.noiseModel.Gaussian.Covariance(scale * (cov + cov.T) / 2))
-    return out
+    covs = [median if c is None else (c + c.T) / 2 for c in steps]
+    return [gtsam.noiseModel.Gaussian.Covariance(scale * c) for c in covs]
 
 
 def optimise_pose_graph(
