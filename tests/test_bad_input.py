@@ -214,6 +214,17 @@ def test_a_tampered_progress_file_is_refused_naming_it(tmp_path, poses):
         Progress.load(path)
 
 
+def test_a_progress_file_with_a_broken_step_covariance_is_refused_naming_it(tmp_path):
+    """The window's step covariances feed loop closure's pose graph after a resume: one that is not 36 finite
+    numbers is refused with the file named."""
+    from leovr.pipeline.refine_outputs import Progress
+
+    path = tmp_path / "progress.json"
+    path.write_text('{"poses": {}, "icp_poses": {}, "sources": {}, "times": {}, "step_covariances": {"3": [1, 2]}}')
+    with pytest.raises(DataError, match=r"progress\.json: .*step_covariances of frame 3 is not 36 finite numbers"):
+        Progress.load(path)
+
+
 def test_simulate_replaces_an_earlier_rendering_and_convert_refuses_to_mix(tmp_path):
     """Rendering again into a folder replaces the earlier sequence (no frame of it is left); converting into a
     folder that holds a sequence is refused."""
