@@ -389,12 +389,12 @@ def test_only_a_run_that_deskews_a_scan_reads_the_sweeps_motion_from_the_images(
     """The sweep's motion (ORB matching and an essential matrix per frame, the generator stage's largest cost without
     LiDAR) deskews the LiDAR input: a camera-only run on a recording whose scans carry point times has no input
     to deskew and reads none; a VLP-16-like run of the same frames reads one per sweep that has a next image."""
-    import leovr.pipeline.refine_prepare as prepare
+    from leovr.pipeline.refine_sweep import SweepDeskew
 
     calls: list[int] = []
-    read = prepare.PrepareStage._images_motion
+    read = SweepDeskew._images_motion
     monkeypatch.setattr(
-        prepare.PrepareStage, "_images_motion", lambda self, i, this, nxt: calls.append(i) or read(self, i, this, nxt)
+        SweepDeskew, "_images_motion", lambda self, i, this, nxt: calls.append(i) or read(self, i, this, nxt)
     )
     seq = open_sequence(KITTI_RAW_POSES)
     run_refine(seq, RefineConfig(input="none", end=4), tmp_path / "none", progress=False, score=False)
@@ -614,7 +614,7 @@ def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkey
     from the generator's learned depth: with its depth scaled by 0.9 and 1.1, the Mid-40-like run's median step
     over the real drive's first 32 frames moves by under 1 % (measured 0.6 and 0.15 %; with landmarks seeded from
     the generator's depth held at 0.3 of their depth and no KISS-ICP motion in a cone's graph, 1-5 % over the drive)."""
-    from leovr.pipeline import refine as refine_module
+    from leovr.pipeline import refine_setup as refine_module
 
     method = refine_module.generator_method
     seq = open_sequence(KITTI_RAW_POSES)
@@ -642,15 +642,15 @@ def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outp
     has its tracks; the poses and depth maps are those of a run that does all of it in line."""
     import threading
 
-    import leovr.pipeline.refine_prepare as prepare
+    from leovr.pipeline.refine_tracks import CornerTracks
 
     seq, cfg = open_sequence(KITTI_RAW_POSES), RefineConfig(input="mid40", end=6)
     where: list[tuple[int, str]] = []
     ahead: list[int] = []
-    tracked, images_tracks = prepare.PrepareStage._tracked, prepare.PrepareStage._images_tracks
+    tracked, images_tracks = CornerTracks.tracked, CornerTracks.images_tracks
     monkeypatch.setattr(
-        prepare.PrepareStage,
-        "_tracked",
+        CornerTracks,
+        "tracked",
         lambda self, i, *a: where.append((i, threading.current_thread().name)) or tracked(self, i, *a),
     )
 
@@ -660,7 +660,7 @@ def test_a_cone_lidars_corner_tracks_run_beside_its_generator_with_the_same_outp
             ahead.append(i)
         return out
 
-    monkeypatch.setattr(prepare.PrepareStage, "_images_tracks", started_ahead)
+    monkeypatch.setattr(CornerTracks, "images_tracks", started_ahead)
     _threaded_then_in_line(seq, cfg, tmp_path / "beside", tmp_path / "in_line")
     beside, in_line = where[: len(where) // 2], where[len(where) // 2 :]
     assert [i for i, _ in beside] == list(range(6)) and all(name.startswith("leovr-tracks") for _, name in beside)

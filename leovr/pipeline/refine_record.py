@@ -26,6 +26,18 @@ class RunRecord:
         self.done = {i for i in indices if i in self.state.poses and (out / "depth" / png_name(names, i)).is_file()}
         self.replayed: dict[int, np.ndarray] = {}  # finished frames' poses as the replay found them
         self.unwritten: list[tuple[str, dict[str, np.ndarray]]] = []  # finished frames' depth maps, to write
+        self.empty: list[int] = []  # frames whose LiDAR input has no return inside the image
+
+    def frame_done(self, i: int, source: str, T_icp: np.ndarray | None, times: list[float]) -> None:
+        """Frame i's turn: the front end's choice of initial pose, KISS-ICP's pose and the stages' times. A resumed
+        frame's record is completed by its replay."""
+        state = self.state
+        if i in self.done and i in state.times:
+            return
+        state.sources[i] = source
+        if T_icp is not None:
+            state.icp_poses[i] = T_icp.ravel().tolist()
+        state.times[i] = times
 
     def finished(
         self, i: int, T_world_cam: np.ndarray, maps: dict[str, np.ndarray], step_cov: np.ndarray | None = None
