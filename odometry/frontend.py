@@ -10,7 +10,7 @@ parallax allows, seeded from the generator's depth elsewhere."""
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -19,6 +19,7 @@ import numpy as np
 
 from leovr.config import RefineConfig
 from leovr.geometry import back_project, invert_T
+from leovr.threads import Worker
 from odometry.features import Features, detect, match
 from odometry.initial_pose import (
     LidarOdometry,
@@ -87,7 +88,7 @@ class FrontEnd:
     # camera only: the road's scale of the last processed frame's generator depth (read once the next frame's motion
     # may already be running ahead and moving MonoMotion's own)
     _scale: float = 1.0
-    _pool: ThreadPoolExecutor | None = None  # camera only: the next frame's motion, computed ahead (`prefetch_motion`)
+    _worker: Worker | None = None  # camera only: the next frame's motion, computed ahead (`prefetch_motion`)
     _prefetched: tuple[int, Future] | None = None
 
     def __post_init__(self) -> None:
@@ -110,15 +111,15 @@ class FrontEnd:
         `index` but its image, so the motion is the one `process` would compute."""
         if self.mono is None:
             return
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-motion")
-        self._prefetched = (index, self._pool.submit(lambda: self.mono.motion(image())))
+        if self._worker is None:
+            self._worker = Worker("motion", threaded=True)
+        self._prefetched = (index, self._worker.submit(lambda: self.mono.motion(image())))
 
     def close(self) -> None:
         """Wait for a motion computed ahead and stop its worker."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
 
     def _mono_step(self, index: int, image: np.ndarray, depth: np.ndarray, log_sigma: np.ndarray) -> MonoStep | None:
         """Camera only: frame `index`'s motion (computed ahead, else now), then its depth kept for the next."""

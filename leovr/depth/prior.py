@@ -21,12 +21,13 @@ fit follows and a corner does not. Without the image, the nearest return.
 from __future__ import annotations
 
 import os
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
 
 from leovr.depth.classical import nearest_fill
+from leovr.threads import Worker
 
 # Chosen on the simulator's validation split: the lowest mean MAE relative to the nearest fill over Mid-40,
 # VLP-16 and uniform-ratio inputs (docs/decisions/0011-tuned-settings.md).
@@ -228,28 +229,22 @@ def triangle_lookup(
     return TriangleLookup(out, simplex, np.nonzero((simplex >= 0) & ~hit)[0], z, g, c)
 
 
-_POOL: dict[int, ThreadPoolExecutor] = {}  # one helper thread per process, made on first use
+_WORKERS: dict[tuple[int, bool], Worker] = {}  # per process: a helper thread, and the in-line one
 
 
 def _beside(fn, *args) -> Future:
     """`fn(*args)` in a helper thread when OpenCV may use more than one thread (cv2.setNumThreads: a batch
-    task with one CPU sets 1), else here; the Future gives its result or raises its error. The pool is
-    keyed by process: a forked child (a data loader's worker) inherits the parent's pool without its
+    task with one CPU sets 1), else here; the Future gives its result or raises its error. The thread is
+    kept per process: a forked child (a data loader's worker) inherits the parent's pool without its
     thread, and a task given to it would never run."""
     import cv2
 
-    if cv2.getNumThreads() > 1:
-        pid = os.getpid()
-        if pid not in _POOL:
-            _POOL.clear()
-            _POOL[pid] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-prior")
-        return _POOL[pid].submit(fn, *args)
-    fut: Future = Future()
-    try:
-        fut.set_result(fn(*args))
-    except Exception as exc:  # noqa: BLE001 (raised by result(), as from the thread)
-        fut.set_exception(exc)
-    return fut
+    key = os.getpid(), cv2.getNumThreads() > 1
+    if any(pid != key[0] for pid, _ in _WORKERS):  # a forked child: its parent's threads are not in it
+        _WORKERS.clear()
+    if key not in _WORKERS:
+        _WORKERS[key] = Worker("prior", threaded=key[1])
+    return _WORKERS[key].submit(fn, *args)
 
 
 def interpolated_at(

@@ -8,9 +8,11 @@ A writer's error is raised in the main thread at the next hand-over or at `drain
 from __future__ import annotations
 
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from types import TracebackType
 from typing import Any, Callable
+
+from leovr.threads import Worker
 
 
 class FrameWriter:
@@ -19,17 +21,14 @@ class FrameWriter:
     writing is slower than the run."""
 
     def __init__(self, threaded: bool, max_pending: int = 4) -> None:
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="leovr-writer") if threaded else None
+        self._worker = Worker("writer", threaded)
         self._pending: deque[Future] = deque()
         self.max_pending = max_pending
 
     def submit(self, job: Callable[..., Any], *args: Any) -> None:
-        if self._pool is None:
-            job(*args)
-            return
         while self._pending and (self._pending[0].done() or len(self._pending) >= self.max_pending):
             self._pending.popleft().result()  # a failed write raises here
-        self._pending.append(self._pool.submit(job, *args))
+        self._pending.append(self._worker.submit(job, *args))
 
     def drain(self) -> None:
         """Wait until everything handed over is written (raising the first failure)."""
@@ -40,8 +39,7 @@ class FrameWriter:
         try:
             self.drain()
         finally:
-            if self._pool is not None:
-                self._pool.shutdown(wait=True)
+            self._worker.close()
 
     def __enter__(self) -> "FrameWriter":
         return self
@@ -49,5 +47,5 @@ class FrameWriter:
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
         if kind is None:
             self.close()
-        elif self._pool is not None:  # the run failed: what was handed over is still written, its errors aside
-            self._pool.shutdown(wait=True)
+        else:  # the run failed: what was handed over is still written, its errors aside
+            self._worker.close()

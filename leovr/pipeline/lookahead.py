@@ -9,19 +9,14 @@ runs in line instead: the results are the same either way.
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from types import TracebackType
 from typing import Any, Callable, Generic, TypeVar
 
+from leovr.threads import Worker, done_future
+
 R = TypeVar("R")  # what the preparation of a frame gives
 F = TypeVar("F")  # what reading a frame gives
-
-
-def done_future(value: object) -> Future:
-    """A future that holds `value` already."""
-    fut: Future = Future()
-    fut.set_result(value)
-    return fut
 
 
 class Lookahead(Generic[R, F]):
@@ -32,14 +27,14 @@ class Lookahead(Generic[R, F]):
 
     def __init__(self, read: Callable[[int], F], threaded: bool) -> None:
         self.read = read
-        self.ahead = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-generator") if threaded else None
-        self.reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leovr-read") if threaded else None
+        self.ahead = Worker("generator", threaded)
+        self.reader = Worker("read", threaded)
         self.reads: dict[int, Future] = {}  # frame index -> its read, running or done
         self.next: Future | None = None  # the submitted preparation, until `result` takes it
 
     @property
     def threaded(self) -> bool:
-        return self.ahead is not None
+        return self.ahead.threaded
 
     @property
     def pending(self) -> bool:
@@ -48,15 +43,7 @@ class Lookahead(Generic[R, F]):
 
     def submit(self, prepare: Callable[..., R], *args: Any) -> None:
         """Start `prepare(*args)`: in the worker thread, or in line (its exception kept for `result`)."""
-        if self.ahead is not None:
-            self.next = self.ahead.submit(prepare, *args)
-            return
-        fut: Future = Future()
-        try:
-            fut.set_result(prepare(*args))
-        except Exception as exc:  # raised where the frame is used, as from the thread
-            fut.set_exception(exc)
-        self.next = fut
+        self.next = self.ahead.submit(prepare, *args)
 
     def result(self) -> R:
         """The submitted preparation's result (waiting for it); its exception is raised here."""
@@ -65,25 +52,21 @@ class Lookahead(Generic[R, F]):
         return value
 
     def read_ahead(self, i: int) -> None:
-        """Frame i read in the reader thread, unless it is read already or in line (no reader thread)."""
-        if self.reader is not None and i not in self.reads:
+        """Frame i read in the reader thread, unless it is read already; in line it is read when first needed."""
+        if self.reader.threaded and i not in self.reads:
             self.reads[i] = self.reader.submit(self.read, i)
 
     def future(self, i: int) -> Future:
-        """Frame i's read: started in the reader thread unless it is already (read in line without one)."""
-        if self.reader is None:
-            return self._read_now(i)
-        self.read_ahead(i)
-        return self.reads[i]
-
-    def _read_now(self, i: int) -> Future:
+        """Frame i's read: started (in the reader thread, or here) unless it is already."""
         if i not in self.reads:
-            self.reads[i] = done_future(self.read(i))
+            self.reads[i] = self.reader.submit(self.read, i)
         return self.reads[i]
 
     def peek(self, i: int) -> F:
         """Frame i, read once (here, unless read ahead already) and kept for `take`."""
-        return self._read_now(i).result()
+        if i not in self.reads:
+            self.reads[i] = done_future(self.read(i))
+        return self.reads[i].result()
 
     def take(self, i: int) -> F:
         """Frame i as read ahead or peeked (forgotten then), else read now."""
@@ -93,10 +76,8 @@ class Lookahead(Generic[R, F]):
         """Cancel the preparation if it has not started and wait for it if it has; cancel reads not started."""
         if self.next is not None:
             self.next.cancel()
-        if self.ahead is not None:
-            self.ahead.shutdown(wait=True)
-        if self.reader is not None:
-            self.reader.shutdown(wait=True, cancel_futures=True)
+        self.ahead.close()
+        self.reader.close(cancel=True)
 
     def __enter__(self) -> "Lookahead[R, F]":
         return self

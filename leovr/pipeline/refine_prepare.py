@@ -15,11 +15,12 @@ import numpy as np
 from leovr.data.records import Frame
 from leovr.lidar.accumulate import ScanHistory, with_history
 from leovr.pipeline.completion import EvalSample
-from leovr.pipeline.lookahead import Lookahead, done_future
+from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_input import frame_sample
 from leovr.pipeline.refine_setup import RunSetup
 from leovr.pipeline.refine_sweep import SweepDeskew
 from leovr.pipeline.refine_tracks import CornerTracks
+from leovr.threads import done_future
 
 
 @dataclass

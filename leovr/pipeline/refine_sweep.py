@@ -5,15 +5,16 @@ read (`read_ahead`)."""
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from leovr.data.records import Frame
-from leovr.pipeline.lookahead import Lookahead, done_future
+from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_input import frame_sample
 from leovr.pipeline.refine_setup import RunSetup
+from leovr.threads import Worker, done_future
 
 if TYPE_CHECKING:
     from odometry.sweep_motion import ImagesMotion
@@ -32,7 +33,7 @@ class SweepDeskew:
         self.images = SweepMotion()
         # a sweep's images' motion (ORB matching, essential matrix) needs only the two images: it runs in its own
         # thread while the main thread's front end runs and the generator stage's thread would wait
-        self.pool = ThreadPoolExecutor(1, thread_name_prefix="leovr-sweep") if frames.threaded else None
+        self.worker = Worker("sweep", frames.threaded)
         self.ahead: dict[int, Future] = {}  # frame -> its sweep's images' motion, started ahead
         self.motion_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
         self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
@@ -73,14 +74,14 @@ class SweepDeskew:
         """Start frame i's sweep's images' motion (images i and i + 1, read ahead) in the sweep thread, when
         frame i's scan will be deskewed with it. Called by the main thread before frame i is prepared."""
         if (
-            self.pool is None
+            not self.worker.threaded
             or i in self.ahead
             or not self.runs
             or self.setup.cfg.causal
             or self.following.get(i) != i + 1
         ):
             return
-        self.ahead[i] = self.pool.submit(self._images_motion, i, self.frames.future(i), self.frames.future(i + 1))
+        self.ahead[i] = self.worker.submit(self._images_motion, i, self.frames.future(i), self.frames.future(i + 1))
 
     def _images_motion(self, i: int, this: Future, nxt: Future) -> ImagesMotion | None:
         frame = this.result()
@@ -138,5 +139,4 @@ class SweepDeskew:
         return motion, self._scan(first, motion)
 
     def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
+        self.worker.close(cancel=True)

@@ -5,14 +5,14 @@ them needs only the images starts as soon as the frame before has its tracks (`a
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from leovr.pipeline.lookahead import done_future
 from leovr.pipeline.refine_input import stereo_image
 from leovr.pipeline.refine_setup import RunSetup
+from leovr.threads import Worker
 
 if TYPE_CHECKING:
     from odometry.frame_tracks import FrameTracks
@@ -33,7 +33,7 @@ class CornerTracks:
         self.images = GrayImages(
             lambda j: stereo_image(setup.seq, j), keep=2 * max([*self.stereo.offsets, *PAIR_OFFSETS]) + 3
         )
-        self.pool = ThreadPoolExecutor(1, thread_name_prefix="leovr-tracks") if threaded else None
+        self.worker = Worker("tracks", threaded)
         self.started: dict[int, Future] = {}  # frame -> its FrameTracks (or None), started ahead
 
     def submit(
@@ -41,7 +41,7 @@ class CornerTracks:
     ) -> Future:
         """Frame i's corners and pair motions (`tracked`), in the tracks thread or here."""
         args = i, image, K, own, seen, stereo, pairs, self.started.pop(i, None)
-        return self.pool.submit(self.tracked, *args) if self.pool is not None else done_future(self.tracked(*args))
+        return self.worker.submit(self.tracked, *args)
 
     def forget(self, i: int) -> None:
         """Frame i's tracks started ahead are not needed (no step that uses them runs for it)."""
@@ -63,9 +63,9 @@ class CornerTracks:
         when the sensor is known to need them: they then run beside this frame's generator and the main
         thread's front end, off the next frame's path."""
         k = self.following.get(i)
-        if self.pool is None or k is None or not (with_stereo or with_pairs):
+        if not self.worker.threaded or k is None or not (with_stereo or with_pairs):
             return
-        self.started[k] = self.pool.submit(
+        self.started[k] = self.worker.submit(
             self.images_tracks, k, K, *self.neighbours(k, bool(with_stereo), bool(with_pairs))
         )
 
@@ -115,5 +115,4 @@ class CornerTracks:
         return corners, pairs
 
     def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
+        self.worker.close(cancel=True)
