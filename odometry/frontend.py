@@ -33,9 +33,8 @@ from odometry.window_graph import FrameInput, Observation, WindowGraph
 
 
 # With a LiDAR, a landmark seeded from the generator's depth (no return at its pixel) gets this depth prior (sigma /
-# depth) instead of `graph.landmark_prior_rel`: the generator's learned scale may not set the poses' scale (at 0.3,
-# its depth scaled by 0.9 made a Mid-40-like run's steps 1-3 % shorter; at 1.0 within 0.6 %, and kitti_raw_0013's
-# whole-drive ATE 0.365 -> 0.345 m over seeds 0-2; docs/decisions/0001-icp-covariance-inflation.md)
+# depth) instead of `graph.landmark_prior_rel`: the generator's learned scale may not set the poses' scale (tighter
+# priors carried it into a cone LiDAR's steps; docs/decisions/0001-icp-covariance-inflation.md)
 GENERATOR_LANDMARK_PRIOR_REL = 1.0
 # a feature takes the depth of the LiDAR returns within this radius (px) when their depths spread by at most this
 # share of their median (odometry.lidar_assoc.associate)

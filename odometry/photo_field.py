@@ -193,7 +193,7 @@ def photometric_offsets(
     chosen = cands[best] + np.clip(step, -0.5, 0.5) * (cands[1] - cands[0])
     lowest = mean[best, nodes]
     # a node votes when enough pixels saw every candidate (its best may lie at the span's end: the generator
-    # is often that far off outside the cone; requiring a valley inside the span cost 0.06 m on the development drives)
+    # is often that far off outside the cone; requiring a valley inside the span cost accuracy on the real drives)
     seen = weight.min(0) >= MIN_PIXELS
     # the nodes with returns check the sweep: the graph's depth is right there, so where their cost has a
     # clear valley they should choose no change; a median choice far from it (poses off: a step length

@@ -35,7 +35,7 @@ from leovr.pipeline.batch_state import (
 from leovr.pipeline.batch_summary import write_summary
 
 # a local instance without the dashboard: nothing reads Ray's own metrics, and not collecting them spares the
-# raylet's wait for the metrics agent at start (ray.init alone about 4.0 -> 2.9 s here; docs/benchmarks.md)
+# raylet's wait for the metrics agent at start (docs/benchmarks.md)
 LOCAL_SYSTEM_CONFIG = {"enable_metrics_collection": False}
 
 

@@ -35,7 +35,7 @@ LANDMARK_COLOUR = (0, 150, 170)  # dark cyan: visible on the dark and the light 
 DEPTH_RANGE_M = (0.0, 80.0)  # colour scale of every depth layer
 ERROR_RANGE_M = (0.0, 5.0)
 CLOUD_MAX_M, CLOUD_STEP = 80.0, 8  # the 3D depth cloud: refined depth up to 80 m, every 8th pixel each way
-# what keeps a recording light (a real KITTI frame: 5.7 -> 0.9 MB): images as JPEG, depth layers at half the
+# what keeps a recording light (a real KITTI frame's share about a sixth): images as JPEG, depth layers at half the
 # image's resolution in float16 (a viewer's panel is smaller than the image; hovering still reads metres), every
 # 8th LiDAR return, and the map once, with at most MAP_TRIANGLES triangles
 JPEG_QUALITY = 85
