@@ -54,6 +54,13 @@ MONO_TRIANGULATED_PRIOR_REL = 1.0
 # over a wrong length registers with the opposite error and the two feed each other; averaging damps that loop
 # (docs/decisions/0014-deskew-with-kiss-icp-step.md)
 SWEEP_STEP_FRAMES = 4
+# With LiDAR, an initial-pose candidate (KISS-ICP's step, PnP) whose step length is off the median of the last
+# STEP_LENGTH_FRAMES initial steps by more than STEP_LENGTH_CHANGE_REL of it and STEP_LENGTH_CHANGE_M is left out
+# while another candidate holds: a vehicle's step changes little in a frame, and a PnP on matches of one depth, or a
+# registration that slipped in a turn, can still reproject the most matches
+STEP_LENGTH_FRAMES = 3
+STEP_LENGTH_CHANGE_REL = 0.5
+STEP_LENGTH_CHANGE_M = 0.3
 
 
 @dataclass
@@ -82,6 +89,7 @@ class FrontEnd:
     # view (docs/decisions/0014-deskew-with-kiss-icp-step.md)
     sweep_velocity: np.ndarray = field(default_factory=lambda: np.eye(4))
     _icp_lengths: list[float] = field(default_factory=list)  # KISS-ICP's last step lengths (m)
+    _step_lengths: list[float] = field(default_factory=list)  # the last initial steps' lengths (m)
     sources: list[str] = field(default_factory=list)
     camera_height: float | None = None  # camera only: metres above the road (the road plane gives the scale)
     # camera only: the road's scale of the last processed frame's generator depth (read once the next frame's motion
@@ -227,6 +235,7 @@ class FrontEnd:
                 prior_rel,
             )
             self.velocity = T_rel
+            self._step_lengths = [*self._step_lengths[-STEP_LENGTH_FRAMES:], float(np.linalg.norm(T_rel[:3, 3]))]
             self.sweep_velocity = self._sweep_step(T_icp, T_rel)
         self.sources.append(source)
         lidar_uvz = None
@@ -277,10 +286,25 @@ class FrontEnd:
         if T_icp is not None and p.T_icp is not None:
             cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
         cands["pnp"] = pnp_pose(obj, img, self.K, px)[0]
+        cands = self._plausible(cands, T_prev)
         guess = choose_pose(cands, obj, img, self.K, px)
         if guess is None or guess.inliers < 6 and "icp" not in cands:
             return T_prev @ self.velocity, "constant_velocity"
         return guess.T_world_cam, guess.source
+
+    def _plausible(self, cands: dict[str, np.ndarray | None], T_prev: np.ndarray) -> dict[str, np.ndarray | None]:
+        """The candidates whose step length is near the last steps' (all of them when none is, or before
+        STEP_LENGTH_FRAMES steps)."""
+        if len(self._step_lengths) < STEP_LENGTH_FRAMES:
+            return cands
+        ref = float(np.median(self._step_lengths[-STEP_LENGTH_FRAMES:]))
+        tol = max(STEP_LENGTH_CHANGE_REL * ref, STEP_LENGTH_CHANGE_M)
+        kept = {
+            name: T
+            for name, T in cands.items()
+            if T is not None and abs(float(np.linalg.norm((invert_T(T_prev) @ T)[:3, 3])) - ref) <= tol
+        }
+        return kept or cands
 
     def _observe(
         self,

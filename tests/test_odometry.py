@@ -76,6 +76,30 @@ def _plane_depth(T_world_cam: np.ndarray, n=np.array([0.0, -0.2, -1.0]), d=30.0)
     return s.reshape(SHAPE)
 
 
+def test_an_initial_pose_whose_step_jumps_from_the_last_steps_gives_way_to_one_that_does_not():
+    """With LiDAR the initial pose is the candidate that reprojects the most matches; a candidate whose step is far
+    longer or shorter than the last three initial steps' median (a PnP on matches of one depth, a registration that
+    slipped) is left out while another holds, and kept when none does."""
+    from leovr.config import RefineConfig
+    from odometry.frontend import FrontEnd
+
+    K = np.array([[700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]])
+    front = FrontEnd(RefineConfig(input="vlp16"), K, (480, 640), np.eye(4))
+    T_prev = make_T(Rotation.from_euler("y", 30, degrees=True).as_matrix(), np.array([5.0, 0.0, 40.0]))
+
+    def step(length: float, yaw_deg: float = 0.0) -> np.ndarray:
+        return T_prev @ make_T(Rotation.from_euler("y", yaw_deg, degrees=True).as_matrix(), np.array([0, 0, length]))
+
+    cands = {"icp": step(2.3, 6.0), "pnp": step(5.5)}
+    assert front._plausible(cands, T_prev) == cands  # no steps measured yet: every candidate stands
+    front._step_lengths = [2.2, 2.25, 2.2]
+    assert list(front._plausible(cands, T_prev)) == ["icp"]
+    both_off = {"icp": step(0.4), "pnp": step(5.5)}
+    assert front._plausible(both_off, T_prev) == both_off
+    front._step_lengths = [0.1, 0.1, 0.12]  # creeping: at least 0.3 m of change is allowed
+    assert list(front._plausible({"icp": step(0.35), "pnp": step(0.5)}, T_prev)) == ["icp"]
+
+
 def test_depth_consistency_vanishes_for_true_geometry_and_jacobians_match_numeric():
     Ti = make_T(t=[0.0, 0.0, 1.0])
     Tj = np.eye(4)
