@@ -235,7 +235,7 @@ class FrontEnd:
                 prior_rel,
             )
             self.velocity = T_rel
-            self._step_lengths = [*self._step_lengths[-STEP_LENGTH_FRAMES:], float(np.linalg.norm(T_rel[:3, 3]))]
+            self._step_lengths = (self._step_lengths + [float(np.linalg.norm(T_rel[:3, 3]))])[-STEP_LENGTH_FRAMES:]
             self.sweep_velocity = self._sweep_step(T_icp, T_rel)
         self.sources.append(source)
         lidar_uvz = None
@@ -297,7 +297,7 @@ class FrontEnd:
         STEP_LENGTH_FRAMES steps)."""
         if len(self._step_lengths) < STEP_LENGTH_FRAMES:
             return cands
-        ref = float(np.median(self._step_lengths[-STEP_LENGTH_FRAMES:]))
+        ref = float(np.median(self._step_lengths))
         tol = max(STEP_LENGTH_CHANGE_REL * ref, STEP_LENGTH_CHANGE_M)
         kept = {
             name: T

@@ -16,7 +16,6 @@ from leovr.data.records import Frame
 from leovr.lidar.accumulate import ScanHistory, with_history
 from leovr.pipeline.completion import EvalSample
 from leovr.pipeline.lookahead import Lookahead
-from leovr.pipeline.refine_input import frame_sample
 from leovr.pipeline.refine_setup import RunSetup
 from leovr.pipeline.refine_sweep import SweepDeskew
 from leovr.pipeline.refine_tracks import CornerTracks
@@ -88,15 +87,12 @@ class PrepareStage:
         """Frame i as read, its sample (deskewed over the sweep's motion), the seconds the motion took, and in
         a causal run's second frame the first scan deskewed (`SweepDeskew.causal_start`). `motion`: the last step
         (deskew on), else None."""
-        s = self.setup
         frame = self.frames.take(i)
         t_sweep = time.perf_counter()
         motion, first_scan = self.sweep.motion(i, frame, motion)
         sweep_s = time.perf_counter() - t_sweep  # counted with the generator: the same thread's per-frame work
         # the held-out truth is scoring, not refinement: built in the main thread's scoring step
-        camera_only = s.cfg.input == "none"
-        sample = frame_sample(s.seq, i, s.ccfg, motion, s.frame_dt, camera_only, truth=False, frame=frame)
-        return frame, sample, sweep_s, first_scan
+        return frame, self.setup.sample(frame, motion), sweep_s, first_scan
 
     def prepare(self, i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> PreparedFrame:
         """Frame i's input and generator depth; runs beside the previous frame's front end or graph update.

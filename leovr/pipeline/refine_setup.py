@@ -4,6 +4,7 @@ reads, the depth source; the front end and the window graph it starts with; the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
@@ -14,7 +15,13 @@ from leovr.data.records import Frame
 from leovr.data.run_info import run_identity, start_run
 from leovr.data.sequence import Sequence
 from leovr.pipeline.completion import EvalSample, frame_indices, generator_checkpoint, generator_method
-from leovr.pipeline.refine_input import camera_only_config, classical_source, completion_config, road_height
+from leovr.pipeline.refine_input import (
+    camera_only_config,
+    classical_source,
+    completion_config,
+    frame_sample,
+    road_height,
+)
 
 if TYPE_CHECKING:
     from odometry.frontend import FrontEnd
@@ -54,6 +61,19 @@ class RunSetup:
             generator_method(ccfg) if cfg.depth_source == "generator" else classical_source,
             seq[indices[0]],
             progress,
+        )
+
+    @cached_property
+    def following(self) -> dict[int, int]:
+        """Each selected frame's next selected frame."""
+        return dict(zip(self.indices[:-1], self.indices[1:]))
+
+    def sample(self, frame: Frame, motion: np.ndarray | None) -> EvalSample:
+        """The frame's cheap input, its scan deskewed with `motion` (None: as it is); the held-out truth is
+        scoring's, not built here."""
+        camera_only = self.cfg.input == "none"
+        return frame_sample(
+            self.seq, frame.index, self.ccfg, motion, self.frame_dt, camera_only, truth=False, frame=frame
         )
 
     def odometry(self) -> tuple[FrontEnd, WindowGraph]:

@@ -12,7 +12,6 @@ import numpy as np
 
 from leovr.data.records import Frame
 from leovr.pipeline.lookahead import Lookahead
-from leovr.pipeline.refine_input import frame_sample
 from leovr.pipeline.refine_setup import RunSetup
 from leovr.threads import Worker, done_future
 
@@ -29,7 +28,7 @@ class SweepDeskew:
         from odometry.sweep_motion import SweepMotion
 
         self.setup, self.frames = setup, frames
-        self.following = dict(zip(setup.indices[:-1], setup.indices[1:]))
+        self.following = setup.following
         self.images = SweepMotion()
         # a sweep's images' motion (ORB matching, essential matrix) needs only the two images: it runs in its own
         # thread while the main thread's front end runs and the generator stage's thread would wait
@@ -116,16 +115,8 @@ class SweepDeskew:
         """The motion between two frames from their cheap scans as they are (KISS-ICP)."""
         from odometry.initial_pose import first_step
 
-        scans = [self._scan(f, None) for f in (first, second)]
+        scans = [self.setup.sample(f, None).kept_points for f in (first, second)]
         return first_step(*scans, first.T_cam_lidar)
-
-    def _scan(self, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
-        """The frame's cheap scan, deskewed with `motion` (None: as it is)."""
-        s = self.setup
-        camera_only = s.cfg.input == "none"
-        return frame_sample(
-            s.seq, frame.index, s.ccfg, motion, s.frame_dt, camera_only, truth=False, frame=frame
-        ).kept_points
 
     def causal_start(self, frame: Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
         """A causal run's second frame: the first step's motion from the first two scans as they are, and the
@@ -136,7 +127,7 @@ class SweepDeskew:
         motion = self.start = self._first_step(first, frame)
         if motion is None:
             return None, None
-        return motion, self._scan(first, motion)
+        return motion, self.setup.sample(first, motion).kept_points
 
     def close(self) -> None:
         self.worker.close(cancel=True)

@@ -28,7 +28,7 @@ class CornerTracks:
         from odometry.window_graph import PAIR_OFFSETS
 
         self.setup, self.stereo = setup, setup.cfg.motion_stereo
-        self.following = dict(zip(setup.indices[:-1], setup.indices[1:]))
+        self.following = setup.following
         self.selected = set(setup.indices)
         self.images = GrayImages(
             lambda j: stereo_image(setup.seq, j), keep=2 * max([*self.stereo.offsets, *PAIR_OFFSETS]) + 3
