@@ -7,12 +7,13 @@ setup:
 demo: setup
 	.venv/bin/leovr demo --out runs/demo
 
+# one test process per core (pytest-xdist)
 test: setup
-	.venv/bin/python -m pytest -q
+	.venv/bin/python -m pytest -q -n auto
 
 # the unit tests alone (tests marked `slow`, which run the pipeline end to end, left out)
 test-fast: setup
-	.venv/bin/python -m pytest -q -m "not slow"
+	.venv/bin/python -m pytest -q -n auto -m "not slow"
 
 lint: setup
 	.venv/bin/ruff check .
