@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 import cv2
+import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -633,3 +634,44 @@ def test_orb_matches_are_those_of_opencvs_brute_force_matcher_on_a_real_drive():
                 assert np.array_equal(ia, ra) and np.array_equal(ib, rb), (clip.name, k, n)
                 checked += 1
     assert checked >= 10
+
+
+def test_a_window_still_indeterminate_when_rebuilt_drops_the_landmark_behind_its_camera():
+    """A landmark placed a millimetre in front of the camera that projects it (the projection's Jacobians blow up
+    there; on a rendered lap one sat behind two of its three cameras) keeps the window indeterminate even with
+    its depth prior: the rebuilt window leaves it out, keeps the other landmark and the poses, and warns."""
+    from odometry.window_recovery import anchor_landmarks
+
+    def X(i):
+        return gtsam.symbol("x", i)
+
+    def L(k):
+        return gtsam.symbol("l", k)
+
+    def new():
+        return gtsam.IncrementalFixedLagSmoother(10.0, gtsam.ISAM2Params())
+
+    cal = gtsam.Cal3_S2(500, 500, 0, 320, 240)
+    graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap()
+    step = gtsam.Pose3(gtsam.Rot3(), [0, 0, 1.0])
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    graph.add(gtsam.BetweenFactorPose3(X(0), X(1), step, gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    for i, T in enumerate((gtsam.Pose3(), step)):
+        values.insert(X(i), T)
+        stamps.insert((X(i), float(i)))
+    for k, P in enumerate(([1.0, 0.5, 10.0], [0.5, 0.0, 1.001])):
+        values.insert(L(k), np.array(P))
+        stamps.insert((L(k), 1.0))
+        for i in (0, 1):
+            uv = np.array([320.0 + 500 * P[0] / (P[2] - i), 240.0 + 500 * P[1] / (P[2] - i)]) + 1.0
+            graph.add(
+                gtsam.GenericProjectionFactorCal3_S2(uv, gtsam.noiseModel.Isotropic.Sigma(2, 1.0), X(i), L(k), cal)
+            )
+    smoother = new()
+    with pytest.raises(RuntimeError, match="ndeterminate") as failure:
+        smoother.update(graph, values, stamps)
+    with pytest.warns(UserWarning, match="landmarks l1 left the window"):
+        smoother = anchor_landmarks(smoother, new, True, np.zeros(3), 1, failure.value)
+    est = smoother.calculateEstimate()
+    assert not est.exists(L(1)) and est.exists(L(0))
+    assert np.allclose(est.atPose3(X(1)).translation(), [0, 0, 1.0], atol=0.01)
