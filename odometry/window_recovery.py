@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Set as AbstractSet
 from typing import Callable
 
 import gtsam
@@ -36,7 +37,7 @@ def rebuilt(
     incremental: bool,
     centre: np.ndarray,
     rel: float,
-    dropped: set[int] = frozenset(),
+    dropped: AbstractSet[int] = frozenset(),
 ) -> gtsam.FixedLagSmoother:
     """A new smoother (`new_smoother`) from the old one's factors, estimate (iSAM2: linearisation point) and time
     stamps, with a prior on every landmark (`landmark_priors`); the `dropped` keys and their factors left out."""
@@ -93,12 +94,14 @@ def anchor_landmarks(
         except (RuntimeError, IndexError):
             pass
     dropped: set[int] = set()
+    behind: set[int] | None = None  # the old smoother does not change: found once, on the first failure
     while True:
         try:
             return rebuilt(smoother, new_smoother, incremental, centre, rel, dropped)
         except (RuntimeError, IndexError) as exc:
+            behind = behind_cameras(smoother, incremental) if behind is None else behind
             named = indeterminate_landmark(exc)
-            drop = behind_cameras(smoother, incremental) | ({named} if named is not None else set())
+            drop = behind | ({named} if named is not None else set())
             if not drop - dropped:
                 raise RuntimeError(  # not a landmark: a pose or a depth field without support
                     f"frame {index}: the window's system stayed indeterminate after every landmark got a "
