@@ -103,6 +103,8 @@ class SelfSupConfig(_Model):
     # sparse depth reconstruction |log D - log z| at the LiDAR input's returns (0: off;
     # docs/decisions/0011-tuned-settings.md)
     weight_sparse: float = Field(0.0, ge=0)
+    # masked LiDAR: part of each frame's input hidden, |log D - log z| at the hidden returns (selfsup.masked_lidar)
+    weight_masked: float = Field(1.0, ge=0)
     # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
     target_loss: Literal["log_l1", "l2"] = "log_l1"
     flow_mask: bool = True  # eq. 19 motion-optical-flow mask on the photometric loss
@@ -120,7 +122,8 @@ class SelfSupConfig(_Model):
     # LiDAR branch: SLIM partial convolutions | pre-interpolated input
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
-    output: Literal["absolute", "residual", "fusion"] = "absolute"  # the paper's cold start predicts depth itself
+    # a residual over the classical prior: the untrained network returns the prior (leovr.depth.network)
+    output: Literal["absolute", "residual", "fusion"] = "fusion"
     channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
     blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
     init_checkpoint: str | None = None  # start from these weights instead of random ones

@@ -44,6 +44,7 @@ class SelfSupSamples(Dataset):
         k, i = self.index[j]
         fr, sup = self.frames[k], self.sup[k]
         f = fr[i]
+        split = f.masked[int(torch.randint(len(f.masked), (1,)))] if f.masked else (f.sparse * 0, f.sparse * 0)
         return {
             "image": image_tensor(f.image),
             "prev": image_tensor(fr[i - 1].image),
@@ -57,5 +58,7 @@ class SelfSupSamples(Dataset):
             "feature_depth": _plane(sup.feature_depth[i], f.sparse),
             "refined": _plane(sup.refined[i], f.sparse),
             "use_refined": torch.tensor(bool(sup.use_refined[i])),
+            "masked_sparse": _plane(split[0], f.sparse),
+            "masked_target": _plane(split[1], f.sparse),
             "key": torch.tensor([k, i]),
         }

@@ -9,6 +9,7 @@ from leovr.config import SelfSupConfig
 from leovr.depth.layers import gaussian_nll
 from selfsup.losses import (
     feature_point_loss,
+    masked_lidar_loss,
     photometric_error,
     photometric_loss,
     refined_depth_loss,
@@ -17,7 +18,18 @@ from selfsup.losses import (
 )
 from selfsup.warp import warp_image
 
-TERMS = ("loss", "photometric", "feature", "refined", "smooth", "nll", "sparse", "mask_kept", "refined_used")
+TERMS = (
+    "loss",
+    "photometric",
+    "feature",
+    "refined",
+    "smooth",
+    "nll",
+    "sparse",
+    "masked",
+    "mask_kept",
+    "refined_used",
+)
 
 
 def photometric_term(
@@ -41,11 +53,17 @@ def photometric_term(
 
 
 def batch_terms(
-    depth: torch.Tensor, b: dict, cfg: SelfSupConfig, refine_stage: bool, log_sigma: torch.Tensor | None = None
+    depth: torch.Tensor,
+    b: dict,
+    cfg: SelfSupConfig,
+    refine_stage: bool,
+    log_sigma: torch.Tensor | None = None,
+    masked_depth: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor]]:
     """Eq. 22 on one batch, plus the uncertainty head's Gaussian NLL at the LiDAR-backed landmarks
-    (on detached depth, and the head sees detached features: it trains the head only): (total loss,
-    detached terms, images)."""
+    (on detached depth, and the head sees detached features: it trains the head only) and the masked-LiDAR
+    term on `masked_depth`, the network's depth from the batch's thinner input: (total loss, detached terms,
+    images)."""
     img = b["image"]
     lp, warped, masks = photometric_term(img, depth, b, cfg)
     lf = (
@@ -57,6 +75,7 @@ def batch_terms(
     lr = refined_depth_loss(depth, b["refined"], b["use_refined"], cfg.target_loss) if use_r else depth.new_zeros(())
     ls = second_order_smoothness(depth, img) if cfg.weight_smooth > 0 else depth.new_zeros(())
     lz = sparse_depth_loss(depth, b["sparse"], cfg.target_loss) if cfg.weight_sparse > 0 else depth.new_zeros(())
+    lm = masked_lidar_loss(masked_depth, b["masked_target"]) if masked_depth is not None else depth.new_zeros(())
     nll = depth.new_zeros(())
     if cfg.weight_nll > 0 and log_sigma is not None:
         nll = gaussian_nll(depth.detach(), log_sigma, b["feature_depth"], (b["feature_depth"] > 0).to(depth.dtype))
@@ -67,6 +86,7 @@ def batch_terms(
         + cfg.weight_smooth * ls
         + cfg.weight_nll * nll
         + cfg.weight_sparse * lz
+        + cfg.weight_masked * lm
     )
     terms = {
         "loss": loss.item(),
@@ -76,6 +96,7 @@ def batch_terms(
         "smooth": ls.item(),
         "nll": nll.item(),
         "sparse": lz.item(),
+        "masked": lm.item(),
         "mask_kept": float(torch.cat(masks).float().mean()),
         "refined_used": float(b["use_refined"].float().mean()) if refine_stage else 0.0,
     }

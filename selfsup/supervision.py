@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -27,6 +27,7 @@ from leovr.errors import DataError
 from leovr.geometry import invert_T
 from leovr.lidar.cheap_sensor import parse_input, simulate_cheap_sensor
 from leovr.lidar.projection import sparse_depth
+from selfsup.masked_lidar import masked_split
 from selfsup.motion_mask import PairKeep, movers, pair_keep
 
 # The masks and targets' fixed settings (LeoVR Sec. IV; chosen on development data):
@@ -40,6 +41,7 @@ RIGID_SUPPORT_PX = 4.0  # initialisation stage: rigid and depth tests only this 
 DEPTH_MASK_REL = 0.05  # depth test tolerance, relative
 LANDMARK_FRAMES = 4  # a landmark counts as visible in frame i when last observed within this many frames
 REFINED_AGREE_REL = 0.05  # L_r uses a frame when its refined depth is within this of the landmarks (median)
+MASKED_SPLITS = 4  # masked-LiDAR splits drawn per frame (one per visit, at random)
 
 
 class PosePass(Protocol):
@@ -59,6 +61,8 @@ class TrainFrame:
     image: np.ndarray  # H x W x 3 uint8
     sparse: np.ndarray  # H x W float32 metres, the cheap LiDAR input
     K: np.ndarray  # 3 x 3 at the training resolution
+    # masked-LiDAR splits (selfsup.masked_lidar) at the training resolution: (thinner input, hidden returns)
+    masked: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
 
 @dataclass
@@ -107,12 +111,21 @@ def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
         image = f.image if f.image.ndim == 3 else np.repeat(f.image[..., None], 3, axis=2)
         K = f.K.astype(np.float64).copy()
         s = 1.0 if cfg.train_focal_px is None else cfg.train_focal_px / float(f.K[0, 0])
+        shape = (int(round(f.height * s)), int(round(f.width * s)))
+        small = (lambda m: m) if abs(s - 1.0) <= 1e-6 else (lambda m: rescale_sparse(m, s, shape))
+        masked = []
+        if cfg.weight_masked > 0 and len(kept):
+            rng = np.random.default_rng([cfg.seed, i])
+            for _ in range(MASKED_SPLITS):
+                split = masked_split(kept, f.K, f.T_cam_lidar, f.shape, rng, span_rings=True, every=sparse)
+                thin, hidden = small(split.sparse), small(split.target)
+                # a hidden return on a pixel the thinner input still measures teaches nothing
+                masked.append((thin.astype(np.float32), np.where(thin > 0, 0.0, hidden).astype(np.float32)))
         if abs(s - 1.0) > 1e-6:
-            shape = (int(round(f.height * s)), int(round(f.width * s)))
             image = cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
             sparse = rescale_sparse(sparse, s, shape)
             K[:2] *= s
-        out.append(TrainFrame(i, image, sparse.astype(np.float32), K))
+        out.append(TrainFrame(i, image, sparse.astype(np.float32), K, masked))
     return out
 
 

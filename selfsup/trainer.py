@@ -109,7 +109,8 @@ def train_epoch(
     bar = tqdm(loader, desc=desc, unit="batch", disable=not show)
     for b in bar:
         depth, log_sigma = forward_padded(net, b["image"], b["sparse"])
-        loss, terms, _ = batch_terms(depth, b, cfg, refine, log_sigma)
+        masked = forward_padded(net, b["image"], b["masked_sparse"])[0] if cfg.weight_masked > 0 else None
+        loss, terms, _ = batch_terms(depth, b, cfg, refine, log_sigma, masked)
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -25,7 +25,7 @@ def test_bench_selfsup_quick_contract(tmp_path, monkeypatch):
     )
     doc = json.loads(out.read_text())
     r = doc["results"]
-    assert doc["quick"] and doc["parts"] == ["synthetic", "traffic"] and "kitti_raw" not in r
+    assert doc["quick"] and doc["parts"] == ["synthetic", "traffic"] and "kitti" not in r
     assert all(r[f"{k}_mae_m"] > 0 for k in ("untrained", "selfsup", "selfsup_nomask", "supervised"))
     assert {
         "selfsup",

@@ -313,3 +313,55 @@ def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
     assert changed  # training moved the weights away from the initialisation
     log = json.loads((out / "log.jsonl").read_text().splitlines()[0])
     assert log["processes"] == 2
+
+
+def test_a_cold_start_begins_at_the_classical_prior():
+    """The self-supervised trainer's untrained network returns its classical prior at every pixel (a zero
+    residual and an even fusion weight), so a cold start begins at the prior's accuracy, not below it."""
+    from leovr.depth.inference import forward_padded
+    from leovr.depth.network import DepthGenerator, prior_for
+    from leovr.depth.train import generator_config
+
+    torch.manual_seed(0)
+    sparse = torch.zeros(1, 1, 48, 64)
+    hit = torch.rand(1, 1, 48, 64) < 0.05
+    sparse[hit] = torch.rand(int(hit.sum())) * 30.0 + 2.0
+    image = torch.rand(1, 3, 48, 64)
+    cfg = SelfSupConfig(**TINY)
+    with torch.no_grad():
+        depth, _ = forward_padded(DepthGenerator(generator_config(cfg)).eval(), image, sparse)
+        absolute = DepthGenerator(generator_config(cfg.model_copy(update={"output": "absolute"}))).eval()
+        depth_absolute, _ = forward_padded(absolute, image, sparse)
+    prior = prior_for(sparse)
+    assert torch.allclose(depth, prior, rtol=1e-5)
+    assert float((depth_absolute / prior - 1).abs().median()) > 0.1  # an untrained absolute network does not
+
+
+def test_the_masked_lidar_term_scores_returns_hidden_from_the_input(dynamic_seq):
+    """Each training frame carries masked-LiDAR splits of its own cheap input: a thinner input and hidden
+    returns that are part of the frame's input, on pixels the thinner input leaves empty; the term is zero for depth
+    equal to the hidden returns and reads no pixel without one."""
+    from selfsup.losses import masked_lidar_loss
+    from selfsup.supervision import MASKED_SPLITS, train_frames
+
+    frames = train_frames(BlindSequence(open_sequence(dynamic_seq)), SelfSupConfig(**TINY, max_frames=3))
+    for f in frames:
+        assert len(f.masked) == MASKED_SPLITS
+        for thin, hidden in f.masked:
+            assert thin.shape == hidden.shape == f.sparse.shape
+            n_thin, n_hidden = int((thin > 0).sum()), int((hidden > 0).sum())
+            assert 0 < n_hidden and 0 < n_thin < int((f.sparse > 0).sum())
+            assert not ((thin > 0) & (hidden > 0)).any()
+            assert (f.sparse[hidden > 0] > 0).all() and (f.sparse[hidden > 0] <= hidden[hidden > 0]).all()
+    thin, hidden = (torch.from_numpy(x)[None, None] for x in frames[0].masked[0])
+    exact = torch.where(hidden > 0, hidden, torch.full_like(hidden, 50.0))
+    assert float(masked_lidar_loss(exact, hidden)) == 0.0
+    assert float(masked_lidar_loss(exact * 1.1, hidden)) == pytest.approx(np.log(1.1), rel=1e-4)
+    assert float(masked_lidar_loss(torch.where(hidden > 0, exact, exact * 3.0), hidden)) == 0.0
+    assert SelfSupConfig(**TINY, weight_masked=0.0).weight_masked == 0.0
+    assert (
+        train_frames(BlindSequence(open_sequence(dynamic_seq)), SelfSupConfig(**TINY, max_frames=3, weight_masked=0.0))[
+            0
+        ].masked
+        == []
+    )

@@ -128,7 +128,7 @@ class BenchMapConfig(_Model):
 
 class BenchSelfSupConfig(_Model):
     """`leovr bench selfsup`: cold-start self-supervised training against untrained and supervised
-    models on the same frames and schedule, plus a cold start on the shared KITTI raw clip."""
+    models on the same frames and schedule, plus a cold start and a fine-tuning on each shared KITTI raw clip."""
 
     dataset: str | None = None  # simulator dataset (tools/make_dataset.py); None = the cached default recipe
     scenarios: list[Scenario] = ["dynamic", "city_loop"]  # simulator scenarios trained and scored
@@ -146,11 +146,12 @@ class BenchSelfSupConfig(_Model):
     channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
     batch_size: int = Field(8, ge=1)  # frames per batch
     lr: float = Field(1e-3, gt=0)  # learning rate
-    kitti_raw: str | None = None  # None = ../shared/data/kitti_raw (skipped when absent)
-    kitti_input: str = "vlp16"  # cheap input simulated from the clip's scans
-    kitti_train_frames: int = Field(38, ge=4)  # cold start on the first frames ...
-    kitti_test_frames: int = Field(10, ge=1)  # ... scored on held-out beams of the last frames
-    kitti_epochs: int = Field(96, ge=1)  # 5 batches an epoch on the 48-frame clip: 480 steps
+    kitti_clips: list[str] | None = None  # KITTI raw drives under ../shared/data (None: every one there)
+    kitti_inputs: list[str] = ["vlp16", "mid40"]  # cheap inputs simulated from the clips' scans
+    kitti_test_share: float = Field(1 / 3, gt=0, lt=1)  # the last third of each clip is held out, never trained on
+    kitti_epochs: int = Field(24, ge=1)  # cold start (the paper's schedule), at the shipped generator's 260 px
+    kitti_fine_tune_epochs: int = Field(24, ge=1)  # fine-tuning the shipped checkpoint, at its 260 px focal length
+    kitti_fine_tune_lr: float = Field(1e-4, gt=0)  # learning rate of the fine-tuning
     kitti_refresh_every: int = Field(8, ge=1)  # refinement-stage graph re-runs on the clip every N epochs
 
 
