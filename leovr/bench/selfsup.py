@@ -380,52 +380,74 @@ def kitti_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, work: Path, quick: 
     """Per shared KITTI raw clip and cheap input: the classical prior, the shipped checkpoint, a cold start
     (self-supervised from the untrained network, which returns the prior) and the shipped checkpoint
     fine-tuned self-supervised, each trained on the clip's first frames and every model scored on
-    held-out beams of its last frames, which no run trained on."""
+    held-out beams of its last frames, which no run trained on; the trained models also on the other
+    clips' held-out frames (`other_clips`)."""
     clips = [shared_data_dir() / c for c in cfg.kitti_clips] if cfg.kitti_clips is not None else kitti_raw_clips()
-    out: dict = {}
+    clips = [c for c in clips if c.exists()]
+    tests, trained, out = {}, {}, {}
     for path in clips:
-        if not path.exists():
-            continue
         seq = open_sequence(path)
         train, held = kitti_split(len(seq), cfg.kitti_test_share)
-        test = [SequenceView(seq, held)]
+        tests[path.name] = [SequenceView(seq, held)]
         for inp in cfg.kitti_inputs:
-            epochs = cfg.quick_epochs if quick else cfg.kitti_epochs
-            # at the shipped generator's focal length, so that all four models see the same pixels; the learning
-            # rate halves four times over the run, as in the paper's 24 epochs halved every 6
-            cold = base.model_copy(
-                update={
-                    "input": inp,
-                    "max_frames": len(train),
-                    "epochs": epochs,
-                    "refresh_every": cfg.kitti_refresh_every,
-                    "lr_step_epochs": max(1, epochs // 4),
-                    "train_focal_px": SHIPPED_FOCAL_PX,
-                    "channels": list(CHANNELS),
-                }
-            )
-            fine_epochs = cfg.quick_epochs if quick else cfg.kitti_fine_tune_epochs
-            fine = cold.model_copy(
-                update={
-                    "epochs": fine_epochs,
-                    "lr": cfg.kitti_fine_tune_lr,
-                    "lr_step_epochs": max(1, fine_epochs // 4),
-                    "init_checkpoint": str(shipped_checkpoint()),
-                }
-            )
+            cold, fine = kitti_configs(cfg, base, inp, len(train), quick)
             run = work / "kitti" / f"{path.name}_{inp}"
             cold_ck, cold_min = train_run(cold, [path], run / "cold_start", progress)
             fine_ck, fine_min = train_run(fine, [path], run / "fine_tuned", progress)
-            entry = {
+            trained[path.name, inp] = {"cold_start": cold_ck, "fine_tuned": fine_ck}
+            out.setdefault(path.name, {})[inp] = {
                 "train_frames": [train[0], train[-1] + 1],
                 "test_frames": [held[0], held[-1] + 1],
-                "epochs": {"cold_start": epochs, "fine_tuned": fine_epochs},
+                "epochs": {"cold_start": cold.epochs, "fine_tuned": fine.epochs},
                 "train_minutes": {"cold_start": round(cold_min, 2), "fine_tuned": round(fine_min, 2)},
-                "prior": score_prior(test, inp, bins),
-                "untrained": score(untrained_generator(cold), test, inp, SHIPPED_FOCAL_PX, bins),
-                "shipped": score(load_generator(shipped_checkpoint()), test, inp, SHIPPED_FOCAL_PX, bins),
-                "cold_start": score(load_generator(cold_ck), test, inp, SHIPPED_FOCAL_PX, bins),
-                "fine_tuned": score(load_generator(fine_ck), test, inp, SHIPPED_FOCAL_PX, bins),
+                "prior": score_prior(tests[path.name], inp, bins),
+                "untrained": score(untrained_generator(cold), tests[path.name], inp, SHIPPED_FOCAL_PX, bins),
             }
-            out.setdefault(path.name, {})[inp] = entry
+    shipped = load_generator(shipped_checkpoint())
+    for (clip, inp), models in trained.items():
+        entry = out[clip][inp]
+        entry["shipped"] = score(shipped, tests[clip], inp, SHIPPED_FOCAL_PX, bins)
+        for name, ck in models.items():
+            entry[name] = score(load_generator(ck), tests[clip], inp, SHIPPED_FOCAL_PX, bins)
+        entry["other_clips"] = {
+            other: {
+                "shipped": score(shipped, test, inp, SHIPPED_FOCAL_PX, bins)["mae_m"],
+                **{
+                    name: score(load_generator(ck), test, inp, SHIPPED_FOCAL_PX, bins)["mae_m"]
+                    for name, ck in models.items()
+                },
+            }
+            for other, test in tests.items()
+            if other != clip
+        }
     return out
+
+
+def kitti_configs(
+    cfg: BenchSelfSupConfig, base: SelfSupConfig, inp: str, n_train: int, quick: bool
+) -> tuple[SelfSupConfig, SelfSupConfig]:
+    """The cold start's and the fine-tuning's settings on a clip's `n_train` first frames. Both run at the shipped
+    generator's focal length, so that all the models see the same pixels; the learning rate halves four times over
+    a run, as in the paper's 24 epochs halved every 6."""
+    epochs = cfg.quick_epochs if quick else cfg.kitti_epochs
+    cold = base.model_copy(
+        update={
+            "input": inp,
+            "max_frames": n_train,
+            "epochs": epochs,
+            "refresh_every": cfg.kitti_refresh_every,
+            "lr_step_epochs": max(1, epochs // 4),
+            "train_focal_px": SHIPPED_FOCAL_PX,
+            "channels": list(CHANNELS),
+        }
+    )
+    fine_epochs = cfg.quick_epochs if quick else cfg.kitti_fine_tune_epochs
+    fine = cold.model_copy(
+        update={
+            "epochs": fine_epochs,
+            "lr": cfg.kitti_fine_tune_lr,
+            "lr_step_epochs": max(1, fine_epochs // 4),
+            "init_checkpoint": str(shipped_checkpoint()),
+        }
+    )
+    return cold, fine
