@@ -103,7 +103,8 @@ class SelfSupConfig(_Model):
     # sparse depth reconstruction |log D - log z| at the LiDAR input's returns (0: off;
     # docs/decisions/0011-tuned-settings.md)
     weight_sparse: float = Field(0.0, ge=0)
-    # masked LiDAR: part of each frame's input hidden, |log D - log z| at the hidden returns (selfsup.masked_lidar)
+    # masked LiDAR: part of each frame's input hidden, |log D - log z| at the hidden returns (selfsup.masked_lidar;
+    # docs/decisions/0017-selfsup-starts-at-the-prior.md)
     weight_masked: float = Field(1.0, ge=0)
     # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
     target_loss: Literal["log_l1", "l2"] = "log_l1"
@@ -122,7 +123,7 @@ class SelfSupConfig(_Model):
     # LiDAR branch: SLIM partial convolutions | pre-interpolated input
     lidar_encoder: Literal["partial", "interp"] = "partial"
     cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
-    # a residual over the classical prior: the untrained network returns the prior (leovr.depth.network)
+    # a residual over the classical prior: the untrained network returns the prior (leovr.depth.network; decision 0017)
     output: Literal["absolute", "residual", "fusion"] = "fusion"
     channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
     blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
