@@ -81,7 +81,6 @@ def test_selfsup_training_learns(rendered, tmp_path):
     head = torch.load(tmp_path / "run" / "generator.pt", weights_only=False)["model"]
     assert any(not torch.equal(head[k], v) for k, v in start.state_dict().items() if k.startswith("sigma_head"))
     trained = mae(load_generator(tmp_path / "run" / "generator.pt"), tests)
-    # photometric learning is slower than supervised: 10.1 m against 14.0 m untrained and 11.1 m for the
-    # median guess when this test was written (the supervised run reaches under half the untrained MAE)
-    assert trained < 0.8 * untrained, (trained, untrained)
+    # the untrained network returns its classical prior: training must improve on the prior itself
+    assert trained < 0.9 * untrained, (trained, untrained)
     assert trained < median_guess_mae(root, tests), trained
