@@ -105,7 +105,4 @@ class LossWeights:
 def masked_lidar_loss(depth: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Mean |log D - log z| at the returns hidden from the network's input (target > 0): the masked-LiDAR task
     (selfsup.masked_lidar), metric supervision from the user's own LiDAR where the input has no return."""
-    m = target > 0
-    if not bool(m.any()):
-        return depth.sum() * 0.0
-    return (torch.log(depth[m].clamp(min=1e-3)) - torch.log(target[m])).abs().mean()
+    return masked_mean(depth_target_error(depth, target, "log_l1"), target > 0)

@@ -111,17 +111,17 @@ def train_frames(seq: Sequence, cfg: SelfSupConfig) -> list[TrainFrame]:
         image = f.image if f.image.ndim == 3 else np.repeat(f.image[..., None], 3, axis=2)
         K = f.K.astype(np.float64).copy()
         s = 1.0 if cfg.train_focal_px is None else cfg.train_focal_px / float(f.K[0, 0])
-        shape = (int(round(f.height * s)), int(round(f.width * s)))
-        small = (lambda m: m) if abs(s - 1.0) <= 1e-6 else (lambda m: rescale_sparse(m, s, shape))
+        resample = abs(s - 1.0) > 1e-6
+        shape = (int(round(f.height * s)), int(round(f.width * s))) if resample else f.shape
         masked = []
         if cfg.weight_masked > 0 and len(kept):
             rng = np.random.default_rng([cfg.seed, i])
             for _ in range(MASKED_SPLITS):
                 split = masked_split(kept, f.K, f.T_cam_lidar, f.shape, rng, span_rings=True, every=sparse)
-                thin, hidden = small(split.sparse), small(split.target)
+                thin, hidden = (rescale_sparse(m, s, shape) if resample else m for m in (split.sparse, split.target))
                 # a hidden return on a pixel the thinner input still measures teaches nothing
                 masked.append((thin.astype(np.float32), np.where(thin > 0, 0.0, hidden).astype(np.float32)))
-        if abs(s - 1.0) > 1e-6:
+        if resample:
             image = cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
             sparse = rescale_sparse(sparse, s, shape)
             K[:2] *= s

@@ -63,22 +63,32 @@ def pick_sequences(
     return out
 
 
-@torch.no_grad()
-def score(
-    model: DepthGenerator, seqs: list[Sequence], input_name: str, focal_px: float | None, bins: list[float]
-) -> dict:
-    """Depth metrics of a model over every frame of the sequences (dense ground truth, else held-out beams)."""
-    model.eval()
+def held_out_metrics(seqs: list[Sequence], input_name: str, bins: list[float], predict) -> dict:
+    """Depth metrics of `predict(sample, image)` (a depth map) over every frame of the sequences (dense ground
+    truth, else held-out beams)."""
     acc = DepthMetricAccumulator(bins)
     ccfg = CompleteConfig(input=input_name)
     for seq in seqs:
         for i in range(len(seq)):
             s = prepare_sample(seq[i], ccfg)
             image = s.frame.image if s.frame.image.ndim == 3 else np.repeat(s.frame.image[..., None], 3, axis=2)
-            depth, _ = predict_at_focal(model, image, s.sparse, float(s.frame.K[0, 0]), focal_px)
-            acc.add(depth, s.gt)
+            acc.add(predict(s, image), s.gt)
     r = acc.result()
     return {"mae_m": r["mae_m"], "rmse_m": r["rmse_m"], "absrel": r.get("absrel"), "delta1": r.get("delta1")}
+
+
+@torch.no_grad()
+def score(
+    model: DepthGenerator, seqs: list[Sequence], input_name: str, focal_px: float | None, bins: list[float]
+) -> dict:
+    """Depth metrics of a model (run at `focal_px`) over every frame of the sequences."""
+    model.eval()
+    return held_out_metrics(
+        seqs,
+        input_name,
+        bins,
+        lambda s, image: predict_at_focal(model, image, s.sparse, float(s.frame.K[0, 0]), focal_px)[0],
+    )
 
 
 def untrained_generator(cfg: SelfSupConfig) -> DepthGenerator:
@@ -363,17 +373,9 @@ def kitti_split(n: int, test_share: float) -> tuple[list[int], list[int]]:
     return list(range(n - n_test)), list(range(n - n_test, n))
 
 
-@torch.no_grad()
 def score_prior(seqs: list[Sequence], input_name: str, bins: list[float]) -> dict:
     """The generator's classical prior (image-guided interpolation, leovr.depth.prior) at full resolution."""
-    acc = DepthMetricAccumulator(bins)
-    ccfg = CompleteConfig(input=input_name)
-    for seq in seqs:
-        for i in range(len(seq)):
-            s = prepare_sample(seq[i], ccfg)
-            acc.add(complete_depth(s.sparse, "interp", s.frame.image), s.gt)
-    r = acc.result()
-    return {"mae_m": r["mae_m"], "rmse_m": r["rmse_m"], "absrel": r.get("absrel"), "delta1": r.get("delta1")}
+    return held_out_metrics(seqs, input_name, bins, lambda s, image: complete_depth(s.sparse, "interp", image))
 
 
 def kitti_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, work: Path, quick: bool, progress: bool, bins) -> dict:
@@ -404,18 +406,17 @@ def kitti_runs(cfg: BenchSelfSupConfig, base: SelfSupConfig, work: Path, quick: 
                 "untrained": score(untrained_generator(cold), tests[path.name], inp, SHIPPED_FOCAL_PX, bins),
             }
     shipped = load_generator(shipped_checkpoint())
-    for (clip, inp), models in trained.items():
+    models = {run: {name: load_generator(ck) for name, ck in paths.items()} for run, paths in trained.items()}
+    for (clip, inp), by_name in models.items():
         entry = out[clip][inp]
         entry["shipped"] = score(shipped, tests[clip], inp, SHIPPED_FOCAL_PX, bins)
-        for name, ck in models.items():
-            entry[name] = score(load_generator(ck), tests[clip], inp, SHIPPED_FOCAL_PX, bins)
-        entry["other_clips"] = {
+        for name, model in by_name.items():
+            entry[name] = score(model, tests[clip], inp, SHIPPED_FOCAL_PX, bins)
+    for (clip, inp), by_name in models.items():  # the shipped checkpoint's figure on each clip is scored above
+        out[clip][inp]["other_clips"] = {
             other: {
-                "shipped": score(shipped, test, inp, SHIPPED_FOCAL_PX, bins)["mae_m"],
-                **{
-                    name: score(load_generator(ck), test, inp, SHIPPED_FOCAL_PX, bins)["mae_m"]
-                    for name, ck in models.items()
-                },
+                "shipped": out[other][inp]["shipped"]["mae_m"],
+                **{name: score(model, test, inp, SHIPPED_FOCAL_PX, bins)["mae_m"] for name, model in by_name.items()},
             }
             for other, test in tests.items()
             if other != clip
