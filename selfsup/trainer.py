@@ -7,7 +7,9 @@ current generator every `refresh_every` epochs and adds the refined-depth guidan
 
 The sequences are wrapped in `BlindSequence`: no ground-truth depth or pose reaches this module.
 Every epoch writes `checkpoint_last.pt` (resume) and `generator.pt` (what `--checkpoint` loads)
-atomically and a line of `log.jsonl` / `log.csv`. Several processes started by `torchrun` train one
+atomically and a line of `log.jsonl` / `log.csv`; the last epoch's `generator.pt` also holds its int8
+calibration table, measured on the training frames' inputs (leovr.depth.quantize), so that `leovr refine`
+runs it as it runs the shipped generator. Several processes started by `torchrun` train one
 model with DistributedDataParallel (gloo, CPU): rank 0 runs the graph passes and writes the files.
 
 One batch's loss is `selfsup.objective`'s, the files kept between epochs `selfsup.train_state`'s and the
@@ -29,8 +31,9 @@ from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
 from leovr.data.io import check_output_dir, check_output_file
 from leovr.data.run_info import folder_fingerprint
-from leovr.depth.inference import forward_padded
+from leovr.depth.inference import forward_padded, predict
 from leovr.depth.network import DepthGenerator
+from leovr.depth.runtime import InputRecorder, calibrate_generator
 from leovr.depth.train import generator_config, init_from, save_checkpoint
 from leovr.errors import DataError
 from leovr.threads import single_threaded_blas
@@ -229,4 +232,24 @@ def fit(
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)
         barrier(world)
+    if rank == 0 and record:
+        calibrate_int8(out / "generator.pt", model, [f for fs in frames for f in fs])
     return record, model
+
+
+CALIBRATION_FRAMES = 32  # training frames (spread over the sequences) the int8 ranges are measured on
+
+
+@torch.no_grad()
+def calibrate_int8(path: Path, model: DepthGenerator, frames: list[TrainFrame]) -> None:
+    """Store the int8 calibration table of `model` in the checkpoint at `path`, measured on the network inputs of
+    up to CALIBRATION_FRAMES training frames as inference builds them (leovr.depth.quantize)."""
+    if not model.uses_prior or not frames:
+        return
+    recorder = InputRecorder(model)
+    for f in frames[:: max(1, -(-len(frames) // CALIBRATION_FRAMES))]:
+        predict(recorder, f.image, f.sparse)
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    state["int8_ranges"] = calibrate_generator(model, recorder.feeds)
+    save_checkpoint(path, state)
+    model.train()

@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -189,7 +190,10 @@ def test_selfsup_cli_without_ground_truth_rerun_and_resume(dynamic_seq, tmp_path
     flow mask / warped image / photometric error to Rerun, writes a loadable generator, resumes."""
     from rerun.chunk import RrdReader
 
-    from leovr.depth.inference import load_generator
+    from leovr.config import CompleteConfig
+    from leovr.depth.inference import load_generator, predict_at_focal
+    from leovr.depth.runtime import for_inference
+    from leovr.pipeline.completion import prepare_sample
 
     seq = _no_truth_copy(dynamic_seq, tmp_path / "blind")
     info = open_sequence(seq).info()
@@ -220,6 +224,17 @@ def test_selfsup_cli_without_ground_truth_rerun_and_resume(dynamic_seq, tmp_path
     assert (out / "log.csv").read_text().count("\n") == 3
     depth_model = load_generator(out / "generator.pt")
     assert depth_model.cfg.channels == tuple(TINY["channels"])
+    # the trained generator runs in int8 as refine runs it: its own calibration table, depth near floating point
+    assert depth_model.int8_ranges is not None
+    sample = prepare_sample(open_sequence(seq)[1], CompleteConfig(input="full"))
+    frame, sparse = sample.frame, sample.sparse
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "no int8 calibration table" fallback
+        int8 = for_inference(depth_model, "onnxruntime_int8")
+    d_f = predict_at_focal(for_inference(depth_model, "onnxruntime"), frame.image, sparse, frame.K[0, 0], 130.0)[0]
+    d_q = predict_at_focal(int8, frame.image, sparse, frame.K[0, 0], 130.0)[0]
+    assert int8.int8_ranges is depth_model.int8_ranges and np.any(d_q != d_f)  # quantised, not the float graph
+    assert np.median(np.abs(d_q - d_f) / d_f) < 0.05
     paths = {c.entity_path for c in RrdReader(str(rrd)).stream()}
     assert any(p.endswith("flow_mask_prev") for p in paths) and any(p.endswith("photometric_error") for p in paths)
     assert any(p.endswith("warped_prev") for p in paths)
