@@ -106,6 +106,9 @@ class SelfSupConfig(_Model):
     # masked LiDAR: part of each frame's input hidden, |log D - log z| at the hidden returns (selfsup.masked_lidar;
     # docs/decisions/0017-selfsup-starts-at-the-prior.md)
     weight_masked: float = Field(1.0, ge=0)
+    # with init_checkpoint: mean |log D - log D0| over every pixel, D0 the starting network's depth on the same
+    # input, so that fine-tuning corrects the checkpoint without drifting from it where nothing says it is wrong
+    weight_anchor: float = Field(5.0, ge=0)
     # L_f and L_r: |log D - log D*| (default) or the paper's squared metres
     target_loss: Literal["log_l1", "l2"] = "log_l1"
     flow_mask: bool = True  # eq. 19 motion-optical-flow mask on the photometric loss

@@ -60,5 +60,6 @@ class SelfSupSamples(Dataset):
             "use_refined": torch.tensor(bool(sup.use_refined[i])),
             "masked_sparse": _plane(split[0], f.sparse),
             "masked_target": _plane(split[1], f.sparse),
+            "anchor": _plane(f.anchor, f.sparse),
             "key": torch.tensor([k, i]),
         }

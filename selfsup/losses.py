@@ -106,3 +106,9 @@ def masked_lidar_loss(depth: torch.Tensor, target: torch.Tensor) -> torch.Tensor
     """Mean |log D - log z| at the returns hidden from the network's input (target > 0): the masked-LiDAR task
     (selfsup.masked_lidar), metric supervision from the user's own LiDAR where the input has no return."""
     return masked_mean(depth_target_error(depth, target, "log_l1"), target > 0)
+
+
+def anchor_loss(depth: torch.Tensor, start: torch.Tensor) -> torch.Tensor:
+    """Mean |log D - log D0| over the pixels where the starting network gave a depth (D0 > 0): fine-tuning's
+    anchor to the checkpoint it starts from."""
+    return masked_mean(depth_target_error(depth, start, "log_l1"), start > 0)

@@ -1,5 +1,6 @@
 """The self-supervised objective on one batch (LeoVR eq. 22): the photometric loss with its masks, the
-landmark, refined-depth, smoothness and sparse-depth terms, and the uncertainty head's Gaussian NLL."""
+landmark, refined-depth, smoothness, sparse-depth, masked-LiDAR and anchor terms, and the uncertainty head's
+Gaussian NLL."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from leovr.config import SelfSupConfig
 from leovr.depth.layers import gaussian_nll
 from selfsup.losses import (
     feature_point_loss,
+    anchor_loss,
     masked_lidar_loss,
     photometric_error,
     photometric_loss,
@@ -27,6 +29,7 @@ TERMS = (
     "nll",
     "sparse",
     "masked",
+    "anchor",
     "mask_kept",
     "refined_used",
 )
@@ -76,6 +79,7 @@ def batch_terms(
     ls = second_order_smoothness(depth, img) if cfg.weight_smooth > 0 else depth.new_zeros(())
     lz = sparse_depth_loss(depth, b["sparse"], cfg.target_loss) if cfg.weight_sparse > 0 else depth.new_zeros(())
     lm = masked_lidar_loss(masked_depth, b["masked_target"]) if masked_depth is not None else depth.new_zeros(())
+    la = anchor_loss(depth, b["anchor"]) if cfg.weight_anchor > 0 and "anchor" in b else depth.new_zeros(())
     nll = depth.new_zeros(())
     if cfg.weight_nll > 0 and log_sigma is not None:
         nll = gaussian_nll(depth.detach(), log_sigma, b["feature_depth"], (b["feature_depth"] > 0).to(depth.dtype))
@@ -87,6 +91,7 @@ def batch_terms(
         + cfg.weight_nll * nll
         + cfg.weight_sparse * lz
         + cfg.weight_masked * lm
+        + cfg.weight_anchor * la
     )
     terms = {
         "loss": loss.item(),
@@ -97,6 +102,7 @@ def batch_terms(
         "nll": nll.item(),
         "sparse": lz.item(),
         "masked": lm.item(),
+        "anchor": la.item(),
         "mask_kept": float(torch.cat(masks).float().mean()),
         "refined_used": float(b["use_refined"].float().mean()) if refine_stage else 0.0,
     }

@@ -63,6 +63,8 @@ class TrainFrame:
     K: np.ndarray  # 3 x 3 at the training resolution
     # masked-LiDAR splits (selfsup.masked_lidar) at the training resolution: (thinner input, hidden returns)
     masked: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    # the starting network's depth on this input (H x W metres; fine-tuning's anchor), None without one
+    anchor: np.ndarray | None = None
 
 
 @dataclass

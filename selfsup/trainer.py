@@ -88,6 +88,22 @@ def oracle_moving(seq: BlindSequence, frames: list[TrainFrame]) -> list[np.ndarr
     return out
 
 
+def init_network(cfg: SelfSupConfig) -> DepthGenerator:
+    """The network fine-tuning starts from (`init_checkpoint`)."""
+    model = DepthGenerator(generator_config(cfg))
+    init_from(model, Path(cfg.init_checkpoint))
+    return model
+
+
+@torch.no_grad()
+def start_depths(model: DepthGenerator, frames: list[TrainFrame]) -> None:
+    """Each frame's depth from `model` on its own input (TrainFrame.anchor), as training runs the network."""
+    model.eval()
+    for f in frames:
+        image = torch.from_numpy(np.ascontiguousarray(f.image)).permute(2, 0, 1)[None].float() / 255.0
+        f.anchor = forward_padded(model, image, torch.from_numpy(f.sparse)[None, None])[0][0, 0].numpy()
+
+
 def epoch_sampler(dataset: SelfSupSamples, cfg: SelfSupConfig, epoch: int, rank: int, world: int):
     """This process's share of the samples for the epoch, shuffled by (seed, epoch)."""
     if world > 1:
@@ -147,8 +163,11 @@ def fit(
     frames = [train_frames(s, cfg) for s in seqs]
     moving = [oracle_moving(s, f) for s, f in zip(seqs, frames)] if oracle_masks else [None] * len(seqs)
     model = DepthGenerator(generator_config(cfg))
-    if cfg.init_checkpoint and not resume:
-        init_from(model, Path(cfg.init_checkpoint))
+    if cfg.init_checkpoint:
+        if not resume:
+            init_from(model, Path(cfg.init_checkpoint))
+        if cfg.weight_anchor > 0:  # the starting network's depth: from the checkpoint, also when resuming
+            start_depths(init_network(cfg), [f for fs in frames for f in fs])
     # the head learns from its NLL only, and the NLL (metres: hundreds at a cold start) never reaches the depth path
     model.sigma_on_detached = True
     params = model.parameters() if cfg.weight_nll > 0 else model.depth_parameters()
