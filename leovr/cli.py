@@ -12,7 +12,7 @@ from typing import Optional
 import typer
 
 from leovr.cli_bench import ConfigOpt, bench_app
-from leovr.cli_jobs import adapt, batch, train
+from leovr.cli_jobs import batch, train
 from leovr.config import MapConfig, load_config, override
 from leovr.errors import LeovrError
 
@@ -361,7 +361,6 @@ def viz(
 
 
 app.command()(train)
-app.command()(adapt)
 app.command()(batch)
 
 

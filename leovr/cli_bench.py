@@ -105,24 +105,18 @@ def bench_batch(
 @bench_app.command("real")
 def bench_real(
     out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
-    quick: bool = typer.Option(False, help="First 12 frames of each clip, one adaptation epoch."),
-    adapt: Optional[bool] = typer.Option(
-        None,
-        "--adapt/--no-adapt",
-        help="Adapt the generator to each clip for every input / none (default: the config's adapt_inputs).",
-    ),
+    quick: bool = typer.Option(False, help="First 12 frames of each clip."),
     clips: Optional[str] = typer.Option(
         None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."
     ),
     config: Optional[Path] = BenchConfigOpt,
 ) -> None:
-    """Real KITTI raw drives: nearest, IP-Basic, prior, shipped generator / refined (adapted / adapted + refined
-    with --adapt) on the same held-out pixels; leovr's ATE against KISS-ICP's where a drive has poses."""
+    """Real KITTI raw drives: nearest, IP-Basic, prior, shipped generator / refined on the same held-out pixels;
+    leovr's ATE against KISS-ICP's where a drive has poses."""
     from leovr.bench.real import run_real_bench
 
     cfg = load_bench_config(config).real
-    inputs = None if adapt is None else (list(cfg.inputs) if adapt else [])
-    cfg = override(cfg, adapt_inputs=inputs, clips=[c.strip() for c in clips.split(",")] if clips else None)
+    cfg = override(cfg, clips=[c.strip() for c in clips.split(",")] if clips else None)
     doc = run_real_bench(out, cfg, quick=quick)
     _print_bench("real", doc, out)
 

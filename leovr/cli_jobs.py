@@ -1,4 +1,4 @@
-"""`leovr train`, `leovr adapt` and `leovr batch`: the long jobs of the command line (leovr.cli registers them in
+"""`leovr train` and `leovr batch`: the long jobs of the command line (leovr.cli registers them in
 its order); a thin layer over the library like the rest of it."""
 
 from __future__ import annotations
@@ -77,62 +77,10 @@ def train(
     typer.echo(f"epoch {r.get('epoch')}: val MAE {r.get('val_mae_m', float('nan')):.3f} m -> {out}")
 
 
-def adapt(
-    sequences: list[Path] = typer.Argument(..., help="Recorded sequence folders (camera + LiDAR)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder (generator.pt, log.jsonl, run.json)."),
-    input: Optional[str] = typer.Option(
-        None,
-        "--input",
-        help="LiDAR input: full (the recording's own scan, default), or vlp16 | mid40 | ratio:R simulated from it "
-        "(evaluation).",
-    ),
-    init: Optional[Path] = typer.Option(None, "--init", help="Generator to start from (default: the shipped one)."),
-    epochs: Optional[int] = typer.Option(None),
-    start: Optional[int] = typer.Option(None, help="First frame of every sequence."),
-    end: Optional[int] = typer.Option(None, help="Stop before this frame."),
-    resume: bool = typer.Option(False, help="Continue from OUT/checkpoint_last.pt."),
-    config: Optional[Path] = ConfigOpt,
-) -> None:
-    """Self-supervised adaptation of the generator to your own recordings: part of each frame's LiDAR
-    input is hidden and predicted from the rest; no ground truth is read. Use the result with
-    `leovr refine --checkpoint OUT/generator.pt` or `leovr complete --checkpoint ...`.
-    Experimental: on the shared KITTI clip it does not help yet (far depth is pulled near; see
-    docs/benchmarks.md, `leovr bench real`); compare before relying on it."""
-    from leovr.data import open_sequence
-    from selfsup.adapt import adapt as run_adapt
-    from selfsup.distributed import distributed
-
-    cfg = override(
-        load_config(config).adapt,
-        input=input,
-        epochs=epochs,
-        start=start,
-        end=end,
-        init_checkpoint=None if init is None else str(init),
-    )
-    r = run_adapt([open_sequence(s) for s in sequences], cfg, out, resume=resume)
-    if distributed()[0] == 0:  # one line from `torchrun --nproc-per-node N leovr adapt ...`
-        val = r["best_val_mae_m"]
-        typer.echo(
-            f"adapted on {r['frames_train']} frames ({r['frames_val']} validate) in {r['minutes']:.1f} min: "
-            + (
-                f"validation MAE {val:.3f} m at the hidden returns"
-                if val is not None
-                else "no validation frames (val_every: 0), the last epoch kept"
-            )
-            + (
-                f"; network weight against its prior {r['blend']:g} ({r['val_mae_m_by_blend'][str(r['blend'])]:.3f} m)"
-                if "blend" in r
-                else ""
-            )
-            + f" -> {out / 'generator.pt'}"
-        )
-
-
 def batch(
     source: Path = typer.Argument(..., help="A folder of sequences, or a manifest (.yaml / .csv) listing them."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder: <name>/ per sequence, summary.csv / .md."),
-    job: Optional[str] = typer.Option(None, "--job", help="refine (default) | complete | adapt+refine"),
+    job: Optional[str] = typer.Option(None, "--job", help="refine (default) | complete"),
     address: Optional[str] = typer.Option(
         None, "--address", help="Ray cluster to join (auto | HOST:PORT); default: a local instance."
     ),

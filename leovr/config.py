@@ -139,37 +139,6 @@ class SelfSupConfig(_Model):
         return str(parse_input(v))
 
 
-class AdaptConfig(_Model):
-    """`leovr adapt`: fine-tune the generator on the user's recordings by hiding part of their own LiDAR
-    input (selfsup.masked_lidar); no ground truth, no held-out evaluation points."""
-
-    input: str = "full"  # the recording's own scan; vlp16 / mid40 / ratio:R when evaluating a cheaper sensor
-    init_checkpoint: str | None = None  # None = the shipped generator (must be a residual / fusion network)
-    generator_focal_px: float | None = 260.0  # frames resampled to the generator's training focal length (px)
-    seed: int = Field(0, ge=0)  # seeds the masked splits and training
-    start: int = Field(0, ge=0)  # frames [start:end] of every sequence
-    end: int | None = Field(None, ge=1)  # ... None = to the last frame
-    splits_per_frame: int = Field(4, ge=1)  # masked splits drawn per frame (one per visit, at random)
-    val_every: int = Field(8, ge=0)  # every n-th frame validates, never trained on (0 = no validation)
-    epochs: int = Field(40, ge=1)  # at most; early stopping usually ends sooner
-    patience: int = Field(6, ge=1)  # stop after this many epochs without a better validation MAE
-    max_minutes: float | None = Field(18.0, gt=0)  # stop before the next epoch once training took this long (min)
-    batch_size: int = Field(4, ge=1)  # frames per batch
-    lr: float = Field(1e-4, gt=0)  # learning rate
-    weight_smooth: float = Field(0.01, ge=0)  # edge-aware smoothness of the inverse depth
-    weight_nll: float = Field(1.0, ge=0)  # Gaussian NLL of the uncertainty head at the hidden returns
-    # loss at the hidden returns: metres, or log depth (relative); this and the next two chosen on the KITTI raw
-    # clip's development frames 0-37 (VLP-16-like), never its test frames 38-47
-    depth_loss: Literal["l1", "log_l1"] = "log_l1"
-    span_rings: bool = True  # hidden-return parallax filter reaches the next rings (selfsup.masked_lidar)
-    weight_anchor: float = Field(5.0, ge=0)  # |log depth - starting network's| on the whole input (selfsup.adapt)
-
-    @field_validator("input")
-    @classmethod
-    def _check_input(cls, v: str) -> str:
-        return str(parse_input(v))
-
-
 class MapConfig(_Model):
     """`leovr map`: a refine run's depth, images and poses fused into a TSDF map (mesh and points)."""
 
@@ -192,13 +161,11 @@ class BatchConfig(_Model):
     """`leovr batch`: one Ray task per sequence, on a local Ray instance or an existing cluster."""
 
     # run on each sequence, with its own section's settings
-    job: Literal["refine", "complete", "adapt+refine"] = "refine"
+    job: Literal["refine", "complete"] = "refine"
     address: str | None = None  # None: start a local Ray instance; "auto" or HOST:PORT: join a running cluster
     workers: int | None = Field(None, ge=1)  # tasks in flight; None = the cluster's CPUs / cpus_per_task
     cpus_per_task: int = Field(1, ge=1)  # Ray's num_cpus per task; also the task's torch / OpenCV threads
     max_retries: int = Field(3, ge=0)  # a task whose worker dies is re-run (resuming) up to this often
-    # adapt+refine: data-parallel processes of cpus_per_task CPUs (None = one per node, all its CPUs)
-    adapt_processes: int | None = Field(None, ge=1)
     dashboard: bool = False  # start Ray's dashboard with a local instance (needs `pip install "ray[default]"`)
     map: bool = False  # refine jobs: also fuse each sequence's run into OUT/NAME/map (`leovr map`, the `map` section)
 
@@ -210,7 +177,6 @@ class LeovrConfig(_Model):
     train: TrainConfig = TrainConfig()
     refine: RefineConfig = RefineConfig()
     selfsup: SelfSupConfig = SelfSupConfig()
-    adapt: AdaptConfig = AdaptConfig()
     map: MapConfig = MapConfig()
     batch: BatchConfig = BatchConfig()
 

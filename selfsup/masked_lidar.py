@@ -1,4 +1,4 @@
-"""The self-supervised task of `leovr adapt`: hide part of the user's own LiDAR input and predict it.
+"""The masked-LiDAR task of self-supervised training: hide part of the user's own LiDAR input and predict it.
 
 The held-back returns must lie where the scored pixels of a real evaluation lie: between the rings
 of a spinning LiDAR at every position within a gap, and outside the area a Livox-like cone covers.

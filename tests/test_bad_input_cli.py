@@ -224,12 +224,6 @@ ROWS = [
         "name '../escape' must be a plain folder name",
     ),
     (
-        "adapt on one sequence twice",
-        lambda d, t: [str(d), str(d), "--out", str(t / "a")],
-        "adapt",
-        "given more than once",
-    ),
-    (
         "native format from a newer leovr",
         lambda d, t: _native(d, t, lambda f: _yaml_value(f, "version: 1", "version: 99")),
         "info",
@@ -248,12 +242,6 @@ ROWS = [
         "m.csv: row 2 has 1 more cell(s) than the header's columns",
     ),
     ("negative first frame", lambda d, t: [str(d), "--start", "-2"], "complete", "start: Input should be greater"),
-    (
-        "adapt on too few frames",
-        lambda d, t: [str(d), "--out", str(t / "a"), "--input", "vlp16"],
-        "adapt",
-        "2 frame(s) selected; adaptation holds every 8th frame out for validation and needs at least 5",
-    ),
     (
         "config that is not UTF-8",
         lambda d, t: [str(d), "-c", str(_write_bytes(t / "c.yaml", b"# caf\xe9\ncomplete: {}\n"))],
@@ -279,10 +267,10 @@ ROWS = [
         "native: holds a recorded sequence, not an earlier rendering",
     ),
     (
-        "adapt --resume with nothing to resume",
-        lambda d, t: [str(d), "--out", str(t / "a"), "--resume"],
-        "adapt",
-        "checkpoint_last.pt: nothing to resume from",
+        "self-supervised training on too few frames",
+        lambda d, t: [str(d), "--mode", "selfsup", "--out", str(t / "a")],
+        "train",
+        "self-supervised training needs at least 3 frames, got 2",
     ),
     (
         "batch with a misspelt option",

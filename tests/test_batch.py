@@ -161,41 +161,6 @@ def test_manifests_yaml_csv_and_bad_entries(tmp_path, drives):
 
 
 @pytest.mark.slow
-def test_adapt_then_refine_uses_the_adapted_generator(tmp_path, drives):
-    """adapt+refine: one adaptation over the batch's sequences (no ground truth), then each sequence
-    refined with the adapted weights; a re-run redoes neither."""
-    import hashlib
-
-    y = tmp_path / "m.yaml"
-    y.write_text("".join(f"- {drives / f'drive{n}'}\n" for n in range(2)))
-    cfg = LeovrConfig.model_validate(
-        {
-            "adapt": {"epochs": 1, "batch_size": 3, "splits_per_frame": 1, "val_every": 3},
-            "batch": {"job": "adapt+refine", "workers": 2, "adapt_processes": 2},
-        }
-    )
-    out = tmp_path / "out"
-    rows = run_batch(read_batch(y), cfg, out, progress=False)
-    assert [r["status"] for r in rows] == ["done", "done"]
-    sha = hashlib.sha256((out / "_adapt" / "generator.pt").read_bytes()).hexdigest()
-    for name in ("drive0", "drive1"):
-        run = json.loads((out / name / "run.json").read_text())
-        assert run["identity"]["checkpoint_sha256"] == sha
-        assert run["identity"]["settings"]["checkpoint"] == str(out / "_adapt" / "generator.pt")
-    log = [json.loads(line) for line in (out / "_adapt" / "log.jsonl").read_text().splitlines()]
-    assert log[-1]["epoch"] == 1
-    assert log[-1]["processes"] == 2  # Ray Train: two DistributedDataParallel processes
-    rows = run_batch(read_batch(y), cfg, out, progress=False)
-    assert [r["status"] for r in rows] == ["skipped", "skipped"]
-    assert len((out / "_adapt" / "log.jsonl").read_text().splitlines()) == len(log)
-    # other adaptation settings into the same folder: process 0 refuses the resume and every process
-    # stops (none waits for it), the batch reports why and refines nothing
-    cfg.adapt.lr = 3e-4
-    with pytest.raises(DataError, match="adaptation on the batch's sequences failed.*lr"):
-        run_batch(read_batch(y), cfg, out, progress=False)
-
-
-@pytest.mark.slow
 def test_bench_batch_contract(tmp_path):
     from leovr.bench.batch import run_batch_bench
 

@@ -13,36 +13,26 @@ from tests.conftest import KITTI_RAW, KITTI_RAW_POSES, needs_posed_drive, needs_
 @pytest.mark.slow
 @needs_shared
 def test_bench_real_contract(tmp_path):
-    cfg = BenchRealConfig(
-        clips=[str(KITTI_RAW)],
-        inputs=["vlp16"],
-        adapt_inputs=["vlp16"],
-        quick_frames=5,
-        quick_train_frames=3,
-        causal=False,
-    )
+    cfg = BenchRealConfig(clips=[str(KITTI_RAW)], inputs=["vlp16"], quick_frames=5, causal=False)
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     assert json.loads((tmp_path / "real.json").read_text())["benchmark"] == "real"
     clip = doc["clips"]["kitti_raw"]
     assert clip["development"] and not clip["has_poses"] and clip["trajectory"] == {}
-    assert set(clip["results"]) == {"inductive_vlp16", "transductive_vlp16"}
-    ind, trans = clip["results"]["inductive_vlp16"], clip["results"]["transductive_vlp16"]
+    assert set(clip["results"]) == {"shipped_vlp16"}
+    r = clip["results"]["shipped_vlp16"]
     # VLP-16-like input spins: no earlier scans join the generator's, so no single-frame or accumulated rows
     assert (
-        set(ind)
+        set(r)
         == set(METHODS) - {"generator_frame", "nearest_accumulated", "ipbasic_accumulated"}
-        == {"nearest", "ipbasic", "interp", "generator", "refined", "adapted", "adapted_refined"}
+        == {"nearest", "ipbasic", "interp", "generator", "refined"}
     )
-    for r in (ind, trans):
-        ns = {m: v["n"] for m, v in r.items()}
-        assert len(set(ns.values())) == 1 and min(ns.values()) > 1000  # every method on the same pixels
-        for v in r.values():
-            assert {"mae_m", "rmse_m", "absrel", "delta1", "n", "bins"} <= set(v) and v["mae_m"] > 0
-    assert trans["nearest"]["n"] > ind["nearest"]["n"]  # 5 frames scored vs 2
-    for r in (ind, trans):  # the shipped generator and the graph over it beat the nearest fill on the same pixels
-        assert max(r["generator"]["mae_m"], r["refined"]["mae_m"]) < 0.85 * r["nearest"]["mae_m"], r
-    assert set(clip["adapt_minutes"]) == {"inductive_vlp16", "transductive_vlp16"}
-    assert doc["pooled"]["results"]["inductive_vlp16"]["nearest"]["n"] == ind["nearest"]["n"]  # one clip: pooled = it
+    ns = {m: v["n"] for m, v in r.items()}
+    assert len(set(ns.values())) == 1 and min(ns.values()) > 1000  # every method on the same pixels
+    for v in r.values():
+        assert {"mae_m", "rmse_m", "absrel", "delta1", "n", "bins"} <= set(v) and v["mae_m"] > 0
+    # the shipped generator and the graph over it beat the nearest fill on the same pixels
+    assert max(r["generator"]["mae_m"], r["refined"]["mae_m"]) < 0.85 * r["nearest"]["mae_m"], r
+    assert doc["pooled"]["results"]["shipped_vlp16"]["nearest"]["n"] == r["nearest"]["n"]  # one clip: pooled = it
     assert "held-out LiDAR points" in doc["ground_truth"]
 
 
@@ -50,15 +40,11 @@ def test_bench_real_contract(tmp_path):
 @needs_shared
 @needs_posed_drive
 def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_path):
-    cfg = BenchRealConfig(
-        clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], adapt_inputs=[], quick_frames=5
-    )
+    cfg = BenchRealConfig(clips=[str(KITTI_RAW), str(KITTI_RAW_POSES)], inputs=["vlp16"], quick_frames=5)
     doc = run_real_bench(tmp_path / "real.json", cfg, quick=True, progress=False)
     one, two = doc["clips"]["kitti_raw"], doc["clips"]["kitti_raw_0013"]
     # every input also runs causal (live use), scored on its own held-out pixels
-    assert (
-        set(one["results"]) == set(two["results"]) == {"shipped_vlp16", "causal_vlp16"} and "adapt_minutes" not in one
-    )
+    assert set(one["results"]) == set(two["results"]) == {"shipped_vlp16", "causal_vlp16"}
     for clip in (one, two):
         for r in clip["results"].values():
             assert r["refined"]["mae_m"] < 0.85 * r["nearest"]["mae_m"], r
@@ -72,31 +58,3 @@ def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_pa
     assert (
         set(two["trajectory"]) == {"vlp16", "causal_vlp16"} and two["trajectory"]["causal_vlp16"]["leovr"]["ate_m"] > 0
     )
-
-
-def test_adapted_scores_join_on_the_pixels_both_runs_hold():
-    """Each run deskews the held-out returns with its own motion, so two runs' truth can cover a few different
-    pixels: the adapted run's depth joins the shipped run's methods on the pixels both hold, all on the same."""
-    import numpy as np
-
-    from leovr.bench.real import add_adapted
-    from leovr.pipeline.completion import EvalSample
-    from leovr.pipeline.refine_outputs import FrameScore
-
-    def score(points: dict[tuple[int, int], float]) -> FrameScore:
-        gt = np.zeros((5, 6), np.float32)
-        for (r, c), z in points.items():
-            gt[r, c] = z
-        return FrameScore.of(EvalSample(None, gt, gt, "heldout", None))
-
-    shipped, adapted = score({(1, 2): 5.0, (3, 4): 7.0, (4, 0): 9.0}), score({(0, 1): 3.0, (1, 2): 5.1, (3, 4): 7.1})
-    shipped.add("nearest", np.full((5, 6), 1.0))
-    adapted.add("generator", np.arange(30.0).reshape(5, 6))
-    adapted.add("refined", 2 * np.arange(30.0).reshape(5, 6))
-    add_adapted(shipped, adapted)
-    np.testing.assert_array_equal(shipped.gt, [5.0, 7.0])  # the shipped run's truth on the common pixels
-    assert {m: list(p) for m, p in shipped.pred.items()} == {
-        "nearest": [1.0, 1.0],
-        "adapted": [8.0, 22.0],
-        "adapted_refined": [16.0, 44.0],
-    }

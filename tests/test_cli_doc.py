@@ -12,6 +12,6 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_the_committed_cli_reference_matches_the_command_line():
     text = render()
     assert (ROOT / "docs" / "cli.md").read_text() == text, "docs/cli.md is stale: run python tools/gen_docs.py"
-    for command in ("refine", "poses", "adapt", "bench real", "bench refine", "viz", "batch"):
+    for command in ("refine", "poses", "train", "bench real", "bench refine", "viz", "batch"):
         assert f"## `leovr {command}`" in text
     assert "--causal" in text

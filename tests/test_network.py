@@ -140,9 +140,9 @@ def test_inference_loads_checkpoint_pads_any_size_and_rejects_bad_files(tmp_path
     torch.save({"model": model.state_dict(), "network": other}, tmp_path / "mismatch.pt")
     with pytest.raises(DataError, match="does not match"):
         load_generator(tmp_path / "mismatch.pt")
-    torch.save({"model": model.state_dict(), "network": {**cfg.__dict__, "blend": 1.5}}, tmp_path / "blend.pt")
-    with pytest.raises(DataError, match="invalid network description.*blend must lie in"):
-        load_generator(tmp_path / "blend.pt")
+    torch.save({"model": model.state_dict(), "network": {**cfg.__dict__, "output": "depth"}}, tmp_path / "out.pt")
+    with pytest.raises(DataError, match="invalid network description.*output must be one of"):
+        load_generator(tmp_path / "out.pt")
     (tmp_path / "corrupt.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(DataError, match="unreadable checkpoint"):
         load_generator(tmp_path / "corrupt.pt")

@@ -380,3 +380,39 @@ def test_the_masked_lidar_term_scores_returns_hidden_from_the_input(dynamic_seq)
         ].masked
         == []
     )
+
+
+def test_fine_tuning_is_anchored_to_its_starting_network(dynamic_seq, tmp_path):
+    """With an init checkpoint every training frame carries the starting network's depth on its own input, and the
+    anchor term holds the fine-tuned output near it: the same run without the anchor moves further."""
+    from leovr.depth.inference import forward_padded, load_generator
+    from leovr.pipeline.refine import run_refine
+    from selfsup.losses import anchor_loss
+    from selfsup.supervision import train_frames
+    from selfsup.trainer import init_network, start_depths, train_selfsup
+
+    cfg = SelfSupConfig(**TINY, max_frames=4, epochs=1, init_fraction=1.0, lr=1e-2)
+    train_selfsup(cfg, [dynamic_seq], tmp_path / "start", run_refine, progress=False)
+    start = str(tmp_path / "start" / "generator.pt")
+    frames = train_frames(BlindSequence(open_sequence(dynamic_seq)), cfg)
+    start_depths(init_network(cfg.model_copy(update={"init_checkpoint": start})), frames)
+    assert all(f.anchor is not None and f.anchor.shape == f.sparse.shape and (f.anchor > 0).all() for f in frames)
+    d0 = torch.from_numpy(frames[1].anchor)[None, None]
+    assert float(anchor_loss(d0, d0)) == 0.0 and float(anchor_loss(d0 * 1.2, d0)) == pytest.approx(np.log(1.2), 1e-4)
+
+    def moved(weight: float) -> float:
+        """Mean |log D - log D0| of the model fine-tuned with this anchor weight, over the training frames."""
+        run = tmp_path / f"anchor_{weight:g}"
+        fine = cfg.model_copy(update={"init_checkpoint": start, "weight_anchor": weight, "epochs": 2})
+        train_selfsup(fine, [dynamic_seq], run, run_refine, progress=False)
+        model = load_generator(run / "generator.pt").eval()
+        with torch.no_grad():
+            gaps = []
+            for f in frames:
+                image = torch.from_numpy(np.ascontiguousarray(f.image)).permute(2, 0, 1)[None].float() / 255.0
+                depth = forward_padded(model, image, torch.from_numpy(f.sparse)[None, None])[0]
+                gaps.append(float(anchor_loss(depth, torch.from_numpy(f.anchor)[None, None])))
+        return float(np.mean(gaps))
+
+    free, anchored = moved(0.0), moved(50.0)
+    assert anchored < 0.5 * free, (anchored, free)

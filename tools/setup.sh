@@ -28,6 +28,6 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   pipq -e ".[test]"
   touch "$stamp"
 fi
-.venv/bin/python -c "import leovr, gtsam, open3d, kiss_icp, rerun, torch, cv2, evo, ray, ray.train.torch, threadpoolctl, onnx, onnxruntime, rosbags.highlevel" \
+.venv/bin/python -c "import leovr, gtsam, open3d, kiss_icp, rerun, torch, cv2, evo, ray, threadpoolctl, onnx, onnxruntime, rosbags.highlevel" \
   || { echo "setup: import check failed" >&2; exit 1; }
 echo "setup: ok (.venv)"

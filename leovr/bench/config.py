@@ -95,24 +95,14 @@ class BenchSpeedConfig(_Model):
 
 class BenchRealConfig(_Model):
     """`leovr bench real`: every depth method on each real KITTI raw drive, same held-out pixels, leovr's
-    trajectory beside KISS-ICP's where the drive has ground-truth poses, and (optionally) adaptation under
-    the inductive and transductive protocols."""
+    trajectory beside KISS-ICP's where the drive has ground-truth poses."""
 
     clips: list[str] | None = None  # KITTI raw drives; None = every one under ../shared/data (development data)
     inputs: list[str] = ["vlp16", "mid40"]  # cheap inputs simulated from the drives' scans
     checkpoint: str | None = None  # generator to start from (None = the shipped one)
     window: int = Field(4, ge=2)  # sliding-window length (frames)
-    # inputs the generator is also adapted to each clip for (minutes per input and protocol); none by default
-    # (docs/decisions/0009-no-adaptation-by-default.md)
-    adapt_inputs: list[str] = []
     causal: bool = True  # also run each input in refine's causal mode (live use) and report it beside
-    # adapt on the first 80 % of a clip's frames, score the rest
-    inductive_train_fraction: float = Field(0.8, gt=0, lt=1)
-    adapt_epochs: int = Field(40, ge=1)  # at most; early stopping on the validation frames usually ends sooner
-    quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames ...
-    quick_train_frames: int = Field(8, ge=1)  # ... adapted on the first 8
-    quick_epochs: int = Field(1, ge=1)  # --quick: adaptation epochs
-    seed: int = Field(0, ge=0)  # seeds the simulated inputs and adaptation
+    quick_frames: int = Field(12, ge=4)  # --quick: the first 12 frames
 
 
 class BenchMapConfig(_Model):

@@ -5,13 +5,8 @@ Each cheap input (VLP-16-like, Mid-40-like) is simulated from the drive's HDL-64
 returns, parallax-filtered, are the ground truth. Methods, all scored on the very same pixels:
 `nearest` and `ipbasic` (classical fills; with a cone LiDAR also `nearest_accumulated` and `ipbasic_accumulated`,
 the same frames' returns placed with KISS-ICP's poses and filled), `interp` (the generator's classical prior alone),
-`generator` and `refined` (the shipped generator and the graph over it), and with adaptation on,
-`adapted` and `adapted_refined` (after `leovr adapt` on the clip's own cheap input). Protocols:
-- `inductive`: adapt on the first `inductive_train_fraction` of the frames, score the frames after;
-- `transductive`: adapt on every frame, using only its cheap input, score every frame (what a user
-  does with a recording: adaptation never sees the held-out returns).
-An input not in `adapt_inputs` is scored on every frame without adaptation (`shipped_<input>`); with
-`causal` each input also runs in refine's causal mode (`causal_<input>`: every output from its frame and
+`generator` and `refined` (the shipped generator and the graph over it), every frame scored (`shipped_<input>`);
+with `causal` each input also runs in refine's causal mode (`causal_<input>`: every output from its frame and
 earlier ones, the accumulated fills too; the run's own held-out pixels). Refinement runs over the whole clip (it
 reads no ground truth); only the scored frames differ. Each clip is reported alone and all clips pooled
 (every scored pixel of every clip), with whether it is development data (under ../shared/data). Runs are
@@ -30,7 +25,7 @@ import numpy as np
 
 from leovr.bench.common import depth_entry, write_bench
 from leovr.bench.config import BenchRealConfig
-from leovr.config import AdaptConfig, RefineConfig
+from leovr.config import RefineConfig
 from leovr.data import open_sequence
 from leovr.data.io import write_text
 from leovr.data.oxts import REFERENCE_NOTE
@@ -56,8 +51,6 @@ METHODS = (
     "generator",
     "generator_frame",
     "refined",
-    "adapted",
-    "adapted_refined",
 )
 
 
@@ -113,7 +106,7 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     prepared_work(work, settings)
     shared = shared_data_dir().resolve()
     per_clip, notes = {}, set()
-    every: dict[str, list[tuple[dict[int, FrameScore], list[int]]]] = {}  # protocol_input -> each clip's scored set
+    every: dict[str, list[tuple[dict[int, FrameScore], list[int]]]] = {}  # run -> each clip's scored set
     for clip in clips:
         entry, scored = clip_bench(clip, cfg, quick, progress, work / clip.name)
         entry["development"] = shared in clip.resolve().parents
@@ -136,20 +129,6 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
         "ground_truth_poses": REFERENCE_NOTE,
     }
     return write_bench(out, "real", body, started)
-
-
-def add_adapted(shipped: FrameScore, adapted: FrameScore) -> None:
-    """The adapted run's generator and refined depth beside the shipped run's methods, on the pixels both runs
-    hold: on a recording without poses each run deskews the held-out returns with its own motion, so a few
-    returns can land on other pixels; every method keeps the same pixels (the shipped run's truth there)."""
-    key = lambda fs: fs.pick[0].astype(np.int64) * 1_000_000 + fs.pick[1]  # noqa: E731  (row-major, sorted)
-    _, ia, ib = np.intersect1d(key(shipped), key(adapted), assume_unique=True, return_indices=True)
-    if len(ia) < len(shipped.gt):
-        shipped.pick = (shipped.pick[0][ia], shipped.pick[1][ia])
-        shipped.gt = shipped.gt[ia]
-        shipped.pred = {m: p[ia] for m, p in shipped.pred.items()}
-    shipped.pred["adapted"] = adapted.pred["generator"][ib]
-    shipped.pred["adapted_refined"] = adapted.pred["refined"][ib]
 
 
 def gps_fix_ates(seq, run: Path, n: int) -> dict[str, float]:
@@ -222,16 +201,11 @@ def summary_of(results: dict) -> dict:
 def clip_bench(
     clip: Path, cfg: BenchRealConfig, quick: bool, progress: bool, work: Path
 ) -> tuple[dict, dict[str, tuple[dict[int, FrameScore], list[int]]]]:
-    """One drive: its results and summary per protocol and input, leovr's and KISS-ICP's trajectories where
-    it has poses, adaptation minutes; and each protocol's frame scores with the frames it scores (to pool)."""
+    """One drive: its results and summary per run and input, leovr's and KISS-ICP's trajectories where
+    it has poses; and each run's frame scores with the frames it scores (to pool)."""
     seq = open_sequence(clip)
     n = min(len(seq), cfg.quick_frames) if quick else len(seq)
-    split = cfg.quick_train_frames if quick else int(round(cfg.inductive_train_fraction * n))
-    if cfg.adapt_inputs and not 0 < split < n:
-        raise DataError(clip, f"{n} frames cannot be split at frame {split} for the inductive protocol")
-    epochs = cfg.quick_epochs if quick else cfg.adapt_epochs
-    protocols = {"inductive": (split, list(range(split, n))), "transductive": (None, list(range(n)))}
-    results, minutes, blends, trajectory = {}, {}, {}, {}
+    results, trajectory = {}, {}
     scored_sets: dict[str, tuple[dict[int, FrameScore], list[int]]] = {}
     for inp in cfg.inputs:
         base = RefineConfig(input=inp, end=n, window=cfg.window, checkpoint=cfg.checkpoint)
@@ -254,45 +228,8 @@ def clip_bench(
             scored_sets[f"causal_{inp}"] = live, list(range(n))
             if "trajectory" in mc:
                 trajectory[f"causal_{inp}"] = trajectory_entry(mc, gps_fix_ates(seq, work / f"{inp}_causal", n))
-        if inp not in cfg.adapt_inputs:
-            results[f"shipped_{inp}"] = pooled([(shipped, list(range(n)))], list(base.bins))
-            scored_sets[f"shipped_{inp}"] = shipped, list(range(n))
-            continue
-        for protocol, (adapt_end, scored) in protocols.items():
-            end = adapt_end if adapt_end is not None else n
-            val_every = AdaptConfig().val_every  # a selection too short to hold a frame out adapts without validation
-            acfg = AdaptConfig(
-                input=inp,
-                end=end,
-                epochs=epochs,
-                init_checkpoint=cfg.checkpoint,
-                seed=cfg.seed,
-                val_every=val_every if end > val_every // 2 else 0,
-            )
-            from selfsup.adapt import adapt
-
-            folder = work / f"{inp}_{protocol}_adapt"
-            record = adapt([seq], acfg, folder, resume=(folder / "checkpoint_last.pt").is_file(), progress=progress)
-            minutes[f"{protocol}_{inp}"] = record["minutes"]
-            blends[f"{protocol}_{inp}"] = {
-                "blend": record.get("blend", 1.0),
-                "val_mae_m_by_blend": record.get("val_mae_m_by_blend"),
-            }
-            adapted: dict[int, FrameScore] = {}
-            ck = work / f"{inp}_{protocol}_adapt" / "generator.pt"
-            run_refine(
-                seq,
-                base.model_copy(update={"checkpoint": str(ck)}),
-                work / f"{inp}_{protocol}_refine",
-                resume=True,
-                progress=progress,
-                collect=adapted,
-            )
-            for i, fs in adapted.items():  # same frames, same input
-                if i in shipped:
-                    add_adapted(shipped[i], fs)
-            results[f"{protocol}_{inp}"] = pooled([(shipped, scored)], list(base.bins))
-            scored_sets[f"{protocol}_{inp}"] = shipped, scored
+        results[f"shipped_{inp}"] = pooled([(shipped, list(range(n)))], list(base.bins))
+        scored_sets[f"shipped_{inp}"] = shipped, list(range(n))
     entry = {
         "path": str(clip),
         "frames": n,
@@ -301,15 +238,4 @@ def clip_bench(
         "summary": summary_of(results),
         "trajectory": trajectory,
     }
-    if minutes:
-        # the adapted network's weight against its prior, chosen on validation frames
-        entry |= {
-            "protocols": {
-                "inductive": f"adapt on frames 0-{split - 1}, score frames {split}-{n - 1}",
-                "transductive": f"adapt on frames 0-{n - 1} (their cheap input only), score all of them",
-            },
-            "adapt_epochs": epochs,
-            "adapt_minutes": minutes,
-            "adapt_blend": blends,
-        }
     return entry, scored_sets

@@ -115,7 +115,7 @@ def render_real(doc: dict) -> tuple[list[str], list[str]]:
     summaries = {f"{name}, {inp}": s for name, c in clips.items() for inp, s in (c.get("summary") or {}).items()}
     summaries.update({f"pooled, {inp}": s for inp, s in (get(doc, "pooled", "summary") or {}).items()})
     ref_names = refs(groups, summaries)
-    body = ["`shipped_<input>`: the shipped network, no adaptation. Pooled: every scored pixel of every clip.", ""]
+    body = ["`shipped_<input>`: the shipped network. Pooled: every scored pixel of every clip.", ""]
     body += depth_table(groups, ref_names) + bins_table(
         {k: v for k, v in groups.items() if k.startswith("pooled")}, ref_names
     )

@@ -52,15 +52,10 @@ class GeneratorConfig:
     fusion_alpha: float = 0.8  # all-day eq. 3
     fusion_beta: float = 0.0
     measured_log_sigma: float = -2.0  # gamma: the prior's log uncertainty at measured pixels
-    # residual modes: the output's log depth is blend x the network's + (1 - blend) x its prior's. 1 (the
-    # network) unless `leovr adapt` found a lower error at its validation frames' hidden returns (selfsup.adapt)
-    blend: float = 1.0
 
     def __post_init__(self) -> None:
         if self.output not in OUTPUTS:
             raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, not '{self.output}'")
-        if not 0.0 <= self.blend <= 1.0:
-            raise ValueError(f"blend must lie in [0, 1], not {self.blend}")
 
 
 class RGBEncoder(nn.Module):
@@ -192,7 +187,7 @@ class DepthGenerator(nn.Module):
         if self.cfg.output == "fusion":
             s = torch.where(sparse > 0, torch.full_like(sparse, self.cfg.measured_log_sigma), parts["prior_log_sigma"])
             refined = uncertainty_residual(z, s, refined, self.cfg.fusion_alpha, self.cfg.fusion_beta)
-        return refined if self.cfg.blend == 1.0 else blend_log_depth(refined, z, self.cfg.blend)
+        return refined
 
     def forward(
         self, image: torch.Tensor, sparse: torch.Tensor, prior: torch.Tensor | None = None
@@ -203,11 +198,6 @@ class DepthGenerator(nn.Module):
             prior = prior_for(sparse)
         parts = self.parts(image, sparse, prior)
         return self.combine(parts, prior, sparse), parts["log_sigma"]
-
-
-def blend_log_depth(network: torch.Tensor, prior: torch.Tensor, weight: float) -> torch.Tensor:
-    """exp(weight log network + (1 - weight) log prior): a geometric blend of two positive depth maps."""
-    return torch.exp(weight * torch.log(network.clamp(min=1e-3)) + (1.0 - weight) * torch.log(prior.clamp(min=1e-3)))
 
 
 def prior_for(sparse: torch.Tensor, image: torch.Tensor | None = None) -> torch.Tensor:

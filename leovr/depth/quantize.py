@@ -2,7 +2,7 @@
 
 Static quantisation needs each activation's range. They are measured once on frames the user never
 scores (`calibrate_ranges`: simulator training frames for the shipped network, `tools/calibrate_int8.py`;
-the user's own adaptation frames for `leovr adapt`) and stored in the checkpoint (`int8_ranges`). The
+the training frames for `leovr train --mode selfsup`) and stored in the checkpoint (`int8_ranges`). The
 ranges do not depend on the image size, so every input size the runtime exports is quantised from them
 (`quantized_model`) in about 2 s, once per size.
 

@@ -81,7 +81,7 @@ def init_from(model: DepthGenerator, path: Path) -> None:
     from leovr.depth.inference import load_generator
 
     source = load_generator(path)
-    if replace(source.cfg, output=model.cfg.output, blend=model.cfg.blend) != model.cfg or (
+    if replace(source.cfg, output=model.cfg.output) != model.cfg or (
         source.cfg.output != model.cfg.output and source.cfg.output != "absolute"
     ):
         raise DataError(path, f"init checkpoint describes {source.cfg}, the config asks for {model.cfg}")

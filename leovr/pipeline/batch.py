@@ -1,4 +1,4 @@
-"""`leovr batch`: refine (or complete, or adapt then refine) many sequences, one Ray task per sequence.
+"""`leovr batch`: refine (or complete) many sequences, one Ray task per sequence.
 
 Ray schedules the tasks (local instance by default, an existing cluster with `address`), re-runs a task
 whose worker died (`max_retries`), and each task resumes its sequence from what was already written:
@@ -23,7 +23,6 @@ from leovr.config import BatchConfig, LeovrConfig, override
 from leovr.data.io import check_output_dir, write_text
 from leovr.errors import ConfigError, LeovrError, brief
 from leovr.pipeline.batch_manifest import BatchItem
-from leovr.pipeline.batch_adapt import ADAPT_DIR, adapt_batch, adapt_done
 from leovr.pipeline.batch_state import (
     STATE_FILE,
     check_no_other_results,
@@ -103,12 +102,10 @@ def run_sequence(
     return state
 
 
-def job_section(cfg: LeovrConfig, job: str, item: BatchItem, checkpoint: str | None = None) -> dict[str, Any]:
-    """The job's config section with the sequence's own options (and an adapted checkpoint) applied."""
+def job_section(cfg: LeovrConfig, job: str, item: BatchItem) -> dict[str, Any]:
+    """The job's config section with the sequence's own options applied."""
     base = cfg.complete if job == "complete" else cfg.refine
     opts = dict(item.options)
-    if checkpoint is not None:
-        opts["checkpoint"] = checkpoint
     unknown = sorted(set(opts) - set(type(base).model_fields))
     if unknown:
         raise ConfigError(
@@ -146,7 +143,7 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
     started (or joined) only when there is work left."""
     bcfg = cfg.batch
     out = check_output_dir(Path(out))
-    job = "complete" if bcfg.job == "complete" else "refine"
+    job = bcfg.job
     rows: dict[str, dict] = {}
     sections: dict[str, dict] = {}
     bad = []
@@ -160,12 +157,6 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
     live = list(items)
     started = finished = False
     try:
-        if bcfg.job == "adapt+refine" and live:
-            checkpoint = adapt_done(live, cfg, out / ADAPT_DIR)
-            if checkpoint is None:
-                started = _init_ray(bcfg)
-                checkpoint = adapt_batch(live, cfg, out / ADAPT_DIR, progress)
-            sections |= {it.name: job_section(cfg, job, it, checkpoint) for it in live}
         map_section = cfg.map.model_dump() if bcfg.map and job == "refine" else None
         settings = {it.name: task_settings(job, sections[it.name], it.path, map_section) for it in live}
         check_no_other_results(out, live, settings)
@@ -176,7 +167,7 @@ def run_batch(items: list[BatchItem], cfg: LeovrConfig, out: Path, progress: boo
             else:
                 todo.append(it)
         if todo:
-            started = _init_ray(bcfg) or started
+            started = _init_ray(bcfg)
             _run_tasks(todo, job, sections, settings, bcfg, out, rows, items, progress, map_section)
         finished = True
     finally:  # an interrupted batch keeps the summary written after its last finished sequence

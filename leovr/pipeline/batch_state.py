@@ -13,7 +13,6 @@ from leovr.pipeline.batch_manifest import BatchItem
 from leovr.pipeline.batch_summary import read_json_or_empty
 
 STATE_FILE = "batch.json"
-ERROR_FILE = "error.json"  # a data error the adaptation met (written by its process 0)
 
 
 def task_settings(
