@@ -38,7 +38,7 @@ from leovr.depth.train import generator_config, init_from, save_checkpoint
 from leovr.errors import DataError
 from leovr.threads import single_threaded_blas
 from selfsup.blind import BlindSequence
-from selfsup.dataset import SelfSupSamples
+from selfsup.dataset import SelfSupSamples, image_tensor
 from selfsup.distributed import barrier, distributed
 from selfsup.objective import TERMS, batch_terms
 from selfsup.supervision import PosePass, TrainFrame, at_training_size, build_supervision, graph_pass, train_frames
@@ -100,8 +100,8 @@ def start_depths(model: DepthGenerator, frames: list[TrainFrame]) -> None:
     """Each frame's depth from `model` on its own input (TrainFrame.anchor), as training runs the network."""
     model.eval()
     for f in frames:
-        image = torch.from_numpy(np.ascontiguousarray(f.image)).permute(2, 0, 1)[None].float() / 255.0
-        f.anchor = forward_padded(model, image, torch.from_numpy(f.sparse)[None, None])[0][0, 0].numpy()
+        depth, _ = forward_padded(model, image_tensor(f.image)[None], torch.from_numpy(f.sparse)[None, None])
+        f.anchor = depth[0, 0].numpy()
 
 
 def epoch_sampler(dataset: SelfSupSamples, cfg: SelfSupConfig, epoch: int, rank: int, world: int):
@@ -166,8 +166,8 @@ def fit(
     if cfg.init_checkpoint:
         if not resume:
             init_from(model, Path(cfg.init_checkpoint))
-        if cfg.weight_anchor > 0:  # the starting network's depth: from the checkpoint, also when resuming
-            start_depths(init_network(cfg), [f for fs in frames for f in fs])
+        if cfg.weight_anchor > 0:  # the starting network's depth (resuming: read from the checkpoint again)
+            start_depths(init_network(cfg) if resume else model, [f for fs in frames for f in fs])
     # the head learns from its NLL only, and the NLL (metres: hundreds at a cold start) never reaches the depth path
     model.sigma_on_detached = True
     params = model.parameters() if cfg.weight_nll > 0 else model.depth_parameters()
