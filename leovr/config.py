@@ -60,43 +60,52 @@ class DemoConfig(_Model):
     input: str | None = None  # None: all of the generated scan, or mid40 on a recorded dense scan
 
 
-class TrainConfig(_Model):
+class OptimiserSettings(_Model):
+    """How both trainers optimise (`leovr train --mode supervised | selfsup`): Adam, its learning rate stepped
+    down every few epochs (LeoVR Sec. V-A defaults), and the seed of sampling and initialisation."""
+
+    epochs: int = Field(24, ge=1)  # training epochs
+    batch_size: int = Field(8, ge=1)  # frames per batch
+    lr: float = Field(1e-4, gt=0)  # learning rate
+    lr_step_epochs: int = Field(6, ge=1)  # learning rate multiplied by lr_gamma every this many epochs
+    lr_gamma: float = Field(0.5, gt=0, le=1)  # ... by this factor
+    seed: int = Field(0, ge=0)  # seeds sampling and initialisation
+
+
+class NetworkSettings(_Model):
+    """The depth generator both trainers build (leovr.depth.network.GeneratorConfig), and the weights it starts
+    from."""
+
+    # LiDAR branch: SLIM partial convolutions | pre-interpolated input
+    lidar_encoder: Literal["partial", "interp"] = "partial"
+    cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
+    # what the decoder predicts (leovr.depth.network); fusion: a residual over the classical prior with an
+    # uncertainty-driven blend, so the untrained network returns the prior (decision 0017)
+    output: Literal["absolute", "residual", "fusion"] = "fusion"
+    channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
+    blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
+    init_checkpoint: str | None = None  # start from these weights (fine-tuning) instead of random ones; same network
+
+
+class TrainConfig(NetworkSettings, OptimiserSettings):
     """`leovr train --mode supervised`: the depth generator on simulator splits (LeoVR Sec. V-A defaults)."""
 
     dataset: str | None = None  # folder with manifest.json; None: the cached recipe below
     recipe: str = "default"  # dataset recipe (tools/make_dataset.py --recipe)
-    epochs: int = Field(24, ge=1)  # training epochs
-    batch_size: int = Field(8, ge=1)  # frames per batch
-    lr: float = Field(1e-4, gt=0)  # learning rate
-    lr_step_epochs: int = Field(6, ge=1)  # learning rate multiplied by lr_gamma every this many epochs
-    lr_gamma: float = Field(0.5, gt=0, le=1)  # ... by this factor
     sigma_epochs: int = Field(2, ge=0)  # second phase: uncertainty head only, depth path frozen
     loss: Literal["l1", "l2"] = "l1"  # depth loss, masked on valid ground truth
     smoothness: float = Field(0.0, ge=0)  # weight of edge-aware smoothness (optional)
-    # LiDAR branch: SLIM partial convolutions | pre-interpolated input
-    lidar_encoder: Literal["partial", "interp"] = "partial"
-    cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
-    output: Literal["absolute", "residual", "fusion"] = "fusion"  # what the decoder predicts (leovr.depth.network)
-    channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
-    blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
     max_frames: int | None = Field(None, ge=1)  # cap on training frames (quick runs)
-    init_checkpoint: str | None = None  # start from these weights (fine-tuning); the network must match
     # the residual networks' classical prior at depth edges: the image's side (as at inference) or the nearest return
     prior_edges: Literal["image", "nearest"] = "image"
-    seed: int = Field(0, ge=0)  # seeds sampling and initialisation
 
 
-class SelfSupConfig(_Model):
+class SelfSupConfig(NetworkSettings, OptimiserSettings):
     """`leovr train --mode selfsup`: cold-start self-supervised training (LeoVR Sec. IV, V-A). No ground
     truth is read: poses, landmarks and refined depth come from the graph on the raw sequences."""
 
-    epochs: int = Field(24, ge=1)  # training epochs
     init_fraction: float = Field(0.75, ge=0, le=1)  # initialisation stage: the first 3/4 of the epochs (18 of 24)
     refresh_every: int = Field(2, ge=1)  # refinement stage: poses, masks and supervision renewed every 2 epochs
-    batch_size: int = Field(8, ge=1)  # frames per batch
-    lr: float = Field(1e-4, gt=0)  # learning rate
-    lr_step_epochs: int = Field(6, ge=1)  # learning rate multiplied by lr_gamma every this many epochs
-    lr_gamma: float = Field(0.5, gt=0, le=1)  # ... by this factor
     weight_feature: float = Field(0.4, ge=0)  # lambda_f, eq. 22
     weight_refined: float = Field(0.1, ge=0)  # lambda_r
     weight_smooth: float = Field(0.2, ge=0)  # lambda_s
@@ -123,15 +132,6 @@ class SelfSupConfig(_Model):
     train_focal_px: float | None = 260.0
     max_frames: int | None = Field(None, ge=1)  # first frames of each sequence only (None = all)
     loop_closure: bool = True  # pose quality assurance (Sec. IV-B) in every graph pass
-    # LiDAR branch: SLIM partial convolutions | pre-interpolated input
-    lidar_encoder: Literal["partial", "interp"] = "partial"
-    cross_attention: bool = True  # image-LiDAR cross attention at the encoders' deepest stage
-    # a residual over the classical prior: the untrained network returns the prior (leovr.depth.network; decision 0017)
-    output: Literal["absolute", "residual", "fusion"] = "fusion"
-    channels: list[int] = [16, 32, 64, 128, 128]  # encoder channels: stem, then each stage (stride 2 each)
-    blocks: list[int] = [3, 4, 6, 3]  # ResNet blocks per encoder stage
-    init_checkpoint: str | None = None  # start from these weights instead of random ones
-    seed: int = Field(0, ge=0)  # seeds sampling and initialisation
 
     @field_validator("input")
     @classmethod

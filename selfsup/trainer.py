@@ -34,7 +34,7 @@ from leovr.data.run_info import folder_fingerprint
 from leovr.depth.inference import forward_padded, predict
 from leovr.depth.network import DepthGenerator
 from leovr.depth.runtime import InputRecorder, calibrate_generator
-from leovr.depth.train import generator_config, init_from, save_checkpoint
+from leovr.depth.train import generator_config, init_from, optimiser, save_checkpoint
 from leovr.errors import DataError
 from leovr.threads import single_threaded_blas
 from selfsup.blind import BlindSequence
@@ -171,8 +171,7 @@ def fit(
     # the head learns from its NLL only, and the NLL (metres: hundreds at a cold start) never reaches the depth path
     model.sigma_on_detached = True
     params = model.parameters() if cfg.weight_nll > 0 else model.depth_parameters()
-    opt = torch.optim.Adam(params, lr=cfg.lr, betas=(0.9, 0.999))
-    sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
+    opt, sched = optimiser(params, cfg)
     last = out / "checkpoint_last.pt"
     inputs = {str(Path(p).resolve()): folder_fingerprint(Path(p)) for p in sequences}
     start = resumed_epoch(last, model, opt, sched, cfg, inputs) if resume else 0

@@ -7,8 +7,8 @@ import json
 import pytest
 import torch
 
-from leovr.config import TrainConfig
-from leovr.depth.train import train_supervised
+from leovr.config import SelfSupConfig, TrainConfig
+from leovr.depth.train import generator_config, optimiser, train_supervised
 from leovr.errors import DataError
 from leovr.sim.dataset import Recipe, make_dataset
 
@@ -77,3 +77,20 @@ def test_training_prior_takes_the_image_side_of_depth_edges_like_inference(tmp_p
     np.testing.assert_allclose(with_image["prior"][0].numpy(), interpolated_fill(sparse, image=image), rtol=1e-6)
     np.testing.assert_allclose(nearest["prior"][0].numpy(), interpolated_fill(sparse), rtol=1e-6)
     assert (with_image["prior"] != nearest["prior"]).sum() > 100  # the simulated street has depth edges
+
+
+@pytest.mark.parametrize("model", [TrainConfig, SelfSupConfig])
+def test_both_trainers_optimise_and_build_their_network_from_the_same_settings(model):
+    """Supervised and self-supervised training read one optimiser model and one network model: the same YAML keys
+    set the same Adam schedule and the same generator."""
+    cfg = model(lr=1e-3, lr_step_epochs=2, lr_gamma=0.5, channels=[8, 8, 16, 16, 16], blocks=[1, 1, 1, 1])
+    weight = torch.nn.Parameter(torch.zeros(3))
+    opt, sched = optimiser([weight], cfg)
+    rates = []
+    for _ in range(5):
+        rates.append(opt.param_groups[0]["lr"])
+        opt.step()
+        sched.step()
+    assert rates == pytest.approx([1e-3, 1e-3, 5e-4, 5e-4, 2.5e-4])
+    net = generator_config(cfg)
+    assert net.channels == (8, 8, 16, 16, 16) and net.blocks == (1, 1, 1, 1) and net.output == "fusion"

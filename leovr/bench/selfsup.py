@@ -32,7 +32,7 @@ from leovr.depth.dataset import split_entries
 from leovr.depth.inference import forward_padded, load_generator, predict_at_focal
 from leovr.depth.fills import complete_depth
 from leovr.depth.network import CHANNELS, DepthGenerator
-from leovr.depth.train import depth_loss, generator_config
+from leovr.depth.train import depth_loss, generator_config, optimiser
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.paths import kitti_raw_clips, shared_data_dir, shipped_checkpoint
 from leovr.pipeline.completion import prepare_sample
@@ -123,8 +123,7 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
                 )
             )
     model = DepthGenerator(generator_config(cfg))
-    opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr)
-    sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
+    opt, sched = optimiser(model.depth_parameters(), cfg)
     for epoch in tqdm(range(cfg.epochs), desc="supervised reference", unit="epoch", disable=not progress):
         model.train()
         order = torch.randperm(len(samples), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))

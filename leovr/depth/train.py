@@ -11,13 +11,14 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from leovr.config import SelfSupConfig, TrainConfig
+from leovr.config import NetworkSettings, OptimiserSettings, TrainConfig
 from leovr.data.io import atomic_write, check_output_dir
 from leovr.depth.dataset import DENSITY_RATIO, NATIVE_PROB, DepthSamples, split_sequences
 from leovr.depth.layers import gaussian_nll
@@ -27,15 +28,24 @@ from leovr.sim.dataset import default_root
 from leovr.threads import single_threaded_blas
 
 
-def generator_config(cfg: TrainConfig | SelfSupConfig) -> GeneratorConfig:
-    """The network a training config describes (both trainers share these fields)."""
+def generator_config(cfg: NetworkSettings) -> GeneratorConfig:
+    """The network a training config describes."""
     return GeneratorConfig(
         lidar_encoder=cfg.lidar_encoder,
         cross_attention=cfg.cross_attention,
         channels=tuple(cfg.channels),
         blocks=tuple(cfg.blocks),
-        output=getattr(cfg, "output", "absolute"),
+        output=cfg.output,
     )
+
+
+def optimiser(
+    params: Iterable[torch.nn.Parameter], cfg: OptimiserSettings
+) -> tuple[torch.optim.Adam, torch.optim.lr_scheduler.StepLR]:
+    """Adam over `params` at the configured rate, and its schedule: the rate times lr_gamma every lr_step_epochs
+    epochs (`step()` once per epoch)."""
+    opt = torch.optim.Adam(params, lr=cfg.lr, betas=(0.9, 0.999))
+    return opt, torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
 
 
 def run_model(model: DepthGenerator, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -164,8 +174,7 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     if cfg.init_checkpoint and not resume:
         init_from(model, Path(cfg.init_checkpoint))
     total = cfg.epochs + cfg.sigma_epochs
-    opt = torch.optim.Adam(model.depth_parameters(), lr=cfg.lr, betas=(0.9, 0.999))
-    sched = torch.optim.lr_scheduler.StepLR(opt, cfg.lr_step_epochs, cfg.lr_gamma)
+    opt, sched = optimiser(model.depth_parameters(), cfg)
     sigma_opt = torch.optim.Adam(model.sigma_head.parameters(), lr=cfg.lr)
     check_output_dir(out)
     start, best = 0, float("inf")
