@@ -12,8 +12,8 @@ calibration table, measured on the training frames' inputs (leovr.depth.quantize
 runs it as it runs the shipped generator. Several processes started by `torchrun` train one
 model with DistributedDataParallel (gloo, CPU): rank 0 runs the graph passes and writes the files.
 
-One batch's loss is `selfsup.objective`'s, the files kept between epochs `selfsup.train_state`'s and the
-`--rerun` recording `selfsup.train_rerun`'s.
+One batch's loss is `selfsup.objective`'s, the files kept between epochs `leovr.depth.train_state`'s (as for
+supervised training) and the `--rerun` recording `selfsup.train_rerun`'s.
 """
 
 from __future__ import annotations
@@ -34,7 +34,15 @@ from leovr.data.run_info import folder_fingerprint
 from leovr.depth.inference import forward_padded, predict
 from leovr.depth.network import DepthGenerator
 from leovr.depth.runtime import InputRecorder, calibrate_generator
-from leovr.depth.train import generator_config, init_from, optimiser, save_checkpoint
+from leovr.depth.train import init_from, optimiser
+from leovr.depth.train_state import (
+    append_logs,
+    generator_config,
+    resume_from,
+    save_checkpoint,
+    save_generator,
+    save_last,
+)
 from leovr.errors import DataError
 from leovr.threads import single_threaded_blas
 from selfsup.blind import BlindSequence
@@ -43,7 +51,6 @@ from selfsup.distributed import barrier, distributed
 from selfsup.objective import TERMS, batch_terms
 from selfsup.supervision import PosePass, TrainFrame, at_training_size, build_supervision, graph_pass, train_frames
 from selfsup.train_rerun import RerunView
-from selfsup.train_state import append_logs, resumed_epoch, save_epoch
 
 
 def init_epochs(cfg: SelfSupConfig) -> int:
@@ -174,9 +181,9 @@ def fit(
     opt, sched = optimiser(params, cfg)
     last = out / "checkpoint_last.pt"
     inputs = {str(Path(p).resolve()): folder_fingerprint(Path(p)) for p in sequences}
-    start = resumed_epoch(last, model, opt, sched, cfg, inputs) if resume else 0
+    optimisers = {"optimizer": opt, "scheduler": sched}
+    start = resume_from(last, model, optimisers, cfg, inputs)["epoch"] + 1 if resume else 0
     net = torch.nn.parallel.DistributedDataParallel(model, find_unused_parameters=True) if world > 1 else model
-    network = generator_config(cfg).__dict__
 
     def supervise(tag: str) -> SelfSupSamples:
         """Graph passes for this tag (rank 0 runs them; the others wait, then read them), and the targets."""
@@ -185,9 +192,7 @@ def fit(
         if tag != "init":
             checkpoint = folder / "generator.pt"
             if rank == 0 and not checkpoint.is_file():
-                save_checkpoint(
-                    checkpoint, {"model": model.state_dict(), "network": network, "config": cfg.model_dump()}
-                )
+                save_generator(checkpoint, model, cfg)
         if rank != 0:
             barrier(world)
         graphs = [
@@ -246,7 +251,8 @@ def fit(
                 "processes": world,
             }
             append_logs(out, record)
-            save_epoch(out, model, opt, sched, epoch, cfg, inputs)
+            save_last(last, model, optimisers, epoch, cfg, inputs)
+            save_generator(out / "generator.pt", model, cfg, epoch=epoch + 1, mode="selfsup")
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)
         barrier(world)

@@ -17,7 +17,8 @@ from leovr.data import open_sequence
 from leovr.depth.dataset import split_sequences
 from leovr.depth.inference import load_generator
 from leovr.depth.network import DepthGenerator
-from leovr.depth.train import generator_config, train_supervised
+from leovr.depth.train import train_supervised
+from leovr.depth.train_state import generator_config
 from leovr.pipeline.refine import run_refine
 from leovr.sim.dataset import Recipe, make_dataset
 from selfsup.trainer import train_selfsup

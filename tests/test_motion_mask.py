@@ -94,7 +94,7 @@ def test_keep_mask_follows_the_switches():
 
 def test_resume_check_counts_a_missing_setting_as_its_default():
     from leovr.config import SelfSupConfig
-    from selfsup.train_state import config_changes
+    from leovr.depth.train_state import config_changes
 
     saved = SelfSupConfig().model_dump()
     del saved["depth_mask"]  # a run begun before the setting existed

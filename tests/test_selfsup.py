@@ -320,7 +320,7 @@ def test_ddp_two_processes_keep_equal_weights(dynamic_seq, tmp_path):
     for k in a:
         assert torch.equal(a[k], b[k]), k
     from leovr.depth.network import DepthGenerator
-    from leovr.depth.train import generator_config
+    from leovr.depth.train_state import generator_config
 
     torch.manual_seed(0)
     fresh = DepthGenerator(generator_config(SelfSupConfig(**TINY))).state_dict()
@@ -335,7 +335,7 @@ def test_a_cold_start_begins_at_the_classical_prior():
     residual and an even fusion weight), so a cold start begins at the prior's accuracy, not below it."""
     from leovr.depth.inference import forward_padded
     from leovr.depth.network import DepthGenerator, prior_for
-    from leovr.depth.train import generator_config
+    from leovr.depth.train_state import generator_config
 
     torch.manual_seed(0)
     sparse = torch.zeros(1, 1, 48, 64)

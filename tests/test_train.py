@@ -1,4 +1,5 @@
-"""Supervised training: runs, checkpoints every epoch, resumes, then trains the uncertainty head."""
+"""Supervised training: runs, checkpoints every epoch, resumes (with the settings it began with), then trains the
+uncertainty head; both trainers share the optimiser, network and checkpoint files."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ import pytest
 import torch
 
 from leovr.config import SelfSupConfig, TrainConfig
-from leovr.depth.train import generator_config, optimiser, train_supervised
+from leovr.depth.train import optimiser, train_supervised
+from leovr.depth.train_state import generator_config
 from leovr.errors import DataError
 from leovr.sim.dataset import Recipe, make_dataset
 
@@ -40,6 +42,10 @@ def test_train_checkpoints_resume_and_sigma_phase(tmp_path):
     final = torch.load(out / "checkpoint_last.pt", weights_only=False)["model"]
     assert any(not torch.equal(final[k], v) for k, v in head_before.items())  # the sigma head was trained
     assert (out / "best.pt").is_file()
+    assert (out / "log.csv").read_text().splitlines()[0].startswith("epoch,phase,")
+    # the same files and checks as self-supervised training: another learning rate would silently be another run
+    with pytest.raises(DataError, match=r"other settings \(lr\)"):
+        train_supervised(cfg.model_copy(update={"epochs": 3, "lr": 5e-4}), out, resume=True, progress=False)
 
 
 @pytest.mark.slow

@@ -26,13 +26,14 @@ from leovr.bench.common import write_bench
 from leovr.bench.config import BenchSelfSupConfig
 from leovr.config import CompleteConfig, SelfSupConfig
 from leovr.data import open_sequence
-from leovr.data.io import atomic_write, write_text
+from leovr.data.io import write_text
 from leovr.data.sequence import Sequence, SequenceView
 from leovr.depth.dataset import split_entries
 from leovr.depth.inference import forward_padded, load_generator, predict_at_focal
 from leovr.depth.fills import complete_depth
 from leovr.depth.network import CHANNELS, DepthGenerator
-from leovr.depth.train import depth_loss, generator_config, optimiser
+from leovr.depth.train import depth_loss, optimiser
+from leovr.depth.train_state import config_changes, generator_config, save_generator
 from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.paths import kitti_raw_clips, shared_data_dir, shipped_checkpoint
 from leovr.pipeline.completion import prepare_sample
@@ -40,7 +41,6 @@ from leovr.pipeline.refine import run_refine
 from leovr.sim.dataset import RECIPES, Recipe, default_root, make_dataset
 from selfsup.mask_quality import VARIANTS, score_masks
 from selfsup.supervision import train_frames
-from selfsup.train_state import config_changes
 from selfsup.trainer import train_selfsup
 
 SHIPPED_FOCAL_PX = 260.0  # the shipped generator's training focal length (the simulator camera's)
@@ -135,18 +135,7 @@ def train_supervised_reference(cfg: SelfSupConfig, sequences: list[Path], out: P
             loss.backward()
             opt.step()
         sched.step()
-    atomic_write(
-        final,
-        lambda tmp: torch.save(
-            {
-                "model": model.state_dict(),
-                "network": generator_config(cfg).__dict__,
-                "config": cfg.model_dump(),
-                "mode": "supervised",
-            },
-            tmp,
-        ),
-    )
+    save_generator(final, model, cfg, mode="supervised")
     _minutes(out, (time.time() - t0) / 60.0)
     return final
 

@@ -1,14 +1,13 @@
 """Supervised training of the depth generator (LeoVR Sec. V-A): Adam, lr halved every 6 epochs, masked
 L1/L2 on valid ground truth, then the log-uncertainty head alone with the Gaussian NLL (all-day eq. 2).
 
-Every epoch writes `checkpoint_last.pt` atomically (model, optimiser, scheduler, epoch, config) and a
-line of `log.jsonl`; `best.pt` keeps the weights with the lowest validation MAE. `resume=True`
-continues from `checkpoint_last.pt`.
+Every epoch writes `checkpoint_last.pt` atomically and a line of `log.jsonl` / `log.csv`, as self-supervised training
+does (`leovr.depth.train_state`); `best.pt` keeps the weights with the lowest validation MAE. `resume=True` continues
+from `checkpoint_last.pt` with the settings it began with (only the number of epochs may change).
 """
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Iterable
@@ -18,25 +17,15 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from leovr.config import NetworkSettings, OptimiserSettings, TrainConfig
-from leovr.data.io import atomic_write, check_output_dir
+from leovr.config import OptimiserSettings, TrainConfig
+from leovr.data.io import check_output_dir
 from leovr.depth.dataset import DENSITY_RATIO, NATIVE_PROB, DepthSamples, split_sequences
 from leovr.depth.layers import gaussian_nll
-from leovr.depth.network import DepthGenerator, GeneratorConfig
+from leovr.depth.network import DepthGenerator
+from leovr.depth.train_state import append_logs, generator_config, resume_from, save_generator, save_last
 from leovr.errors import DataError
 from leovr.sim.dataset import default_root
 from leovr.threads import single_threaded_blas
-
-
-def generator_config(cfg: NetworkSettings) -> GeneratorConfig:
-    """The network a training config describes."""
-    return GeneratorConfig(
-        lidar_encoder=cfg.lidar_encoder,
-        cross_attention=cfg.cross_attention,
-        channels=tuple(cfg.channels),
-        blocks=tuple(cfg.blocks),
-        output=cfg.output,
-    )
 
 
 def optimiser(
@@ -103,44 +92,6 @@ def init_from(model: DepthGenerator, path: Path) -> None:
         model.load_state_dict(state)
 
 
-def save_checkpoint(path: Path, state: dict) -> None:
-    atomic_write(path, lambda tmp: torch.save(state, tmp))
-
-
-def load_resume(
-    path: Path, model: torch.nn.Module, opt: torch.optim.Optimizer, sched: torch.optim.lr_scheduler.LRScheduler
-) -> dict:
-    """Restore model, optimiser and scheduler from a trainer's `checkpoint_last.pt`; returns the whole
-    state (epoch and whatever else the trainer stored)."""
-    state = read_resume_state(path, ("model", "optimizer", "scheduler", "epoch"))
-    try:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-    except (RuntimeError, ValueError, KeyError) as exc:
-        raise DataError(path, f"does not fit this network or optimiser: {exc}") from exc
-    return state
-
-
-def read_resume_state(path: Path, keys: tuple[str, ...]) -> dict:
-    """A trainer's `checkpoint_last.pt` with the given entries; one clear error when it is missing, truncated
-    (an interrupted copy) or not a leovr checkpoint."""
-    if not path.is_file():
-        raise DataError(path, "nothing to resume from")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # torch raises many types for corrupt files
-        raise DataError(
-            path,
-            f"unreadable checkpoint (truncated, or not written by leovr): "
-            f"{(str(exc).strip().splitlines() or [type(exc).__name__])[0]}",
-        ) from exc
-    missing = [k for k in keys if not isinstance(state, dict) or k not in state]
-    if missing:
-        raise DataError(path, f"not a leovr resume checkpoint (no {', '.join(missing)})")
-    return state
-
-
 @single_threaded_blas
 def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = True) -> dict:
     """Train; returns the last log record."""
@@ -179,9 +130,9 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     check_output_dir(out)
     start, best = 0, float("inf")
     last = out / "checkpoint_last.pt"
+    optimisers = {"optimizer": opt, "scheduler": sched, "sigma_optimizer": sigma_opt}
     if resume:
-        state = load_resume(last, model, opt, sched)
-        sigma_opt.load_state_dict(state["sigma_optimizer"])
+        state = resume_from(last, model, optimisers, cfg, may_change=("epochs", "sigma_epochs"))
         start, best = state["epoch"] + 1, state["best_val_mae_m"]
         gen.set_state(state["generator"])
     record: dict = {}
@@ -229,33 +180,12 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
             "lr": opt.param_groups[0]["lr"],
             "seconds": round(time.time() - t0, 1),
         }
-        with open(out / "log.jsonl", "a") as fh:
-            fh.write(json.dumps(record) + "\n")
+        append_logs(out, record)
         # depth phase: keep the lowest validation MAE; sigma phase: depth is frozen, so every epoch improves best.pt
         save_best = not depth_phase or val_mae < best
         if depth_phase and save_best:
             best = val_mae
-        state = {
-            "model": model.state_dict(),
-            "optimizer": opt.state_dict(),
-            "scheduler": sched.state_dict(),
-            "sigma_optimizer": sigma_opt.state_dict(),
-            "epoch": epoch,
-            "best_val_mae_m": best,
-            "generator": gen.get_state(),
-            "config": cfg.model_dump(),
-            "network": generator_config(cfg).__dict__,
-        }
-        save_checkpoint(last, state)
+        save_last(last, model, optimisers, epoch, cfg, best_val_mae_m=best, generator=gen.get_state())
         if save_best:
-            save_checkpoint(
-                out / "best.pt",
-                {
-                    "model": model.state_dict(),
-                    "config": cfg.model_dump(),
-                    "network": generator_config(cfg).__dict__,
-                    "epoch": epoch + 1,
-                    "val_mae_m": val_mae,
-                },
-            )
+            save_generator(out / "best.pt", model, cfg, epoch=epoch + 1, val_mae_m=val_mae, mode="supervised")
     return record
