@@ -61,6 +61,11 @@ def test_fine_tuning_starts_from_init_checkpoint_and_rejects_other_networks(tmp_
     tuned = torch.load(tmp_path / "b" / "best.pt", weights_only=False)["model"]
     weights = [k for k in base if k.endswith("weight") and "bn" not in k and base[k].dim() == 4]
     assert weights and all(torch.allclose(base[k], tuned[k], atol=1e-6) for k in weights)
+    # resuming reads the run's own checkpoint: the starting weights need not be named again
+    resumed = train_supervised(
+        tuned_cfg.model_copy(update={"init_checkpoint": None, "epochs": 2}), tmp_path / "b", resume=True, progress=False
+    )
+    assert resumed["epoch"] == 2
     other = TrainConfig(channels=[8, 8, 16, 16, 32], init_checkpoint=str(tmp_path / "a" / "best.pt"), **small)
     with pytest.raises(DataError, match="init checkpoint"):
         train_supervised(other, tmp_path / "c", progress=False)

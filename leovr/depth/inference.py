@@ -13,7 +13,7 @@ from leovr.errors import DataError
 
 
 def load_generator(path: str | Path) -> DepthGenerator:
-    """Load weights saved by the trainer (`best.pt` or `checkpoint_last.pt`); clear errors when the
+    """Load weights saved by a trainer (`best.pt`, `generator.pt` or `checkpoint_last.pt`); clear errors when the
     file is missing, is not a leovr checkpoint, or does not match the network it describes."""
     path = Path(path)
     if not path.is_file():

@@ -3,7 +3,7 @@ L1/L2 on valid ground truth, then the log-uncertainty head alone with the Gaussi
 
 Every epoch writes `checkpoint_last.pt` atomically and a line of `log.jsonl` / `log.csv`, as self-supervised training
 does (`leovr.depth.train_state`); `best.pt` keeps the weights with the lowest validation MAE. `resume=True` continues
-from `checkpoint_last.pt` with the settings it began with (only the number of epochs may change).
+from `checkpoint_last.pt` with the settings it began with (only epochs, sigma_epochs and init_checkpoint may change).
 """
 
 from __future__ import annotations
@@ -132,7 +132,9 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     last = out / "checkpoint_last.pt"
     optimisers = {"optimizer": opt, "scheduler": sched, "sigma_optimizer": sigma_opt}
     if resume:
-        state = resume_from(last, model, optimisers, cfg, may_change=("epochs", "sigma_epochs"))
+        # how long to train, and the weights it started from (read again only when not resuming)
+        longer = ("epochs", "sigma_epochs", "init_checkpoint")
+        state = resume_from(last, model, optimisers, cfg, may_change=longer)
         start, best = state["epoch"] + 1, state["best_val_mae_m"]
         gen.set_state(state["generator"])
     record: dict = {}

@@ -18,7 +18,8 @@ from leovr.data.io import atomic_write, write_text
 from leovr.depth.network import DepthGenerator, GeneratorConfig
 from leovr.errors import DataError
 
-# A resume checkpoint's state: the network, each optimiser and schedule by name, the last finished epoch
+# What every resume checkpoint holds (`resume_from` also asks for each optimiser and schedule by its name): the weights,
+# the last finished epoch, the settings and the network
 RESUME_KEYS = ("model", "epoch", "config", "network")
 
 
