@@ -67,7 +67,7 @@ def train(
 
     cfg = override(
         load_config(config).train,
-        dataset=None if dataset is None else str(Path(dataset).resolve()),  # absolute: resumed from elsewhere, the same
+        dataset=None if dataset is None else str(Path(dataset).resolve()),  # absolute: resumable from elsewhere
         epochs=epochs,
         batch_size=batch_size,
         max_frames=max_frames,

@@ -39,7 +39,6 @@ from leovr.depth.train_state import (
     append_logs,
     generator_config,
     resume_from,
-    save_checkpoint,
     save_generator,
     save_last,
 )
@@ -252,12 +251,12 @@ def fit(
             }
             append_logs(out, record)
             save_last(last, model, optimisers, epoch, cfg, inputs)
-            save_generator(out / "generator.pt", model, cfg, epoch=epoch + 1, mode="selfsup")
+            # the last epoch's generator carries its int8 calibration table
+            table = int8_table(model, [f for fs in frames for f in fs]) if epoch + 1 == cfg.epochs else {}
+            save_generator(out / "generator.pt", model, cfg, epoch=epoch + 1, mode="selfsup", **table)
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)
         barrier(world)
-    if rank == 0 and record:
-        calibrate_int8(out / "generator.pt", model, [f for fs in frames for f in fs])
     return record, model
 
 
@@ -265,15 +264,15 @@ CALIBRATION_FRAMES = 32  # training frames (spread over the sequences) the int8 
 
 
 @torch.no_grad()
-def calibrate_int8(path: Path, model: DepthGenerator, frames: list[TrainFrame]) -> None:
-    """Store the int8 calibration table of `model` in the checkpoint at `path`, measured on the network inputs of
-    up to CALIBRATION_FRAMES training frames as inference builds them (leovr.depth.quantize)."""
+def int8_table(model: DepthGenerator, frames: list[TrainFrame]) -> dict:
+    """The checkpoint entry `int8_ranges` of `model` (none for a network without a prior, or without frames),
+    measured on the network inputs of up to CALIBRATION_FRAMES training frames as inference builds them
+    (leovr.depth.quantize)."""
     if not model.uses_prior or not frames:
-        return
+        return {}
     recorder = InputRecorder(model)
     for f in frames[:: max(1, -(-len(frames) // CALIBRATION_FRAMES))]:
         predict(recorder, f.image, f.sparse)
-    state = torch.load(path, map_location="cpu", weights_only=False)
-    state["int8_ranges"] = calibrate_generator(model, recorder.feeds)
-    save_checkpoint(path, state)
+    ranges = calibrate_generator(model, recorder.feeds)
     model.train()
+    return {"int8_ranges": ranges}

@@ -132,7 +132,7 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
     last = out / "checkpoint_last.pt"
     optimisers = {"optimizer": opt, "scheduler": sched, "sigma_optimizer": sigma_opt}
     if resume:
-        # how long to train, and the weights it started from (read again only when not resuming)
+        # how long to train, and the weights it started from (read only at the start)
         longer = ("epochs", "sigma_epochs", "init_checkpoint")
         state = resume_from(last, model, optimisers, cfg, may_change=longer)
         start, best = state["epoch"] + 1, state["best_val_mae_m"]

@@ -110,7 +110,7 @@ def resume_from(
         raise DataError(
             path,
             f"was trained with other settings ({', '.join(changed)}); resume with the same config (only "
-            f"{' and '.join(may_change)} may change) or start a new --out folder",
+            f"{', '.join(may_change)} may change) or start a new --out folder",
         )
     before = state.get("sequences")
     if before is not None and inputs is not None and before != inputs:
