@@ -32,7 +32,7 @@ from leovr.eval.map_metrics import COVER_M, NEAR_M, distances_to_mesh, distances
 from leovr.geometry import back_project, transform_points
 from leovr.pipeline.refine import run_refine
 from leovr.pipeline.refine_input import completion_config, frame_sample
-from leovr.pipeline.refine_outputs import FrameScore
+from leovr.pipeline.refine_metrics import FrameScore
 from leovr.pipeline.tsdf_map import SIGMA_SCALE, TsdfMap, map_depth, peak_memory_mb
 from odometry.loop.validate import umeyama
 

@@ -36,7 +36,7 @@ from leovr.eval.depth_metrics import DepthMetricAccumulator
 from leovr.pipeline.completion import ground_truth_note
 from leovr.pipeline.refine import run_refine
 from leovr.pipeline.refine_input import completion_config, frame_sample
-from leovr.pipeline.refine_outputs import FrameScore
+from leovr.pipeline.refine_metrics import FrameScore
 from leovr.pipeline.refine_input import TRUTH_DESKEW_NOTE
 
 # generator: the shipped generator as it ran in refine (with earlier scans for a cone LiDAR, Mid-40-like);

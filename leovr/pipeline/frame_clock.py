@@ -1,6 +1,6 @@
 """A frame's turn in a frame-by-frame run on two clocks: the run's wall clock (from the end of the previous frame's
 turn, so work that overlaps in other threads is counted once) and the process's CPU clock (every thread, user +
-system), with spans that are not the frame's own work (scoring) left out of both."""
+system)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from typing import Iterator
 
 
 class FrameClock:
-    """`stage` times one stage of the frame (wall, ms); `excluded` leaves a span out of the turn; `turn` closes
-    the frame's turn: its wall and CPU milliseconds, and the next turn starts."""
+    """`stage` times one stage of the frame (wall, ms); `turn` closes the frame's turn: its wall and CPU
+    milliseconds, and the next turn starts."""
 
     def __init__(self) -> None:
         self.restart()
@@ -19,7 +19,6 @@ class FrameClock:
     def restart(self) -> None:
         """The next turn starts now."""
         self.wall0, self.cpu0 = time.perf_counter(), time.process_time()
-        self.skip_wall = self.skip_cpu = 0.0
 
     @contextmanager
     def stage(self, times: list[float]) -> Iterator[None]:
@@ -28,17 +27,9 @@ class FrameClock:
         yield
         times.append(1000.0 * (time.perf_counter() - t))
 
-    @contextmanager
-    def excluded(self) -> Iterator[None]:
-        """A span that is not the frame's own work, left out of its turn."""
-        t, c = time.perf_counter(), time.process_time()
-        yield
-        self.skip_wall += time.perf_counter() - t
-        self.skip_cpu += time.process_time() - c
-
     def turn(self) -> tuple[float, float]:
-        """The frame's wall and CPU milliseconds since the turn started, excluded spans left out; restarts."""
-        wall = 1000.0 * (time.perf_counter() - self.wall0 - self.skip_wall)
-        cpu = 1000.0 * (time.process_time() - self.cpu0 - self.skip_cpu)
+        """The frame's wall and CPU milliseconds since the turn started; restarts."""
+        wall = 1000.0 * (time.perf_counter() - self.wall0)
+        cpu = 1000.0 * (time.process_time() - self.cpu0)
         self.restart()
         return wall, cpu

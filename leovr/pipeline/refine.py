@@ -1,28 +1,28 @@
 """`leovr refine`: generator depth per frame, the visual-LiDAR front end and the sliding-window graph,
-frame by frame as a live system would see them; refined depth, poses, metrics and timing written out.
+frame by frame as a live system would see them; refined depth, poses and timing written out, then scored.
 
-Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 256, the KITTI
-depth-completion convention, recorded in `run.json`), `depth_generator/` (the generator alone),
-`depth_ipbasic/` (IP-Basic on the same input), `sigma/` (the generator's predicted uncertainty of the refined depth,
-one standard deviation, uint16 metres x 256), `poses_kitti.txt`, `poses_tum.txt`, `poses_kiss_icp_kitti.txt` (KISS-ICP
-alone on the same input, with
-ground-truth poses or `--compare`; `poses_kiss_icp_no_deskew_kitti.txt` beside it when the scans carry point times),
-`poses_mono_vo_kitti.txt` (`--compare`), `step_ratio.png` (each trajectory's step lengths over the ground truth's, with
-poses), `metrics.json` (when the sequence has ground
-truth depth or LiDAR to hold out, and poses; with a cone LiDAR also `nearest_accumulated` / `ipbasic_accumulated`,
-the fills of the same frames' returns placed with KISS-ICP's poses), `timing.json`, `landmarks.npy` (world points),
-`landmarks_frame.npy` (the frame that last observed each), `landmarks_lidar.npy` (LiDAR-backed or not), and
-`progress.json`, the state `--resume`
-continues from. A resumed run replays its finished frames through the front end and the window without
-rewriting their outputs, so that it ends as the uninterrupted run would: resuming saves the writing and
-scoring of finished frames, not their computation.
+Outputs (all written atomically): `depth/NNNNNN.png` (refined, uint16 metres x 256, the KITTI depth-completion
+convention, recorded in `run.json`), `depth_generator/` (the generator alone), `sigma/` (the generator's predicted
+uncertainty of the refined depth, one standard deviation, uint16 metres x 256), `poses_kitti.txt`, `poses_tum.txt`,
+`timing.json`, `landmarks.npy` (world points), `landmarks_frame.npy` (the frame that last observed each),
+`landmarks_lidar.npy` (LiDAR-backed or not), and `progress.json`, the state `--resume` continues from. A resumed run
+replays its finished frames through the front end and the window without rewriting their outputs, so that it ends
+as the uninterrupted run would: resuming saves the writing of finished frames, not their computation.
+
+Then the scoring pass: `depth_ipbasic/` (IP-Basic on the same input), `poses_kiss_icp_kitti.txt` (KISS-ICP alone on
+the same input, with ground-truth poses or `--compare`; `poses_kiss_icp_no_deskew_kitti.txt` beside it when the scans
+carry point times), `poses_mono_vo_kitti.txt` (`--compare`), `step_ratio.png` (each trajectory's step lengths over
+the ground truth's, with poses) and `metrics.json` (depth when the sequence has ground truth depth or LiDAR to hold
+out, trajectories with poses; with a cone LiDAR also `nearest_accumulated` / `ipbasic_accumulated`, the fills of the
+same frames' returns placed with KISS-ICP's poses).
 
 The run's stages: what it fixes before the first frame (`refine_setup`), the generator stage (`refine_prepare`:
 the frame's input, deskewed over its sweep by `refine_sweep`, and generator depth, with a cone LiDAR's corner tracks
 of `refine_tracks`; in a second thread one frame ahead, `lookahead`), the front end and the window update
 (`RefineRun.step`), the frames leaving the window (`refine_leaving`: depth PNGs, poses, the photometric step of
-`refine_photometric`), the whole-recording passes (`refine_passes`) and the outputs (`refine_outputs`); what is
-scored beside them (held-out truth, classical fills, pose baselines) is `refine_scoring`'s.
+`refine_photometric`), the whole-recording passes (`refine_passes`) and the outputs (`refine_outputs`). The
+evaluation is a pass over the written outputs once the frames are done (`refine_scoring`: held-out truth, classical
+fills, pose baselines; `refine_metrics`: metrics.json); the frame loop keeps none of its state.
 """
 
 from __future__ import annotations
@@ -44,11 +44,12 @@ from leovr.pipeline.frame_clock import FrameClock
 from leovr.pipeline.frame_writer import FrameWriter
 from leovr.pipeline.lookahead import Lookahead
 from leovr.pipeline.refine_leaving import LeavingFrames
-from leovr.pipeline.refine_outputs import FrameScore, input_label, write_outputs
+from leovr.pipeline.refine_metrics import FrameScore, write_metrics
+from leovr.pipeline.refine_outputs import input_label, write_outputs
 from leovr.pipeline.refine_passes import whole_recording_passes
 from leovr.pipeline.refine_prepare import ConeSteps, PreparedFrame, PrepareStage
 from leovr.pipeline.refine_record import RunRecord
-from leovr.pipeline.refine_scoring import RunScoring
+from leovr.pipeline.refine_scoring import score_run
 from leovr.pipeline.refine_setup import RunSetup
 from leovr.threads import single_threaded_blas, torch_threads
 
@@ -67,32 +68,39 @@ def run_refine(
     score: bool = True,
     collect: dict[int, FrameScore] | None = None,
 ) -> dict:
-    """Refine every selected frame; returns the metrics dictionary (also written to metrics.json).
-    `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences;
+    """Refine every selected frame, then score what the run wrote; returns the metrics dictionary (also written to
+    metrics.json). `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences;
     `collect` receives each frame's FrameScore (benchmarks that score subsets of frames).
     `score=False` skips everything that reads ground truth (the self-supervised trainer's pose pass)."""
-    setup = RunSetup.of(seq, cfg, out, progress)
-    run = RefineRun(setup, resume, score)
+    s = RunSetup.of(seq, cfg, out, progress)
+    run = RefineRun(s, resume)
     run.run()
-    return conclude(setup, run.record, run.graph, run.scoring, pool, collect)
+    timing = conclude(s, run.record, run.graph)
+    # the evaluation: a pass over what the run wrote
+    scores = score_run(s, run.record.state, several=bool(run.history.frames), score=score)
+    if collect is not None:
+        collect.update(scores.frames)
+    no_returns = len(run.record.empty) == len(s.indices)
+    return write_metrics(
+        seq, cfg, s.ccfg, s.indices, run.record.state, s.out, s.has_lidar, timing, scores, pool, no_returns
+    )
 
 
 class RefineRun:
     """One refine run: the front end, the window graph and what the frames leave behind, frame by frame in
     the main thread, with the next frame's generator stage in a second thread (`run`)."""
 
-    def __init__(self, setup: RunSetup, resume: bool, score: bool) -> None:
+    def __init__(self, setup: RunSetup, resume: bool) -> None:
         self.setup = s = setup
         # what is finished; a resume replays it
         self.record = RunRecord(s.out, s.seq.frame_numbers(), s.indices, resume)
         self.front, self.graph = s.odometry()
-        self.scoring = RunScoring(s.seq, s.cfg, s.ccfg, s.out, score, s.first)  # evaluation beside the outputs
         s.start(resume, self.front.camera_height)
         # a narrow-cone LiDAR's last scans, placed by the graph's poses, join the generator's input (spinning: off)
         frames = s.cfg.accumulation.frames if s.has_lidar else 0
         self.history = ScanHistory(frames, s.first.T_cam_lidar, s.cfg.accumulation.check)
         self.cone = ConeSteps(s.has_lidar)  # whether the `auto` cone-LiDAR steps run; the sensor is judged once
-        self.leaving = LeavingFrames(s, self.record, self.graph, self.scoring)
+        self.leaving = LeavingFrames(s, self.record, self.graph)
         self.clock = FrameClock()
 
     def run(self) -> None:
@@ -120,8 +128,8 @@ class RefineRun:
                 self.record.write(self.writer)
 
     def step(self, ahead: Lookahead[PreparedFrame, Frame], n: int, i: int) -> None:
-        """Frame i (the n-th selected): the front end, the next frame handed to the generator stage, scoring
-        and the classical baselines, the window update and the frames leaving it; its times kept."""
+        """Frame i (the n-th selected): the front end, the next frame handed to the generator stage, the window
+        update and the frames leaving it; its times kept."""
         s, front = self.setup, self.front
         if not ahead.pending:
             ahead.submit(self.stage.prepare, i, front.sweep_velocity if front.prev is not None else None, None)
@@ -151,18 +159,14 @@ class RefineRun:
         if following and not early:
             self.submit_next(ahead, n, fi)
         self.leaving.hold(i, p.depth, p.log_sigma, front.depth_scale)
-        with self.clock.excluded():  # scoring and baselines: not a frame's time
-            self.scoring.frame(i, p.sample, i in self.record.done, s.has_lidar, bool(self.history.frames), self.writer)
         with self.clock.stage(times):
             left = self.graph.add_frame(fi)
         with self.clock.stage(times):  # causal: the newest frame's estimate is its output
             self.leaving.finish([self.graph.current(i)] if s.cfg.causal else left)
-        with self.clock.excluded():
-            self.scoring.image(p.sample.frame.image)
-        # wall: this frame's share of the run's clock (baselines excluded), the generator overlapping the graph;
+        # wall: this frame's share of the run's clock, the generator overlapping the graph;
         # cpu: every thread's CPU time over the same span
         T_icp = front.prev.T_icp if front.prev is not None else None
-        self.record.frame_done(i, front.sources[-1], T_icp, [*times, *self.clock.turn()])
+        self.record.frame_done(i, front.sources[-1], T_icp, [*times, *self.clock.turn()], p.motion)
         self.record.write(self.writer)  # after the frame's record: a causal frame is finished in its own step
 
     def front_end(self, n: int, i: int, p: PreparedFrame) -> FrameInput:
@@ -213,16 +217,9 @@ def judge_sensor(sample: EvalSample, history: ScanHistory, cone: ConeSteps, grap
     graph.set_sensor(spinning)
 
 
-def conclude(
-    setup: RunSetup,
-    record: RunRecord,
-    graph: WindowGraph,
-    scoring: RunScoring,
-    pool: dict[str, DepthMetricAccumulator] | None,
-    collect: dict[int, FrameScore] | None,
-) -> dict:
-    """After the last frame: warnings, the whole-recording passes, the landmarks, the single-frame generator's
-    scores, the pose baselines and the accumulated fills, then the outputs and metrics."""
+def conclude(setup: RunSetup, record: RunRecord, graph: WindowGraph) -> dict:
+    """After the last frame: warnings, the whole-recording passes, the landmarks, the poses and timing.json;
+    returns the timing record."""
     s, state = setup, record.state
     if record.empty:
         warn_empty_input(s.seq, record.empty)
@@ -233,20 +230,4 @@ def conclude(
     atomic_write(s.out / "landmarks.npy", lambda tmp: np.save(tmp, landmarks))
     atomic_write(s.out / "landmarks_frame.npy", lambda tmp: np.save(tmp, seen_by))
     atomic_write(s.out / "landmarks_lidar.npy", lambda tmp: np.save(tmp, graph.lidar_backed()))
-    baselines = scoring.conclude(s.indices, s.has_lidar, s.generator, s.frame_dt, s.progress)
-    return write_outputs(
-        s.seq,
-        s.cfg,
-        s.ccfg,
-        s.indices,
-        state,
-        s.out,
-        s.has_lidar,
-        s.progress,
-        pool,
-        scoring.score,
-        scoring.scored,
-        collect,
-        baselines,
-        no_returns=len(record.empty) == len(s.indices),
-    )
+    return write_outputs(s.seq, s.indices, state, s.out)

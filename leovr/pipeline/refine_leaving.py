@@ -9,7 +9,6 @@ import numpy as np
 
 from leovr.pipeline.refine_photometric import PhotometricStep
 from leovr.pipeline.refine_record import RunRecord
-from leovr.pipeline.refine_scoring import RunScoring
 from leovr.pipeline.refine_setup import RunSetup
 
 if TYPE_CHECKING:
@@ -19,8 +18,8 @@ if TYPE_CHECKING:
 class LeavingFrames:
     """Each frame's generator depth, held from its front end until it leaves the window (`hold`, `finish`)."""
 
-    def __init__(self, setup: RunSetup, record: RunRecord, graph: WindowGraph, scoring: RunScoring) -> None:
-        self.record, self.graph, self.scoring = record, graph, scoring
+    def __init__(self, setup: RunSetup, record: RunRecord, graph: WindowGraph) -> None:
+        self.record, self.graph = record, graph
         # a leaving frame's depth where no return lies
         self.photometric = PhotometricStep(setup.seq, setup.cfg, setup.indices, setup.first.K)
         # frame -> generator depth, its log uncertainty, and the road's scale for it (camera only)
@@ -45,7 +44,6 @@ class LeavingFrames:
             refined = np.where(gen_depth > 0, gen_depth * scale * np.exp(r.log_offset), 0.0)
             if r.index in self.photometric:  # where no return lies, the depth its neighbours' images agree with
                 refined = self.photometric.correct(r.index, r.T_world_cam, refined, poses_of)
-            self.scoring.depth(r.index, gen_depth, refined)
             # the generator's predicted spread (metres), carried to the refined depth (the map's filter)
             sigma = np.exp(log_sigma) * np.where(gen_depth > 0, refined / np.maximum(gen_depth, 1e-6), 0.0)
             maps = {"depth_generator": gen_depth, "depth": refined, "sigma": sigma}

@@ -26,12 +26,13 @@ from leovr.threads import done_future
 class PreparedFrame:
     """What the generator stage hands to the main thread for one frame."""
 
-    sample: EvalSample  # the frame with its cheap input, deskewed; its held-out truth not built yet
+    sample: EvalSample  # the frame with its cheap input, deskewed; no held-out truth (the run's scoring builds it)
     depth: np.ndarray  # the generator's depth, moved towards the motion-stereo corners when they ran
     log_sigma: np.ndarray
     generator_ms: float  # the stage's time: the generator, with the sweep's motion when it is read
     pairs: dict[int, np.ndarray]  # the images' motion to the window's earlier frames (pair factors)
     corners: np.ndarray | None  # motion-stereo depth at image corners (0 elsewhere), when it ran
+    motion: np.ndarray | None  # the camera motion over the sweep the input was deskewed with (None: not deskewed)
     # a causal run's second frame: the first frame's scan deskewed with the first step, KISS-ICP's map to restart from
     first_scan: np.ndarray | None = None
 
@@ -83,25 +84,27 @@ class PrepareStage:
         self.sweep.close()
         self.tracks.close()
 
-    def read_input(self, i: int, motion: np.ndarray | None) -> tuple[Frame, EvalSample, float, np.ndarray | None]:
-        """Frame i as read, its sample (deskewed over the sweep's motion), the seconds the motion took, and in
+    def read_input(
+        self, i: int, motion: np.ndarray | None
+    ) -> tuple[Frame, EvalSample, np.ndarray | None, float, np.ndarray | None]:
+        """Frame i as read, its sample (deskewed over the sweep's motion), that motion, the seconds it took, and in
         a causal run's second frame the first scan deskewed (`SweepDeskew.causal_start`). `motion`: the last step
         (deskew on), else None."""
         frame = self.frames.take(i)
         t_sweep = time.perf_counter()
         motion, first_scan = self.sweep.motion(i, frame, motion)
         sweep_s = time.perf_counter() - t_sweep  # counted with the generator: the same thread's per-frame work
-        # the held-out truth is scoring, not refinement: built in the main thread's scoring step
-        return frame, self.setup.sample(frame, motion), sweep_s, first_scan
+        return frame, self.setup.sample(frame, motion), motion, sweep_s, first_scan
 
     def prepare(self, i: int, motion: np.ndarray | None, earlier: np.ndarray | None) -> PreparedFrame:
         """Frame i's input and generator depth; runs beside the previous frame's front end or graph update.
         `motion`: the last step (deskew on), else None; `earlier`: returns of the frames before, in frame i's
         predicted camera (the generator's input only)."""
-        frame, sample, sweep_s, first_scan = self.read_input(i, motion)
+        frame, sample, motion, sweep_s, first_scan = self.read_input(i, motion)
         t0 = time.perf_counter() - sweep_s
         depth, log_sigma, pairs, corners = self.generate(i, frame, sample, earlier)
-        return PreparedFrame(sample, depth, log_sigma, 1000.0 * (time.perf_counter() - t0), pairs, corners, first_scan)
+        ms = 1000.0 * (time.perf_counter() - t0)
+        return PreparedFrame(sample, depth, log_sigma, ms, pairs, corners, motion, first_scan)
 
     def generate(
         self, i: int, frame: Frame, sample: EvalSample, earlier: np.ndarray | None

@@ -28,15 +28,20 @@ class RunRecord:
         self.unwritten: list[tuple[str, dict[str, np.ndarray]]] = []  # finished frames' depth maps, to write
         self.empty: list[int] = []  # frames whose LiDAR input has no return inside the image
 
-    def frame_done(self, i: int, source: str, T_icp: np.ndarray | None, times: list[float]) -> None:
-        """Frame i's turn: the front end's choice of initial pose, KISS-ICP's pose and the stages' times. A resumed
-        frame's record is completed by its replay."""
+    def frame_done(
+        self, i: int, source: str, T_icp: np.ndarray | None, times: list[float], deskew: np.ndarray | None
+    ) -> None:
+        """Frame i's turn: the front end's choice of initial pose, KISS-ICP's pose, the stages' times and the motion
+        its input was deskewed with (the scoring pass rebuilds that input). A resumed frame's record is completed
+        by its replay."""
         state = self.state
         if i in self.done and i in state.times:
             return
         state.sources[i] = source
         if T_icp is not None:
             state.icp_poses[i] = T_icp.ravel().tolist()
+        if deskew is not None:
+            state.deskew[i] = deskew.ravel().tolist()
         state.times[i] = times
 
     def finished(
