@@ -16,11 +16,12 @@ from leovr.data.records import Frame
 from leovr.data.run_info import png_name, read_run_depth
 from leovr.depth.fills import complete_depth
 from leovr.pipeline.accumulated_baseline import accumulated_fills
-from leovr.pipeline.completion import with_truth
+from leovr.pipeline.completion import EvalSample, with_truth
 from leovr.pipeline.kiss_baseline import kiss_icp_trajectories
 from leovr.pipeline.refine_metrics import FrameScore, RunScores
 from leovr.pipeline.refine_outputs import Progress
 from leovr.pipeline.refine_setup import RunSetup
+from leovr.threads import Worker, torch_threads
 
 RUN_DEPTH = {"generator": "depth_generator", "refined": "depth"}  # method -> the run's PNG folder
 
@@ -33,15 +34,27 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
     s, scores = setup, RunScores()
     textbook = MonoVO(s.first.K) if s.cfg.compare else None  # the `mono_vo` baseline on the same images
     frames = s.indices if score or textbook is not None else []
-    for i in tqdm(frames, desc="score", unit="frame", disable=not s.progress or not frames):
+
+    def read(i: int) -> tuple[Frame, EvalSample | None]:
+        """Frame i and, when scored, its input as the run deskewed it, with its held-out truth."""
         frame = s.seq[i]
-        if textbook is not None:
-            textbook.add(frame.image)
-        if score:
-            scores.gt_poses.append(frame.T_world_cam)
-            fs = score_frame(s, frame, state.deskew_motion(i), several)
-            if fs is not None:
-                scores.frames[i] = fs
+        return frame, with_truth(s.sample(frame, state.deskew_motion(i)), s.ccfg) if score else None
+
+    reader, pending = Worker("score", threaded=torch_threads() > 1), {}  # the next frame read beside this one's score
+    try:
+        for n, i in enumerate(tqdm(frames, desc="score", unit="frame", disable=not s.progress or not frames)):
+            for j in frames[n : n + 2]:
+                pending[j] = pending.get(j) or reader.submit(read, j)
+            frame, sample = pending.pop(i).result()
+            if textbook is not None:
+                textbook.add(frame.image)
+            if sample is not None:
+                scores.gt_poses.append(frame.T_world_cam)
+                fs = score_frame(s, sample, several)
+                if fs is not None:
+                    scores.frames[i] = fs
+    finally:
+        reader.close(cancel=True)
     if textbook is not None:
         scores.baselines["mono_vo"] = np.stack(textbook.poses), "sim3"
         write_kitti_poses(s.out / "poses_mono_vo_kitti.txt", scores.baselines["mono_vo"][0])
@@ -63,11 +76,11 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
     return scores
 
 
-def score_frame(s: RunSetup, frame: Frame, motion: np.ndarray | None, several: bool) -> FrameScore | None:
-    """Frame i's input deskewed with `motion` as the run's was, its IP-Basic fill written, and its score: the
+def score_frame(s: RunSetup, sample: EvalSample, several: bool) -> FrameScore | None:
+    """A frame's score on its input as the run built it (`sample`, with its truth), its IP-Basic fill written: the
     run's depth PNGs, the fills of that input and with `several` the generator on it alone; None without truth."""
+    frame = sample.frame
     i = frame.index
-    sample = with_truth(s.sample(frame, motion), s.ccfg)
     ipbasic = complete_depth(sample.sparse, "ipbasic") if s.has_lidar else None
     if ipbasic is not None:
         write_depth_png(s.out / "depth_ipbasic" / png_name(s.seq.frame_numbers(), i), ipbasic)
