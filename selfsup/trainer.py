@@ -12,25 +12,24 @@ calibration table, measured on the training frames' inputs (leovr.depth.quantize
 runs it as it runs the shipped generator. Several processes started by `torchrun` train one
 model with DistributedDataParallel (gloo, CPU): rank 0 runs the graph passes and writes the files.
 
-One batch's loss is `selfsup.objective`'s, the files kept between epochs `leovr.depth.train_state`'s (as for
-supervised training) and the `--rerun` recording `selfsup.train_rerun`'s.
+One batch's loss is `selfsup.objective`'s; the epoch loop (`leovr.depth.epochs`) and the files kept between epochs
+(`leovr.depth.train_state`) are supervised training's; the `--rerun` recording is `selfsup.train_rerun`'s.
 """
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
-from tqdm import tqdm
 
 from leovr.config import SelfSupConfig
 from leovr.data import open_sequence
 from leovr.data.io import check_output_dir, check_output_file
 from leovr.data.run_info import folder_fingerprint
+from leovr.depth.epochs import Epoch, train_epochs
 from leovr.depth.inference import forward_padded, predict
 from leovr.depth.network import DepthGenerator
 from leovr.depth.runtime import InputRecorder, calibrate_generator
@@ -119,31 +118,14 @@ def epoch_sampler(dataset: SelfSupSamples, cfg: SelfSupConfig, epoch: int, rank:
     return RandomSampler(dataset, generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
 
 
-def train_epoch(
-    net: torch.nn.Module,
-    loader: DataLoader,
-    opt: torch.optim.Optimizer,
-    cfg: SelfSupConfig,
-    refine: bool,
-    desc: str,
-    show: bool,
-) -> dict[str, float]:
-    """One pass over the loader, a step per batch; the mean of each loss term."""
-    net.train()
-    sums, count = dict.fromkeys(TERMS, 0.0), 0
-    bar = tqdm(loader, desc=desc, unit="batch", disable=not show)
-    for b in bar:
-        depth, log_sigma = forward_padded(net, b["image"], b["sparse"])
-        masked = forward_padded(net, b["image"], b["masked_sparse"])[0] if cfg.weight_masked > 0 else None
-        loss, terms, _ = batch_terms(depth, b, cfg, refine, log_sigma, masked)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        for k in TERMS:
-            sums[k] += terms[k]
-        count += 1
-        bar.set_postfix(loss=f"{terms['loss']:.3f}")
-    return {k: sums[k] / max(count, 1) for k in TERMS}
+def batch_loss(
+    net: torch.nn.Module, b: dict, cfg: SelfSupConfig, refine: bool
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Eq. 22 on one batch, with the masked-LiDAR term on the network's depth from the batch's thinner input."""
+    depth, log_sigma = forward_padded(net, b["image"], b["sparse"])
+    masked = forward_padded(net, b["image"], b["masked_sparse"])[0] if cfg.weight_masked > 0 else None
+    loss, terms, _ = batch_terms(depth, b, cfg, refine, log_sigma, masked)
+    return loss, terms
 
 
 def fit(
@@ -212,8 +194,11 @@ def fit(
         return dataset
 
     dataset: SelfSupSamples | None = None
-    tag, record, viewer = None, {}, None
-    for epoch in range(start, cfg.epochs):
+    tag, viewer = None, None
+
+    def begin(epoch: int) -> Epoch:
+        """The epoch's graph pass (renewed when its tag changes) and this process's share of the samples."""
+        nonlocal tag, dataset, viewer
         refine = epoch >= init_epochs(cfg)
         if pass_tag(epoch, cfg) != tag:
             tag = pass_tag(epoch, cfg)
@@ -222,31 +207,27 @@ def fit(
             raise DataError(sequences[0], "no frame has both neighbours: sequences need at least 3 frames")
         if rerun is not None and rank == 0 and viewer is None:
             viewer = RerunView(Path(rerun), cfg, dataset)
+        net.train()
         loader = DataLoader(dataset, cfg.batch_size, sampler=epoch_sampler(dataset, cfg, epoch, rank, world))
-        t0 = time.time()
-        means = train_epoch(
-            net,
-            loader,
-            opt,
-            cfg,
-            refine,
-            f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})",
-            progress and rank == 0,
-        )
+        label = f"epoch {epoch + 1}/{cfg.epochs} ({'refinement' if refine else 'initialisation'})"
+        return Epoch(loader, opt, lambda b: batch_loss(net, b, cfg, refine), label)
+
+    def end(epoch: int, means: dict[str, float], seconds: float) -> dict:
+        """The schedule, then on rank 0 the logs, `checkpoint_last.pt` and `generator.pt`; empty on other ranks."""
+        refine = epoch >= init_epochs(cfg)
         sched.step()
-        if (
-            world > 1
-        ):  # gradients are averaged every step; BatchNorm statistics only at the next forward, so sync them now
+        if world > 1:  # gradients are averaged every step; BatchNorm statistics only at the next forward: sync now
             for buf in model.buffers():
                 dist.broadcast(buf, 0)
+        record: dict = {}
         if rank == 0:
             record = {
                 "epoch": epoch + 1,
                 "stage": "refinement" if refine else "initialisation",
                 "graph_pass": tag,
-                **means,
+                **{k: means.get(k, 0.0) for k in TERMS},
                 "lr": opt.param_groups[0]["lr"],
-                "seconds": round(time.time() - t0, 1),
+                "seconds": round(seconds, 1),
                 "processes": world,
             }
             append_logs(out, record)
@@ -257,7 +238,9 @@ def fit(
             if viewer is not None:
                 viewer.log(epoch + 1, model, dataset, cfg, refine)
         barrier(world)
-    return record, model
+        return record
+
+    return train_epochs(range(start, cfg.epochs), begin, end, progress and rank == 0), model
 
 
 CALIBRATION_FRAMES = 32  # training frames (spread over the sequences) the int8 ranges are measured on

@@ -97,7 +97,7 @@ def test_bench_json_records_the_commit(tmp_path: Path):
 
 def test_a_selfsup_run_of_the_kitti_part_alone_names_no_synthetic_or_traffic_data():
     """`leovr bench selfsup --parts kitti`: the section lists only what ran."""
-    from leovr.bench.report_sections import render_selfsup
+    from leovr.bench.report_selfsup import render_selfsup
 
     entry = {
         "test_frames": [64, 96],

@@ -8,7 +8,8 @@ import json
 
 import torch
 
-from leovr.bench.selfsup import run_selfsup_bench, untrained_generator
+from leovr.bench.selfsup import run_selfsup_bench
+from leovr.bench.selfsup_models import untrained_generator
 from leovr.bench.config import BenchSelfSupConfig
 from leovr.config import SelfSupConfig
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from leovr.bench.selfsup import score
+from leovr.bench.selfsup_models import score
 from leovr.config import SelfSupConfig, TrainConfig
 from leovr.data import open_sequence
 from leovr.depth.dataset import split_sequences

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from leovr.config import SelfSupConfig, TrainConfig
+from leovr.depth.epochs import Epoch, train_epochs
 from leovr.depth.train import optimiser, train_supervised
 from leovr.depth.train_state import generator_config
 from leovr.errors import DataError
@@ -88,6 +89,31 @@ def test_training_prior_takes_the_image_side_of_depth_edges_like_inference(tmp_p
     np.testing.assert_allclose(with_image["prior"][0].numpy(), interpolated_fill(sparse, image=image), rtol=1e-6)
     np.testing.assert_allclose(nearest["prior"][0].numpy(), interpolated_fill(sparse), rtol=1e-6)
     assert (with_image["prior"] != nearest["prior"]).sum() > 100  # the simulated street has depth edges
+
+
+def test_the_epoch_loop_steps_once_per_batch_and_hands_each_epoch_the_means_of_its_terms():
+    """The loop both trainers run: a step of the epoch's optimiser per batch, then `end` with the mean of each term
+    over the epoch's batches; the last epoch's record comes back. Loss (w - x)^2 / 2 under SGD at 0.25: each step
+    moves w a quarter of the way to the batch's x."""
+    w = torch.nn.Parameter(torch.tensor([4.0]))
+    opt = torch.optim.SGD([w], lr=0.25)
+    batches = [{"x": torch.tensor([1.0])}, {"x": torch.tensor([3.0])}]
+
+    def loss(b: dict) -> tuple[torch.Tensor, dict[str, float]]:
+        value = 0.5 * ((w - b["x"]) ** 2).sum()
+        return value, {"loss": value.item(), "w": w.item()}
+
+    seen = []
+
+    def end(epoch: int, means: dict[str, float], seconds: float) -> dict:
+        seen.append((epoch, means))
+        return {"epoch": epoch + 1, **means}
+
+    record = train_epochs(range(1, 3), lambda e: Epoch(batches, opt, loss, f"epoch {e}"), end, show=False)
+    assert [e for e, _ in seen] == [1, 2]
+    assert seen[0][1] == pytest.approx({"loss": (4.5 + 0.03125) / 2, "w": (4.0 + 3.25) / 2})
+    assert record == pytest.approx({"epoch": 3, "loss": (2.392578125 + 0.0645751953125) / 2, "w": 2.9140625})
+    assert w.item() == pytest.approx(2.73046875)
 
 
 @pytest.mark.parametrize("model", [TrainConfig, SelfSupConfig])

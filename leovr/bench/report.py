@@ -17,10 +17,10 @@ from leovr.bench.report_sections import (
     render_loop,
     render_speed,
     render_batch,
-    render_selfsup,
     render_simulate,
     render_map,
 )
+from leovr.bench.report_selfsup import render_selfsup
 from leovr.bench.report_tables import command, duration
 
 BENCHES: dict[str, str] = {

@@ -1,24 +1,24 @@
 """Supervised training of the depth generator (LeoVR Sec. V-A): Adam, lr halved every 6 epochs, masked
 L1/L2 on valid ground truth, then the log-uncertainty head alone with the Gaussian NLL (all-day eq. 2).
 
-Every epoch writes `checkpoint_last.pt` atomically and a line of `log.jsonl` / `log.csv`, as self-supervised training
-does (`leovr.depth.train_state`); `best.pt` keeps the weights with the lowest validation MAE. `resume=True` continues
-from `checkpoint_last.pt` with the settings it began with (only epochs, sigma_epochs and init_checkpoint may change).
+The epochs run in the loop self-supervised training runs too (`leovr.depth.epochs`). Every epoch writes
+`checkpoint_last.pt` atomically and a line of `log.jsonl` / `log.csv` (`leovr.depth.train_state`); `best.pt` keeps
+the weights with the lowest validation MAE. `resume=True` continues from `checkpoint_last.pt` with the settings it
+began with (only epochs, sigma_epochs and init_checkpoint may change).
 """
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader
-from tqdm import tqdm
 
 from leovr.config import OptimiserSettings, TrainConfig
 from leovr.data.io import check_output_dir
+from leovr.depth.epochs import Epoch, train_epochs
 from leovr.depth.dataset import DENSITY_RATIO, NATIVE_PROB, DepthSamples, split_sequences
 from leovr.depth.layers import gaussian_nll
 from leovr.depth.network import DepthGenerator
@@ -137,50 +137,48 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
         state = resume_from(last, model, optimisers, cfg, may_change=longer)
         start, best = state["epoch"] + 1, state["best_val_mae_m"]
         gen.set_state(state["generator"])
-    record: dict = {}
-    for epoch in range(start, total):
+
+    def begin(epoch: int) -> Epoch:
+        """The depth phase trains the depth path; the sigma phase the uncertainty head alone, the depth path
+        frozen (BatchNorm statistics included)."""
         depth_phase = epoch < cfg.epochs
         train_set.epoch = epoch
         model.train()
         for p in model.depth_parameters():
             p.requires_grad_(depth_phase)
-        if not depth_phase:  # frozen depth path: BatchNorm statistics stay fixed too
+        if not depth_phase:
             model.eval()
             model.sigma_head.train()
-        t0, losses = time.time(), []
-        bar = tqdm(
-            train_loader,
-            desc=f"epoch {epoch + 1}/{total} ({'depth' if depth_phase else 'sigma'})",
-            unit="batch",
-            disable=not progress,
-        )
-        for b in bar:
-            if depth_phase:
-                depth, _ = run_model(model, b)
-                loss = depth_loss(depth, b["gt"], cfg.loss)
-                if cfg.smoothness > 0:
-                    loss = loss + cfg.smoothness * edge_aware_smoothness(depth, b["image"])
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-            else:  # one pass; the depth path has requires_grad off, so backward stops at the head
-                depth, log_sigma = run_model(model, b)
-                loss = gaussian_nll(depth.detach(), log_sigma, b["gt"], (b["gt"] > 0).float())
-                sigma_opt.zero_grad()
-                loss.backward()
-                sigma_opt.step()
-            losses.append(loss.item())
-            bar.set_postfix(loss=f"{losses[-1]:.3f}")
+        label = f"epoch {epoch + 1}/{total} ({'depth' if depth_phase else 'sigma'})"
+        step, optimizer = (depth_step, opt) if depth_phase else (sigma_step, sigma_opt)
+        return Epoch(train_loader, optimizer, step, label)
+
+    def depth_step(b: dict) -> tuple[torch.Tensor, dict[str, float]]:
+        depth, _ = run_model(model, b)
+        loss = depth_loss(depth, b["gt"], cfg.loss)
+        if cfg.smoothness > 0:
+            loss = loss + cfg.smoothness * edge_aware_smoothness(depth, b["image"])
+        return loss, {"train_loss": loss.item()}
+
+    def sigma_step(b: dict) -> tuple[torch.Tensor, dict[str, float]]:
+        depth, log_sigma = run_model(model, b)  # the depth path has requires_grad off: backward stops at the head
+        loss = gaussian_nll(depth.detach(), log_sigma, b["gt"], (b["gt"] > 0).float())
+        return loss, {"train_loss": loss.item()}
+
+    def end(epoch: int, means: dict[str, float], seconds: float) -> dict:
+        """The schedule, the validation MAE, the logs, `checkpoint_last.pt` and `best.pt`."""
+        nonlocal best
+        depth_phase = epoch < cfg.epochs
         if depth_phase:
             sched.step()
         val_mae = evaluate(model, val_loader)
         record = {
             "epoch": epoch + 1,
             "phase": "depth" if depth_phase else "sigma",
-            "train_loss": float(np.mean(losses)),
+            "train_loss": means.get("train_loss", float("nan")),
             "val_mae_m": val_mae,
             "lr": opt.param_groups[0]["lr"],
-            "seconds": round(time.time() - t0, 1),
+            "seconds": round(seconds, 1),
         }
         append_logs(out, record)
         # depth phase: keep the lowest validation MAE; sigma phase: depth is frozen, so every epoch improves best.pt
@@ -190,4 +188,6 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
         save_last(last, model, optimisers, epoch, cfg, best_val_mae_m=best, generator=gen.get_state())
         if save_best:
             save_generator(out / "best.pt", model, cfg, epoch=epoch + 1, val_mae_m=val_mae, mode="supervised")
-    return record
+        return record
+
+    return train_epochs(range(start, total), begin, end, progress)
