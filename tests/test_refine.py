@@ -215,17 +215,16 @@ def test_an_interrupted_and_resumed_real_run_equals_an_uninterrupted_one(tmp_pat
 
 
 @pytest.mark.slow
-@needs_shared
+@needs_posed_drive
 def test_a_resumed_cone_run_is_scored_from_its_files_as_the_uninterrupted_one(tmp_path):
     """The scoring pass reads what a run wrote, the input rebuilt with the deskew motion progress.json records:
-    a Mid-40-like run killed after 3 of 7 frames and resumed scores every method as the uninterrupted run (the
-    single-frame generator and the accumulated fills of the finished frames included), and its refined depth's
-    score is that of its PNGs."""
+    on the drive whose scans carry point times, a Mid-40-like run killed after 3 of 7 frames and resumed scores every
+    method as the uninterrupted run (the single-frame generator and the accumulated fills of the finished frames
+    included), and its refined depth's score is that of its PNGs."""
     from leovr.data.run_info import read_run_depth
-    from leovr.paths import kitti_raw_dir
     from leovr.pipeline.refine_metrics import FrameScore
 
-    seq, cfg = open_sequence(kitti_raw_dir()), RefineConfig(input="mid40", end=7)
+    seq, cfg = open_sequence(KITTI_RAW_POSES), RefineConfig(input="mid40", end=7)
     frames: dict = {}
     a = run_refine(seq, cfg, tmp_path / "whole", progress=False, collect=frames)
     with killed_after_saves(3):
@@ -235,8 +234,8 @@ def test_a_resumed_cone_run_is_scored_from_its_files_as_the_uninterrupted_one(tm
     for method in a["depth"]:
         assert b["depth"][method]["n"] == a["depth"][method]["n"], method
         assert b["depth"][method]["mae_m"] == pytest.approx(a["depth"][method]["mae_m"], abs=1e-3), method
-    deskewed = json.loads((tmp_path / "whole" / "progress.json").read_text())["deskew"]  # the first sweep: no step yet
-    assert set(deskewed) == {str(i) for i in range(1, 7)}
+    deskewed = json.loads((tmp_path / "whole" / "progress.json").read_text())["deskew"]
+    assert set(deskewed) == {str(i) for i in range(7)}
     fs: FrameScore = frames[4]
     png = read_run_depth(tmp_path / "whole", "depth", 4)
     assert np.array_equal(fs.pred["refined"], png[fs.pick])

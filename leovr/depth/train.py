@@ -9,6 +9,7 @@ began with (only epochs, sigma_epochs and init_checkpoint may change).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Iterable
 
@@ -171,7 +172,9 @@ def train_supervised(cfg: TrainConfig, out: Path, resume: bool = False, progress
         depth_phase = epoch < cfg.epochs
         if depth_phase:
             sched.step()
+        t0 = time.time()
         val_mae = evaluate(model, val_loader)
+        seconds += time.time() - t0  # the epoch's time with its validation
         record = {
             "epoch": epoch + 1,
             "phase": "depth" if depth_phase else "sigma",

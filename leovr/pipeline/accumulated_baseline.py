@@ -26,7 +26,7 @@ ACCUMULATED = ("nearest_accumulated", "ipbasic_accumulated")
 
 
 class Scores(Protocol):
-    """A frame's depth scores (`refine_outputs.FrameScore`): one more method's depth added."""
+    """A frame's depth scores (`refine_metrics.FrameScore`): one more method's depth added."""
 
     def add(self, method: str, depth: np.ndarray) -> None: ...
 

@@ -71,7 +71,8 @@ def run_refine(
     """Refine every selected frame, then score what the run wrote; returns the metrics dictionary (also written to
     metrics.json). `pool` (method -> accumulator) also receives every scored pixel, to pool metrics over sequences;
     `collect` receives each frame's FrameScore (benchmarks that score subsets of frames).
-    `score=False` skips everything that reads ground truth (the self-supervised trainer's pose pass)."""
+    `score=False` skips the scoring pass but for `--compare`'s textbook VO: no held-out truth, no classical fills
+    (`depth_ipbasic/`), no KISS-ICP unless compared (the self-supervised trainer's pose pass)."""
     s = RunSetup.of(seq, cfg, out, progress)
     run = RefineRun(s, resume)
     run.run()
@@ -166,7 +167,8 @@ class RefineRun:
         # wall: this frame's share of the run's clock, the generator overlapping the graph;
         # cpu: every thread's CPU time over the same span
         T_icp = front.prev.T_icp if front.prev is not None else None
-        self.record.frame_done(i, front.sources[-1], T_icp, [*times, *self.clock.turn()], p.motion)
+        deskewed = p.motion if p.sample.frame.point_times is not None else None
+        self.record.frame_done(i, front.sources[-1], T_icp, [*times, *self.clock.turn()], deskewed)
         self.record.write(self.writer)  # after the frame's record: a causal frame is finished in its own step
 
     def front_end(self, n: int, i: int, p: PreparedFrame) -> FrameInput:

@@ -37,9 +37,8 @@ class Progress:
     times: dict[int, list[float]] = field(default_factory=dict)  # frame -> ms per stage of TIMED
     # frame -> the window's 6 x 6 covariance of the step into it, row by row (odometry.step_covariance)
     step_covariances: dict[int, list[float]] = field(default_factory=dict)
-    deskew: dict[int, list[float]] = field(
-        default_factory=dict
-    )  # frame -> the camera motion its input was deskewed with
+    # frame -> the camera motion its scan was deskewed with, row by row (scans with point times only)
+    deskew: dict[int, list[float]] = field(default_factory=dict)
 
     @classmethod
     def load(cls, path: Path) -> "Progress":

@@ -35,13 +35,13 @@ class RunRecord:
         its input was deskewed with (the scoring pass rebuilds that input). A resumed frame's record is completed
         by its replay."""
         state = self.state
+        if deskew is not None and i not in state.deskew:  # a record that lacks it: the replay's (the same motion)
+            state.deskew[i] = deskew.ravel().tolist()
         if i in self.done and i in state.times:
             return
         state.sources[i] = source
         if T_icp is not None:
             state.icp_poses[i] = T_icp.ravel().tolist()
-        if deskew is not None:
-            state.deskew[i] = deskew.ravel().tolist()
         state.times[i] = times
 
     def finished(

@@ -40,17 +40,19 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
         frame = s.seq[i]
         return frame, with_truth(s.sample(frame, state.deskew_motion(i)), s.ccfg) if score else None
 
+    names = s.seq.frame_numbers()  # the run's PNG names
     reader, pending = Worker("score", threaded=torch_threads() > 1), {}  # the next frame read beside this one's score
     try:
         for n, i in enumerate(tqdm(frames, desc="score", unit="frame", disable=not s.progress or not frames)):
             for j in frames[n : n + 2]:
-                pending[j] = pending.get(j) or reader.submit(read, j)
+                if j not in pending:
+                    pending[j] = reader.submit(read, j)
             frame, sample = pending.pop(i).result()
             if textbook is not None:
                 textbook.add(frame.image)
             if sample is not None:
                 scores.gt_poses.append(frame.T_world_cam)
-                fs = score_frame(s, sample, several)
+                fs = score_frame(s, i, sample, several, names)
                 if fs is not None:
                     scores.frames[i] = fs
     finally:
@@ -76,14 +78,14 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
     return scores
 
 
-def score_frame(s: RunSetup, sample: EvalSample, several: bool) -> FrameScore | None:
-    """A frame's score on its input as the run built it (`sample`, with its truth), its IP-Basic fill written: the
-    run's depth PNGs, the fills of that input and with `several` the generator on it alone; None without truth."""
+def score_frame(s: RunSetup, i: int, sample: EvalSample, several: bool, names: list[int]) -> FrameScore | None:
+    """Frame i's score on its input as the run built it (`sample`, with its truth), its IP-Basic fill written: the
+    run's depth PNGs (named by `names`, the sequence's frame numbers), the fills of that input and with `several`
+    the generator on it alone; None without truth."""
     frame = sample.frame
-    i = frame.index
     ipbasic = complete_depth(sample.sparse, "ipbasic") if s.has_lidar else None
     if ipbasic is not None:
-        write_depth_png(s.out / "depth_ipbasic" / png_name(s.seq.frame_numbers(), i), ipbasic)
+        write_depth_png(s.out / "depth_ipbasic" / png_name(names, i), ipbasic)
     fs = FrameScore.of(sample)
     if fs is None:
         return None
