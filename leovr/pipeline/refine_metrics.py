@@ -165,7 +165,7 @@ def write_metrics(
     }
     gt_poses = scores.gt_poses
     if gt_poses and all(T is not None for T in gt_poses) and len(indices) >= 3:
-        poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
+        poses = state.stacked("poses", indices)
         metrics["trajectory"] = trajectory_record(poses, gt_poses, has_lidar, state, indices, scores.baselines)
         plot_steps(poses, gt_poses, metrics["trajectory"], scores.baselines, out / "step_ratio.png")
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")

@@ -162,7 +162,7 @@ def timing_record(times: dict[int, list[float]], indices: list[int]) -> dict:
 
 def write_outputs(seq: Sequence, indices: list[int], state: Progress, out: Path) -> dict:
     """The poses in KITTI and TUM form and timing.json; returns the timing record (means and spreads, no series)."""
-    poses = np.stack([np.array(state.poses[i]).reshape(4, 4) for i in indices])
+    poses = state.stacked("poses", indices)
     write_kitti_poses(out / "poses_kitti.txt", poses)
     write_tum_poses(out / "poses_tum.txt", seq.timestamps()[indices], poses)
     counts = {s: list(state.sources.values()).count(s) for s in sorted(set(state.sources.values()))}
