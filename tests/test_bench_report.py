@@ -112,3 +112,11 @@ def test_a_selfsup_run_of_the_kitti_part_alone_names_no_synthetic_or_traffic_dat
     assert data == [] and not any("traffic" in line for line in body)
     row = next(line for line in body if line.startswith("| kitti_raw_0013 | vlp16 | 64-95 |"))
     assert "| 1.072 | 1.072 | 1.108 | 0.970 | 1.200 | 0.88x | 1.08x | 1.10x | 4.5 | 9.0 |" in row
+
+
+def test_a_bench_records_its_command_as_a_user_types_it():
+    from leovr.bench.common import command_line
+
+    for prog in ("/x/.venv/bin/leovr", "/tmp/clone/leovr/cli.py"):
+        assert command_line([prog, "bench", "speed", "--out", "s.json"]) == "leovr bench speed --out s.json"
+    assert command_line(["tools/other.py", "--x"]) == "tools/other.py --x"

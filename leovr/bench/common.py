@@ -40,12 +40,19 @@ def git_commit() -> str | None:
         return None
 
 
+def command_line(argv: list[str]) -> str:
+    """The command as a user types it: the CLI named `leovr` however it was started (its entry point, its
+    script, `python -m leovr.cli`)."""
+    cli = bool(argv) and Path(argv[0]).name in ("leovr", "cli.py")
+    return " ".join((["leovr"] if cli else argv[:1]) + argv[1:])
+
+
 def write_bench(out: Path, name: str, body: dict, started: float, argv: list[str] | None = None) -> dict:
     """Wrap results with provenance (command, machine, duration) and write them atomically."""
     doc = {
         "benchmark": name,
         "leovr_version": __version__,
-        "command": " ".join(argv if argv is not None else sys.argv),
+        "command": command_line(argv if argv is not None else sys.argv),
         "machine": {
             "platform": platform.platform(),
             "python": platform.python_version(),
