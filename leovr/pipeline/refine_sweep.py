@@ -1,6 +1,6 @@
-"""The camera's motion over each LiDAR sweep in a refine run, to deskew the sweep: the last step, or the motion read
-from the frame's image and the next one where it overrules the last step (odometry.sweep_motion); before any step,
-the first two scans' own motion. The images' motion is read in its own thread, started as soon as both images are
+"""The camera's motion over each LiDAR sweep in a refine run, to deskew the sweep: the rotation read from the
+frame's image and the next one, along the last step's arc (odometry.sweep_motion), or the last step where the images
+give no motion; before any step, the first two scans' own motion. The images' motion is read in its own thread, started as soon as both images are
 read (`read_ahead`)."""
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ if TYPE_CHECKING:
 
 class SweepDeskew:
     """`motion(i, frame, last_step)`: the motion frame i's sweep is deskewed with. The main thread reads back
-    `start` (the first step's motion) and `motion_of` (a sweep's motion where the images overruled the last
-    step: KISS-ICP's prediction) once the frame is prepared."""
+    `start` (the first step's motion) and `motion_of` (a sweep's motion read from the images: KISS-ICP's
+    prediction) once the frame is prepared."""
 
     def __init__(self, setup: RunSetup, frames: Lookahead) -> None:
         from odometry.sweep_motion import SweepMotion
@@ -56,8 +56,8 @@ class SweepDeskew:
             last = start if start is not None else last
         # camera only: no scan to deskew (a recording's scan is only scored against), so no sweep motion to read
         motion = self.sweep(i, frame, last) if self.runs else None
-        # KISS-ICP's prediction for the next frame: the images' motion only where it overruled the last step
-        # (the start and end of turns); elsewhere KISS-ICP keeps its own constant velocity
+        # KISS-ICP's prediction for the next frame: the sweep's motion where the images gave one (it follows the
+        # start and end of turns, which KISS-ICP's constant velocity misses); elsewhere its own constant velocity
         self.motion_of[i] = motion if motion is not last and last is not None else None
         return motion, first_scan
 
@@ -89,8 +89,8 @@ class SweepDeskew:
         return self.images(i, frame.image, i + 1, nxt.result().image, frame.K)
 
     def sweep(self, i: int, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
-        """The camera motion over frame i's sweep: the last step (`motion`, None before the second frame), or the
-        motion read from this image and the next one (not in a causal run)."""
+        """The camera motion over frame i's sweep: read from this image and the next one along the last step
+        (`motion`, None before the second frame), or that step itself (a causal run; no next image)."""
         ahead = self.ahead.pop(i, None)
         nxt_frame = None if self.setup.cfg.causal else self.next_frame(i, frame)
         if nxt_frame is None:
