@@ -56,8 +56,9 @@ class LidarOdometry:
         is None (the frame has no scan). `times` (one per point, any unit: KISS-ICP normalises them over the
         sweep) are used only with `deskew=True`. `guess`: the camera's motion since the previous scan (pose of
         this camera in that one), KISS-ICP's prediction in place of its constant velocity (which misses the start
-        of a turn by the turn's whole rate, further than its correspondence distance reaches); ignored after a
-        skipped scan."""
+        of a turn by the turn's whole rate, further than its correspondence distance reaches), at the length of
+        KISS-ICP's own last step (along a straight road a scan constrains its step length least, and a
+        registration started from another length keeps part of it); ignored after a skipped scan."""
         self._fit, self._covariance = None, None
         if points is None or len(points) < MIN_SCAN_POINTS:
             self.skipped_last = True
@@ -69,7 +70,11 @@ class LidarOdometry:
         local_map = self.icp.local_map.point_cloud() if self.frames else None  # before this scan joins it
         stamps = np.asarray(times, np.float64) if timed else np.array([])
         if guess is not None and self.frames and not self.skipped_last:  # a guess from the frame KISS-ICP last saw
-            source = self._register_predicted(xyz, stamps, orthonormalized(invert_T(self.T_cl) @ guess @ self.T_cl))
+            delta = orthonormalized(invert_T(self.T_cl) @ guess @ self.T_cl)
+            own, length = float(np.linalg.norm(self.icp.last_delta[:3, 3])), float(np.linalg.norm(delta[:3, 3]))
+            if own > 0 and length > 1e-9:  # the guess's rotation and direction, KISS-ICP's own step length
+                delta[:3, 3] *= own / length
+            source = self._register_predicted(xyz, stamps, delta)
         else:
             _, source = self.icp.register_frame(xyz, stamps)
         self.frames += 1
