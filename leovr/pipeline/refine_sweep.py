@@ -1,7 +1,7 @@
 """The camera's motion over each LiDAR sweep in a refine run, to deskew the sweep: the rotation read from the
 frame's image and the next one, along the last step's arc (odometry.sweep_motion), or the last step where the images
-give no motion; before any step, the first two scans' own motion. The images' motion is read in its own thread, started as soon as both images are
-read (`read_ahead`)."""
+give no motion; before any step, the first two scans' own motion. The images' motion is read in its own thread,
+started as soon as both images are read (`read_ahead`)."""
 
 from __future__ import annotations
 
