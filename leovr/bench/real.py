@@ -10,7 +10,8 @@ with `causal` each input also runs in refine's causal mode (`causal_<input>`: ev
 earlier ones, the accumulated fills too; the run's own held-out pixels). Refinement runs over the whole clip (it
 reads no ground truth); only the scored frames differ. Each clip is reported alone and all clips pooled
 (every scored pixel of every clip), with whether it is development data (under ../shared/data). Runs are
-kept in `<stem>_work/` and resumed when the settings are unchanged.
+kept in `<stem>_work/` and resumed when the settings and the code (the checkout's commit, no uncommitted change)
+are unchanged.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from leovr.bench.common import depth_entry, write_bench
+from leovr.bench.common import depth_entry, git_commit, write_bench
 from leovr.bench.config import BenchRealConfig
 from leovr.config import RefineConfig
 from leovr.data import open_sequence
@@ -101,7 +102,10 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     for clip in clips:
         if not clip.exists():
             raise DataError(clip, "KITTI raw drive not found")
-    settings = {**cfg.model_dump(), "quick": quick, "clips": [str(c) for c in clips]}
+    # a run of other code is not resumed: its finished frames would stand in the results unchanged
+    code = git_commit()
+    code = code if code and not code.endswith("-dirty") else f"uncommitted {time.time()}"
+    settings = {**cfg.model_dump(), "quick": quick, "clips": [str(c) for c in clips], "code": code}
     work = Path(out).with_name(Path(out).stem + "_work")
     prepared_work(work, settings)
     shared = shared_data_dir().resolve()
