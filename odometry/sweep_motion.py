@@ -15,7 +15,9 @@ heading by half the last step's rotation and turned by half the new one; the rot
 matches with that direction held (robust Sampson distance), starting from the essential matrix's; the step
 length, which one image pair cannot give, stays the last step's. Where the last step's direction is itself wrong
 (the first step, from two raw scans) the fitted rotation bends with it, and the essential matrix's own motion,
-which then clearly more matches agree with, takes over (docs/decisions/0018-sweep-motion-on-an-arc.md)."""
+which then clearly more matches agree with, takes over. A cone LiDAR's sweep keeps the last step (or the
+essential matrix's motion where clearly more matches agree with it): on the real drive the arc did not help it
+(docs/decisions/0018-sweep-motion-on-an-arc.md)."""
 
 from __future__ import annotations
 
@@ -70,34 +72,45 @@ def images_motion(a: Features, b: Features, K: np.ndarray) -> ImagesMotion:
     return ImagesMotion(motion if motion is not None and inl.sum() >= 20 else None, uv0, uv1)
 
 
-def sweep_motion(seen: ImagesMotion, K: np.ndarray, velocity: np.ndarray | None) -> np.ndarray | None:
-    """Pose of the camera at the next image in the camera at this one (4 x 4), to deskew this frame's sweep:
-    the images' rotation with the direction of travel on an arc from `velocity` (the last estimated step, same
-    convention) and its length, or the essential matrix's own motion where `ESSENTIAL_MARGIN` times more matches
-    agree with it; the rotation alone when there is no last step or it stands still. Where the
-    images give no motion it returns the `velocity` object itself: callers tell a sweep motion read from the
-    images by identity (KISS-ICP's prediction in `leovr refine`)."""
+def sweep_motion(
+    seen: ImagesMotion, K: np.ndarray, velocity: np.ndarray | None, along_arc: bool = True
+) -> np.ndarray | None:
+    """Pose of the camera at the next image in the camera at this one (4 x 4), to deskew this frame's sweep.
+    `velocity`: the last estimated step (same convention). With `along_arc` (a spinning LiDAR) the images'
+    rotation with the direction of travel on the last step's arc and its length, else (a cone) the last step
+    itself; either way the essential matrix's own motion, at the last step's length, where `ESSENTIAL_MARGIN`
+    times more matches agree with it. The rotation alone when there is no last step or it stands still. Where
+    the images give no motion, or a cone keeps its last step, it returns the `velocity` object itself: callers
+    tell a sweep motion read from the images by identity (KISS-ICP's prediction in `leovr refine`)."""
     if seen.motion is None:
         return velocity
-    out = np.eye(4)
-    out[:3, :3] = seen.motion[:3, :3]
     length = 0.0 if velocity is None else float(np.linalg.norm(velocity[:3, 3]))
     if length < 1e-6:
+        out = np.eye(4)
+        out[:3, :3] = seen.motion[:3, :3]
         return out
-    heading = half_rotation(velocity[:3, :3]).T @ (velocity[:3, 3] / length)
-    R = seen.motion[:3, :3]
-    for _ in range(2):  # the direction turns with half the fitted rotation: fit again with it
-        R = rotation_along(R, half_rotation(R) @ heading, seen.uv0, seen.uv1, K)
-    out[:3, :3] = R
-    out[:3, 3] = length * (half_rotation(R) @ heading)
-    # where the last step's direction is wrong (a first step from two raw scans), holding it bends the fitted
-    # rotation: the essential matrix's own motion takes over where clearly more matches agree with it
+    base = on_arc(seen, K, velocity) if along_arc else velocity
     essential = np.eye(4)
     essential[:3, :3] = seen.motion[:3, :3]
     t = seen.motion[:3, 3]
     essential[:3, 3] = length * (t if t @ velocity[:3, 3] >= 0 else -t)
-    agree = [int(np.sum(sampson_px(T, seen.uv0, seen.uv1, K) < AGREE_PX)) for T in (essential, out)]
-    return essential if agree[0] > ESSENTIAL_MARGIN * agree[1] else out
+    agree = [int(np.sum(sampson_px(T, seen.uv0, seen.uv1, K) < AGREE_PX)) for T in (essential, base)]
+    return essential if agree[0] > ESSENTIAL_MARGIN * agree[1] else base
+
+
+def on_arc(seen: ImagesMotion, K: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """The images' rotation, fitted with the direction of travel held on the arc of the last step `velocity`
+    (heading: its direction turned back by half its rotation; the new direction: the heading turned by half the
+    new rotation), at the last step's length."""
+    length = float(np.linalg.norm(velocity[:3, 3]))
+    heading = half_rotation(velocity[:3, :3]).T @ (velocity[:3, 3] / length)
+    R = seen.motion[:3, :3]
+    for _ in range(2):  # the direction turns with half the fitted rotation: fit again with it
+        R = rotation_along(R, half_rotation(R) @ heading, seen.uv0, seen.uv1, K)
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = length * (half_rotation(R) @ heading)
+    return out
 
 
 def half_rotation(R: np.ndarray) -> np.ndarray:

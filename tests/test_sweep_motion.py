@@ -55,8 +55,10 @@ def test_images_replace_a_last_step_that_missed_the_turns_end(turning):
     assert _deg(truth[:3, :3]) > 10.0
     assert _deg(out[:3, :3].T @ truth[:3, :3]) < 0.2
     assert np.linalg.norm(out[:3, 3] - truth[:3, 3]) < 0.02
-    # no motion read from the images: the last step as it is
+    # a cone keeps a right last step as it is (its sweep motion is not held on the arc)
     seen = images_motion(detect(turning[5].image, 2000), detect(turning[6].image, 2000), turning[5].K)
+    assert sweep_motion(seen, turning[5].K, truth, along_arc=False) is truth
+    # no motion read from the images: the last step as it is
     assert sweep_motion(replace(seen, motion=None), turning[5].K, last) is last
 
 

@@ -37,6 +37,8 @@ class SweepDeskew:
         self.motion_of: dict[int, np.ndarray | None] = {}  # frame -> its sweep's motion (to the next frame)
         self.start: np.ndarray | None = None  # the first step's motion, for the first two sweeps
         self.first: Frame | None = None  # a causal run's first frame, until the second one gives the first step
+        # a spinning LiDAR's sweep motion follows the last step's arc; a cone's keeps the last step (decision 0018)
+        self._spinning: bool | None = None
 
     @property
     def runs(self) -> bool:
@@ -101,7 +103,16 @@ class SweepDeskew:
         seen = (
             ahead.result() if ahead is not None else self._images_motion(i, done_future(frame), done_future(nxt_frame))
         )
-        return sweep_motion(seen, frame.K, motion)
+        return sweep_motion(seen, frame.K, motion, along_arc=self.spinning(frame))
+
+    def spinning(self, frame: Frame) -> bool:
+        """Whether the cheap input comes from a spinning LiDAR (judged once, on the first scan read here)."""
+        if self._spinning is None:
+            from odometry.initial_pose import is_spinning
+
+            kept = self.setup.sample(frame, None).kept_points
+            self._spinning = kept is not None and is_spinning(kept[:, :3])
+        return self._spinning
 
     def start_motion(self, i: int, frame: Frame) -> np.ndarray | None:
         """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
@@ -116,6 +127,10 @@ class SweepDeskew:
         from odometry.initial_pose import first_step
 
         scans = [self.setup.sample(f, None).kept_points for f in (first, second)]
+        if self._spinning is None and scans[0] is not None:
+            from odometry.initial_pose import is_spinning
+
+            self._spinning = is_spinning(scans[0][:, :3])
         return first_step(*scans, first.T_cam_lidar)
 
     def causal_start(self, frame: Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
