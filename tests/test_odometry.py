@@ -470,6 +470,27 @@ def test_kiss_icp_predicted_with_the_images_motion_follows_a_turn_that_constant_
     assert worst_turn_error(predicted=True) < 0.5
 
 
+def test_kiss_icp_takes_the_guess_at_its_own_step_length():
+    """The guess (the sweep's motion read from the images) gives KISS-ICP's prediction its rotation and direction;
+    its length stays KISS-ICP's own last step's (one image pair has none, and a registration started from another
+    length keeps part of it along a straight road): a guess half again too long registers as the true one."""
+    from odometry.initial_pose import LidarOdometry
+
+    scans, T_cl, steps = _turning_drive([0.0, 0.0, 2.0, 4.0, 0.0, 0.0])
+
+    def poses(stretch: float) -> list[np.ndarray]:
+        odo, out = LidarOdometry(T_cl), []
+        for k, scan in enumerate(scans):
+            guess = steps[k - 1].copy() if k else None
+            if k > 1:  # the first step is given as it is (KISS-ICP has no step of its own yet)
+                guess[:3, 3] *= stretch
+            out.append(odo.register(scan, guess=guess))
+        return out
+
+    for a, b in zip(poses(1.0), poses(1.5)):
+        np.testing.assert_allclose(a, b, atol=1e-9)
+
+
 def test_a_predicted_registration_keeps_kiss_icps_own_match_distance():
     """KISS-ICP's adaptive threshold sets the match distance that the registration covariance (what the graph
     weighs KISS-ICP's pose with, calibrated by `icp_cov_inflation`) is computed within. Predicting with the true

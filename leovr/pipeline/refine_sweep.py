@@ -1,6 +1,7 @@
-"""The camera's motion over each LiDAR sweep in a refine run, to deskew the sweep: the rotation read from the
-frame's image and the next one, along the last step's arc (odometry.sweep_motion), or the last step where the images
-give no motion; before any step, the first two scans' own motion. The images' motion is read in its own thread,
+"""The camera's motion over each LiDAR sweep in a refine run, to deskew the sweep, from the frame's image and the
+next one (odometry.sweep_motion): with a spinning LiDAR their rotation along the last step's arc, with a cone the
+last step unless clearly more matches agree with the images' essential matrix; the last step where the images give
+no motion; before any step, the first two scans' own motion. The images' motion is read in its own thread,
 started as soon as both images are read (`read_ahead`)."""
 
 from __future__ import annotations
