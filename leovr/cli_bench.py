@@ -104,7 +104,12 @@ def bench_batch(
 
 @bench_app.command("real")
 def bench_real(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
+    out: Path = typer.Option(
+        ...,
+        "--out",
+        "-o",
+        help="JSON results file (runs kept in <stem>_work/, resumed with the same settings and commit).",
+    ),
     quick: bool = typer.Option(False, help="First 12 frames of each clip."),
     clips: Optional[str] = typer.Option(
         None, help="Comma-separated KITTI raw drives (default: every one under ../shared/data)."
@@ -141,7 +146,12 @@ def bench_map(
 
 @bench_app.command("selfsup")
 def bench_selfsup(
-    out: Path = typer.Option(..., "--out", "-o", help="JSON results file (runs kept in <stem>_work/, resumed)."),
+    out: Path = typer.Option(
+        ...,
+        "--out",
+        "-o",
+        help="JSON results file (runs kept in <stem>_work/, resumed with the same settings and commit).",
+    ),
     quick: bool = typer.Option(False, help="One short sequence per scenario, two epochs."),
     parts: Optional[str] = typer.Option(
         None, help="Comma-separated parts to run: synthetic,traffic,kitti (default: all)."

@@ -124,8 +124,9 @@ class RefineConfig(FrameSelection):
     # live use: each frame's depth and pose from it and earlier frames only; false: final when it leaves the window
     causal: bool = False
     depth_source: Literal["generator", "ipbasic"] = "generator"  # ipbasic: no network (self-supervised cold start)
-    # motion-compensate scans with per-point times by the sweep's motion (odometry.sweep_motion: from the images
-    # where they agree, else the last step; causal: the last step)
+    # motion-compensate scans with per-point times by the sweep's motion (odometry.sweep_motion: the images'
+    # rotation along the last step's arc with a spinning LiDAR, the last step with a cone unless the images clearly
+    # disagree; causal: the last step)
     deskew: bool = True
     # also run the textbook monocular VO (`mono_vo`) and KISS-ICP alone (`kiss_icp`, with LiDAR; always with
     # ground-truth poses)

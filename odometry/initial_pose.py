@@ -72,7 +72,8 @@ class LidarOdometry:
         if guess is not None and self.frames and not self.skipped_last:  # a guess from the frame KISS-ICP last saw
             delta = orthonormalized(invert_T(self.T_cl) @ guess @ self.T_cl)
             own, length = float(np.linalg.norm(self.icp.last_delta[:3, 3])), float(np.linalg.norm(delta[:3, 3]))
-            if own > 0 and length > 1e-9:  # the guess's rotation and direction, KISS-ICP's own step length
+            moves = np.linalg.norm(guess[:3, 3]) > 1e-6  # a rotation only (standing) has no direction to stretch
+            if own > 0 and length > 1e-9 and moves:  # the guess's rotation and direction, KISS-ICP's own step length
                 delta[:3, 3] *= own / length
             source = self._register_predicted(xyz, stamps, delta)
         else:

@@ -7,8 +7,8 @@ the next image is already on disk, so the sweep's rotation can come from the ORB
 and k+1 (ORB survives large rotations where Lucas-Kanade tracks do not).
 
 The essential matrix of those matches gives the rotation, but not the direction of travel: with a narrow
-view and a forward motion a small yaw mimics a sideways step, and on a straight real drive its direction
-came out 10-50 degrees off over dozens of frames while more matches agreed with it than with the true motion.
+view and a forward motion a small yaw mimics a sideways step, and on a straight real drive more matches can
+agree with a sideways direction than with the true one.
 A car does not move sideways: it drives along an arc, and the chord of an arc turning by a rotation R points
 along the heading turned by half of R. So the direction of travel is the last step's, taken back to the
 heading by half the last step's rotation and turned by half the new one; the rotation is fitted to the
@@ -29,12 +29,13 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from odometry.features import Features, detect, match
-from odometry.mono_motion import sampson_px
+from odometry.mono_motion import rotation_parallax, sampson_px
 from odometry.mono_vo import relative_motion
 
 
 AGREE_PX = 1.0  # a match agrees with a motion within this epipolar (Sampson) distance
 ESSENTIAL_MARGIN = 1.5  # how many times more matches the essential matrix's motion needs to take over from the arc's
+MIN_ARC_STEP_M = 0.1  # a last step shorter than this (pulling away from a stop) has no reliable direction to hold
 
 
 @dataclass
@@ -78,23 +79,23 @@ def sweep_motion(
     """Pose of the camera at the next image in the camera at this one (4 x 4), to deskew this frame's sweep.
     `velocity`: the last estimated step (same convention). With `along_arc` (a spinning LiDAR) the images'
     rotation with the direction of travel on the last step's arc and its length, else (a cone) the last step
-    itself; either way the essential matrix's own motion, at the last step's length, where `ESSENTIAL_MARGIN`
-    times more matches agree with it. The rotation alone when there is no last step or it stands still. Where
-    the images give no motion, or a cone keeps its last step, it returns the `velocity` object itself: callers
-    tell a sweep motion read from the images by identity (KISS-ICP's prediction in `leovr refine`)."""
+    itself (so is a step under `MIN_ARC_STEP_M`); either way the essential matrix's own motion, at the last step's
+    length (standing: its rotation alone), where `ESSENTIAL_MARGIN` times more matches agree with it. The rotation
+    alone when there is no last step. Where the images give no motion, or the last step is kept, it returns the
+    `velocity` object itself: callers tell a sweep motion read from the images by identity (KISS-ICP's prediction
+    in `leovr refine`)."""
     if seen.motion is None:
         return velocity
-    length = 0.0 if velocity is None else float(np.linalg.norm(velocity[:3, 3]))
-    if length < 1e-6:
-        out = np.eye(4)
-        out[:3, :3] = seen.motion[:3, :3]
-        return out
-    base = on_arc(seen, K, velocity) if along_arc else velocity
     essential = np.eye(4)
     essential[:3, :3] = seen.motion[:3, :3]
+    if velocity is None:
+        return essential
+    length = float(np.linalg.norm(velocity[:3, 3]))
     t = seen.motion[:3, 3]
     essential[:3, 3] = length * (t if t @ velocity[:3, 3] >= 0 else -t)
-    agree = [int(np.sum(sampson_px(T, seen.uv0, seen.uv1, K) < AGREE_PX)) for T in (essential, base)]
+    # a step too short to have a direction of its own (pulling away) holds no arc
+    base = on_arc(seen, K, velocity) if along_arc and length >= MIN_ARC_STEP_M else velocity
+    agree = [_agree(T, seen.uv0, seen.uv1, K) for T in (essential, base)]
     return essential if agree[0] > ESSENTIAL_MARGIN * agree[1] else base
 
 
@@ -111,6 +112,14 @@ def on_arc(seen: ImagesMotion, K: np.ndarray, velocity: np.ndarray) -> np.ndarra
     out[:3, :3] = R
     out[:3, 3] = length * (half_rotation(R) @ heading)
     return out
+
+
+def _agree(T: np.ndarray, uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray) -> int:
+    """How many matches the motion T explains: epipolar distance under `AGREE_PX`, or, standing (no translation
+    to tell apart), the rotation's own mapping within 3 `AGREE_PX`."""
+    if np.linalg.norm(T[:3, 3]) < 1e-6:
+        return int(np.sum(rotation_parallax(uv0, uv1, T[:3, :3].T, K) < 3 * AGREE_PX))
+    return int(np.sum(sampson_px(T, uv0, uv1, K) < AGREE_PX))
 
 
 def half_rotation(R: np.ndarray) -> np.ndarray:

@@ -58,3 +58,25 @@ def test_bench_real_pools_clips_and_scores_trajectories_where_poses_exist(tmp_pa
     assert (
         set(two["trajectory"]) == {"vlp16", "causal_vlp16"} and two["trajectory"]["causal_vlp16"]["leovr"]["ate_m"] > 0
     )
+
+
+def test_a_bench_work_folder_is_resumed_only_by_the_same_commit(tmp_path, monkeypatch):
+    """A resumed bench run keeps its finished frames as the code that wrote them made them: the work folder is kept
+    for the same settings and commit, and cleared for another commit or a checkout with uncommitted changes."""
+    import leovr.bench.real as real
+
+    work = tmp_path / "real_work"
+    commits = iter(["abc", "abc", "abd", "abd-dirty", "abd-dirty"])
+    monkeypatch.setattr(real, "git_commit", lambda: next(commits))
+
+    def kept_after_prepare() -> bool:
+        real.prepared_work(work, {"window": 4})
+        kept = (work / "finished").exists()
+        (work / "finished").write_text("a run")
+        return kept
+
+    assert not kept_after_prepare()  # a new folder
+    assert kept_after_prepare()  # the same commit: resumed
+    assert not kept_after_prepare()  # another commit: afresh
+    assert not kept_after_prepare()  # uncommitted changes: afresh
+    assert not kept_after_prepare()  # ... every time

@@ -81,10 +81,10 @@ def test_the_direction_of_travel_follows_the_arc_where_the_essential_matrix_trad
         essential_off.append(_angle(seen.motion[:3, 3], truth[:3, 3]))
         direction_off.append(_angle(out[:3, 3], truth[:3, 3]))
         rotation_off.append(_deg(out[:3, :3].T @ truth[:3, :3]))
+        assert abs(np.linalg.norm(out[:3, 3]) - np.linalg.norm(last[:3, 3])) < 1e-9  # the last step's length
     assert sum(a > 10.0 for a in essential_off) >= 5, np.round(essential_off, 1)
     assert max(direction_off) < 1.0, np.round(direction_off, 2)
     assert max(rotation_off) < 0.25, np.round(rotation_off, 2)
-    assert abs(np.linalg.norm(out[:3, 3]) - np.linalg.norm(last[:3, 3])) < 1e-9  # the last step's length
 
 
 def test_sweep_motion_reuses_the_next_images_features(turning, monkeypatch):
@@ -178,3 +178,23 @@ def test_a_spinning_lidars_sweep_is_deskewed_over_kiss_icps_step_length(tmp_path
     ]
     assert len(ratios) >= 30
     assert np.sqrt(np.mean((np.array(ratios) - 1) ** 2)) < 0.04, np.round(ratios, 3)
+
+
+def test_a_sweep_is_judged_spinning_on_its_first_scan_with_returns_enough():
+    """The arc is held for a spinning LiDAR only; a first scan with too few returns to tell leaves the judgement to
+    a later one (the cone's sweep motion until then) rather than settling it as a cone for the whole run."""
+    from types import SimpleNamespace
+
+    from leovr.pipeline.refine_sweep import SweepDeskew
+
+    rng = np.random.default_rng(0)
+    az = rng.uniform(-np.pi, np.pi, 5000)
+    ring = np.c_[20 * np.cos(az), 20 * np.sin(az), np.zeros_like(az)]  # returns all around the sensor
+    scans = iter([None, ring[:10], ring])
+    sweep = SweepDeskew.__new__(SweepDeskew)
+    sweep._spinning = None
+    sweep.setup = SimpleNamespace(sample=lambda frame, motion: SimpleNamespace(kept_points=next(scans)))
+    assert not sweep.spinning(None)  # no scan
+    assert not sweep.spinning(None)  # ten returns
+    assert sweep.spinning(None)  # the whole ring
+    assert sweep.spinning(None)  # judged: not read again (the iterator is spent)

@@ -56,7 +56,11 @@ METHODS = (
 
 
 def prepared_work(work: Path, settings: dict) -> None:
-    """Keep `work` for a resumed run with the same settings; start it afresh otherwise."""
+    """Keep `work` for a resumed run with the same settings and code; start it afresh otherwise. A run of other code
+    is not resumed (its finished frames would stand in the results unchanged): the code is the checkout's commit,
+    and a checkout with uncommitted changes always starts afresh."""
+    code = git_commit()
+    settings = {**settings, "code": code if code and not code.endswith("-dirty") else f"uncommitted {time.time()}"}
     stamp = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
     marker = work / "settings.json"
     if marker.is_file() and json.loads(marker.read_text()).get("hash") != stamp:
@@ -102,10 +106,7 @@ def run_real_bench(out: Path, cfg: BenchRealConfig, quick: bool = False, progres
     for clip in clips:
         if not clip.exists():
             raise DataError(clip, "KITTI raw drive not found")
-    # a run of other code is not resumed: its finished frames would stand in the results unchanged
-    code = git_commit()
-    code = code if code and not code.endswith("-dirty") else f"uncommitted {time.time()}"
-    settings = {**cfg.model_dump(), "quick": quick, "clips": [str(c) for c in clips], "code": code}
+    settings = {**cfg.model_dump(), "quick": quick, "clips": [str(c) for c in clips]}
     work = Path(out).with_name(Path(out).stem + "_work")
     prepared_work(work, settings)
     shared = shared_data_dir().resolve()

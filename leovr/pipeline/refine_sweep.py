@@ -19,6 +19,8 @@ from leovr.threads import Worker, done_future
 if TYPE_CHECKING:
     from odometry.sweep_motion import ImagesMotion
 
+MIN_JUDGED_RETURNS = 100  # a scan judged spinning or not has this many returns (as the front end judges it)
+
 
 class SweepDeskew:
     """`motion(i, frame, last_step)`: the motion frame i's sweep is deskewed with. The main thread reads back
@@ -92,8 +94,9 @@ class SweepDeskew:
         return self.images(i, frame.image, i + 1, nxt.result().image, frame.K)
 
     def sweep(self, i: int, frame: Frame, motion: np.ndarray | None) -> np.ndarray | None:
-        """The camera motion over frame i's sweep: read from this image and the next one along the last step
-        (`motion`, None before the second frame), or that step itself (a causal run; no next image)."""
+        """The camera motion over frame i's sweep from this image and the next one and the last step (`motion`,
+        None before the second frame; `sweep_motion`), or that step itself where there is no next image (a causal
+        run, the next frame not selected or its scan without point times) or the images give no motion."""
         ahead = self.ahead.pop(i, None)
         nxt_frame = None if self.setup.cfg.causal else self.next_frame(i, frame)
         if nxt_frame is None:
@@ -107,13 +110,17 @@ class SweepDeskew:
         return sweep_motion(seen, frame.K, motion, along_arc=self.spinning(frame))
 
     def spinning(self, frame: Frame) -> bool:
-        """Whether the cheap input comes from a spinning LiDAR (judged once, on the first scan read here)."""
+        """Whether the cheap input comes from a spinning LiDAR: judged once, on the first scan with returns enough
+        (until then: not, the cone's sweep motion)."""
         if self._spinning is None:
-            from odometry.initial_pose import is_spinning
+            self._judge(self.setup.sample(frame, None).kept_points)
+        return bool(self._spinning)
 
-            kept = self.setup.sample(frame, None).kept_points
-            self._spinning = kept is not None and is_spinning(kept[:, :3])
-        return self._spinning
+    def _judge(self, kept: np.ndarray | None) -> None:
+        from odometry.initial_pose import is_spinning
+
+        if kept is not None and len(kept) >= MIN_JUDGED_RETURNS:
+            self._spinning = is_spinning(kept[:, :3])
 
     def start_motion(self, i: int, frame: Frame) -> np.ndarray | None:
         """The first step's motion from the first two cheap scans as they are (no step is known yet)."""
@@ -128,10 +135,8 @@ class SweepDeskew:
         from odometry.initial_pose import first_step
 
         scans = [self.setup.sample(f, None).kept_points for f in (first, second)]
-        if self._spinning is None and scans[0] is not None:
-            from odometry.initial_pose import is_spinning
-
-            self._spinning = is_spinning(scans[0][:, :3])
+        if self._spinning is None:
+            self._judge(scans[0])
         return first_step(*scans, first.T_cam_lidar)
 
     def causal_start(self, frame: Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
