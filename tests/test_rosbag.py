@@ -188,8 +188,10 @@ def test_refine_on_a_bag_gives_the_metrics_of_the_same_frames_in_a_folder(tmp_pa
     for name, rel in (("mcap", 1e-4), ("ros1", 1e-4), ("sweep_start", 1e-3)):  # point times moved by < 1 ns
         for key, mae in runs["folder"][0].items():
             assert runs[name][0][key] == pytest.approx(mae, rel=rel), (name, key)
-        # the ATE to 1e-5 m too: the poses pass through a quaternion in a bag (1e-6 m, above), against 5 cm of ATE
-        assert runs[name][1] == pytest.approx(runs["folder"][1], rel=rel, abs=1e-5)
+        # the ATE to 2e-4 m: the poses pass through a quaternion in a bag (1e-6 m, above), and KISS-ICP stops iterating
+        # at a 1e-4 change, so inputs that differ in their last digits can end a registration an iteration apart
+        # (1.0e-4 m measured here, against 5 cm of ATE)
+        assert runs[name][1] == pytest.approx(runs["folder"][1], rel=rel, abs=2e-4)
     assert runs["folder"][0]["refined"] < runs["folder"][0]["nearest"]
 
 
