@@ -145,6 +145,9 @@ def first_step(scan0: np.ndarray | None, scan1: np.ndarray | None, T_cam_lidar: 
     return odo.register(scan1)
 
 
+MIN_JUDGED_RETURNS = 100  # a scan is judged spinning or not on at least this many returns
+
+
 def is_spinning(xyz: np.ndarray, sectors: int = 12) -> bool:
     """Whether a scan comes from a spinning LiDAR: returns in most of the azimuth sectors around the
     sensor (a Mid-40's 38-degree cone fills one or two of twelve; a VLP-16 or HDL-64 sweep nearly all,

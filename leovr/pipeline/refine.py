@@ -206,10 +206,10 @@ class RefineRun:
 def judge_sensor(sample: EvalSample, history: ScanHistory, cone: ConeSteps, graph: WindowGraph) -> None:
     """Judged on the first scan with returns: a spinning sensor keeps its own scan, and with
     `depth_factors: auto` the graph leaves the depth to the generator, its window smoothed incrementally."""
-    from odometry.initial_pose import is_spinning
+    from odometry.initial_pose import MIN_JUDGED_RETURNS, is_spinning
 
     kept = sample.kept_points
-    if history.sensor_known or kept is None or len(kept) < 100:
+    if history.sensor_known or kept is None or len(kept) < MIN_JUDGED_RETURNS:
         return
     history.sensor_known = True
     spinning = is_spinning(kept[:, :3])

@@ -19,8 +19,6 @@ from leovr.threads import Worker, done_future
 if TYPE_CHECKING:
     from odometry.sweep_motion import ImagesMotion
 
-MIN_JUDGED_RETURNS = 100  # a scan judged spinning or not has this many returns (as the front end judges it)
-
 
 class SweepDeskew:
     """`motion(i, frame, last_step)`: the motion frame i's sweep is deskewed with. The main thread reads back
@@ -117,7 +115,7 @@ class SweepDeskew:
         return bool(self._spinning)
 
     def _judge(self, kept: np.ndarray | None) -> None:
-        from odometry.initial_pose import is_spinning
+        from odometry.initial_pose import MIN_JUDGED_RETURNS, is_spinning
 
         if kept is not None and len(kept) >= MIN_JUDGED_RETURNS:
             self._spinning = is_spinning(kept[:, :3])
