@@ -640,8 +640,10 @@ def test_the_real_drives_own_scan_runs_past_the_window_iSAM2_once_found_indeterm
 def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkeypatch):
     """The metric scale comes from measurements that hold over a drive (the LiDAR's returns, KISS-ICP), not
     from the generator's learned depth: with its depth scaled by 0.9 and 1.1, the Mid-40-like run's median step
-    over the real drive's first 24 frames moves by under 1 % (measured 0.15 and 0.28 %; with landmarks seeded from
-    the generator's depth held at 0.3 of their depth and no KISS-ICP motion in a cone's graph, 1-5 % over the drive)."""
+    over the whole real drive moves by under 1 % (measured 0.08 and 0.24 %; with landmarks seeded from the
+    generator's depth held at 0.3 of their depth and no KISS-ICP motion in a cone's graph, 1-5 %). The whole drive:
+    a step's length wobbles by 4-6 % between two runs, so a median over the first 24 frames alone is 1-2 % either way
+    by chance (0.985 with the depth at 0.9, while the whole drive's is 1.001)."""
     from leovr.pipeline import refine_setup as refine_module
 
     method = refine_module.generator_method
@@ -654,7 +656,7 @@ def test_a_cone_lidars_poses_do_not_follow_the_generators_scale(tmp_path, monkey
             return lambda sample: (lambda d, s: (d * scale, s + np.log(scale)))(*run(sample))
 
         monkeypatch.setattr(refine_module, "generator_method", scaled)
-        run_refine(seq, RefineConfig(input="mid40", end=24), tmp_path / str(scale), progress=False, score=False)
+        run_refine(seq, RefineConfig(input="mid40"), tmp_path / str(scale), progress=False, score=False)
         xyz = np.loadtxt(tmp_path / str(scale) / "poses_kitti.txt").reshape(-1, 3, 4)[:, :, 3]
         steps[scale] = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     for scale in (0.9, 1.1):
