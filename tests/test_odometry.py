@@ -476,14 +476,12 @@ def test_a_cone_lidars_kiss_icp_follows_a_turn_only_when_predicted_with_the_imag
     holds too little of the street to pull it round), predicted with the camera's motion it follows the turn. In a run
     the window's gate then left almost every motion of the lost registration out."""
     from leovr.geometry import invert_T, rotation_angle_deg
+    from leovr.lidar.cheap_sensor import MID40_FOV_DEG
     from odometry.initial_pose import LidarOdometry
 
     scans, T_cl, steps = _turning_drive([0.0] * 5 + [8.0] * 3)
-    cone = []
-    for p in scans:
-        azimuth = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
-        elevation = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-        cone.append(p[(p[:, 0] > 0) & (np.abs(azimuth) < 19.2) & (np.abs(elevation) < 19.2)])
+    inside = np.cos(np.radians(MID40_FOV_DEG) / 2)  # the cone around the LiDAR's x axis
+    cone = [p[p[:, 0] >= inside * np.linalg.norm(p, axis=1)] for p in scans]
 
     def turn_errors(predicted: bool) -> list[float]:
         odo, poses = LidarOdometry(T_cl), []

@@ -176,8 +176,8 @@ class RefineRun:
         corners; its image kept for the photometric step when that runs."""
         s, sample = self.setup, p.sample
         prev_i = s.indices[n - 1] if n else None
-        # the previous sweep's motion, read from its images: KISS-ICP's prediction of this frame (every LiDAR: a
-        # cone's registration at speed, left to its constant velocity, was lost from the first turn)
+        # the previous sweep's motion, read from its images: KISS-ICP's prediction of this frame (every LiDAR: left
+        # to its constant velocity, a cone's registration at speed loses the first turn and stays lost)
         guess = self.stage.sweep.motion_of.pop(prev_i, None)
         if p.first_scan is not None and self.front.icp is not None:
             self.front.icp.restart(p.first_scan)
