@@ -84,7 +84,7 @@ def complete(
     method: Optional[str] = typer.Option(None, help="nearest | ipbasic | generator"),
     checkpoint: Optional[Path] = typer.Option(None, help="Generator weights (default: the shipped checkpoint)."),
     input: Optional[str] = typer.Option(None, "--input", help="Cheap input: vlp16 | mid40 | ratio:R | full"),
-    seed: Optional[int] = typer.Option(None, help="Seed for the ratio input."),
+    seed: Optional[int] = typer.Option(None, help="Seed of the ratio input (the config's top-level seed)."),
     start: Optional[int] = typer.Option(None, help="First frame."),
     end: Optional[int] = typer.Option(None, help="Stop before this frame."),
     step: Optional[int] = typer.Option(None, help="Frame step."),
@@ -96,10 +96,9 @@ def complete(
     from leovr.pipeline.completion import run_completion
 
     cfg = override(
-        load_config(config).complete,
+        override(load_config(config), seed=seed).complete,
         method=method,
         input=input,
-        seed=seed,
         start=start,
         end=end,
         step=step,
@@ -152,7 +151,7 @@ def simulate(
     scenario: Optional[str] = typer.Option(None, help="city_loop | straight | dynamic | traffic"),
     lidar: Optional[str] = typer.Option(None, help="vlp16 | hdl64 | mid40"),
     frames: Optional[int] = typer.Option(None, help="Number of frames."),
-    seed: Optional[int] = typer.Option(None, help="World and noise seed."),
+    seed: Optional[int] = typer.Option(None, help="World and noise seed (the config's top-level seed)."),
     light: Optional[str] = typer.Option(None, help="day | dusk | night"),
     speed_kmh: Optional[float] = typer.Option(None, "--speed-kmh", help="Ego speed."),
     preview: bool = typer.Option(False, help="Also write preview.png (image, depth, LiDAR overlay)."),
@@ -164,11 +163,10 @@ def simulate(
 
     check_output_dir(out)
     cfg = override(
-        load_config(config).simulate,
+        override(load_config(config), seed=seed).simulate,
         scenario=scenario,
         lidar=lidar,
         frames=frames,
-        seed=seed,
         light=light,
         speed_kmh=speed_kmh,
     )

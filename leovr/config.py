@@ -6,9 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator, model_serializer, model_validator
 
-from leovr.config_base import FrameSelection, GeneratorRuntime, _Model  # noqa: F401  (re-exported)
+from leovr.config_base import FrameSelection, GeneratorRuntime, _Model, top_level_seed  # noqa: F401  (re-exported)
 from leovr.errors import ConfigError
 from leovr.lidar.cheap_sensor import parse_input
 from leovr.refine_config import (  # noqa: F401  (re-exported: leovr.config names every model)
@@ -40,7 +40,7 @@ class SimulateConfig(_Model):
     scenario: Scenario = "city_loop"  # the procedural world's route and traffic
     lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"  # simulated LiDAR
     frames: int = Field(20, ge=1)  # frames rendered
-    seed: int = Field(0, ge=0)  # seeds the world and the drive
+    seed: int = top_level_seed()  # the world and the drive
     light: Literal["day", "dusk", "night"] = "day"  # lighting of the rendered images
     speed_kmh: float = Field(30.0, ge=0.0)  # driving speed (km/h)
     rate_hz: float = Field(10.0, gt=0.0)  # frame rate (Hz)
@@ -56,20 +56,20 @@ class DemoConfig(_Model):
     frames: int = Field(12, ge=1)  # frames generated and refined
     scenario: Scenario = "city_loop"  # generated sequence's scenario
     lidar: Literal["vlp16", "hdl64", "mid40"] = "mid40"  # generated sequence's LiDAR
-    seed: int = Field(0, ge=0)  # seeds the generated sequence
+    seed: int = top_level_seed()  # the generated sequence
     input: str | None = None  # None: all of the generated scan, or mid40 on a recorded dense scan
 
 
 class OptimiserSettings(_Model):
     """How both trainers optimise (`leovr train --mode supervised | selfsup`): Adam, its learning rate stepped
-    down every few epochs (LeoVR Sec. V-A defaults), and the seed of sampling and initialisation."""
+    down every few epochs (LeoVR Sec. V-A defaults)."""
 
     epochs: int = Field(24, ge=1)  # training epochs
     batch_size: int = Field(8, ge=1)  # frames per batch
     lr: float = Field(1e-4, gt=0)  # learning rate
     lr_step_epochs: int = Field(6, ge=1)  # learning rate multiplied by lr_gamma every this many epochs
     lr_gamma: float = Field(0.5, gt=0, le=1)  # ... by this factor
-    seed: int = Field(0, ge=0)  # seeds sampling and initialisation
+    seed: int = top_level_seed()  # sampling and initialisation
 
 
 class NetworkSettings(_Model):
@@ -171,6 +171,12 @@ class BatchConfig(_Model):
 
 
 class LeovrConfig(_Model):
+    """Every command's settings, a section each, and the one seed they all draw with."""
+
+    # seeds every random draw: the rendered world and its drive (simulate, demo), the cheap input's ratio:R draws
+    # and the graph's samples of returns and pixels (complete, refine), training's sampling and initialisation
+    # (train, selfsup)
+    seed: int = Field(0, ge=0)
     complete: CompleteConfig = CompleteConfig()
     simulate: SimulateConfig = SimulateConfig()
     demo: DemoConfig = DemoConfig()
@@ -179,6 +185,35 @@ class LeovrConfig(_Model):
     selfsup: SelfSupConfig = SelfSupConfig()
     map: MapConfig = MapConfig()
     batch: BatchConfig = BatchConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _seed_once(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            for key, section in data.items():
+                if isinstance(section, dict) and "seed" in section:
+                    raise ValueError(f"{key}.seed: the seed is set once, at the top level (`seed: N`)")
+        return data
+
+    @model_validator(mode="after")
+    def _seed_sections(self) -> LeovrConfig:
+        for key in SEEDED_SECTIONS:
+            section = getattr(self, key)
+            if section.seed != self.seed:
+                object.__setattr__(self, key, section.model_copy(update={"seed": self.seed}))
+        return self
+
+    @model_serializer(mode="wrap")
+    def _without_section_seeds(self, handler: Any) -> dict[str, Any]:
+        # the sections' copies of the seed are the top level's: a dump holds it once, as a config file does
+        data = handler(self)
+        for key in SEEDED_SECTIONS:
+            data[key].pop("seed", None)
+        return data
+
+
+# the sections whose jobs draw at random (each carries the top level's seed)
+SEEDED_SECTIONS = ("complete", "simulate", "demo", "train", "refine", "selfsup")
 
 
 def _describe(exc: ValidationError) -> str:

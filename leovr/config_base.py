@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -15,6 +15,13 @@ GeneratorRuntime = Literal["torch", "onnxruntime", "onnxruntime_int8"]  # leovr.
 class _Model(BaseModel):
     # no NaN or infinity in a setting (the distance bins' open end is the one exception: `bins`)
     model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+
+def top_level_seed() -> Any:
+    """A job's seed field: set once, at the top level of a config file (`LeovrConfig.seed`), which fills every job's;
+    a job carries its copy so that the settings a run saves say everything it drew with. A section may not set its
+    own, and the reference (docs/config.md) lists the top-level one only."""
+    return Field(0, ge=0, json_schema_extra={"top_level": True})
 
 
 class FrameSelection(_Model):
@@ -30,7 +37,7 @@ class FrameSelection(_Model):
     # return
     prior_edges: Literal["image", "nearest"] = "image"
     input: str = "mid40"  # cheap LiDAR input simulated from the sequence's scan (full, vlp16, mid40, ratio:R)
-    seed: int = Field(0, ge=0)  # seeds the simulated input (ratio:R draws)
+    seed: int = top_level_seed()  # the cheap input's ratio:R draws, the graph's samples of returns and pixels
     start: int = Field(0, ge=0)  # first frame (index into the sequence)
     end: int | None = Field(None, ge=1)  # frame index to stop before; None = the last frame
     step: int = Field(1, ge=1)  # every n-th frame

@@ -114,6 +114,11 @@ def _nested(field: Any) -> type[BaseModel] | None:
     return kind if isinstance(kind, type) and issubclass(kind, BaseModel) else None
 
 
+def _from_top_level(field: Any) -> bool:
+    """A section's copy of a setting given once, at the top level (the seed): listed there, not in the section."""
+    return isinstance(field.json_schema_extra, dict) and bool(field.json_schema_extra.get("top_level"))
+
+
 def _anchor(key: str) -> str:
     """The link target GitHub gives a heading: lower case, dots dropped."""
     return key.lower().replace(".", "")
@@ -128,6 +133,8 @@ def _section(key: str, model: type[BaseModel], classes: dict, aliases: dict, lev
     lines += ["| key | type | default | range | what it does |", "|---|---|---|---|---|"]
     nested = []
     for name, field in model.model_fields.items():
+        if _from_top_level(field):
+            continue
         owner = next(c for c in model.__mro__ if name in classes.get(c.__name__, {}))
         annotation, comment = classes[owner.__name__][name]
         sub = _nested(field)
@@ -154,8 +161,18 @@ def _render(root: type[BaseModel], sources: list[str], intro: list[str]) -> str:
         more_classes, more_aliases = _field_sources(text)
         classes |= more_classes
         aliases |= more_aliases
-    sections = list(root.model_fields.items())
+    sections = [(key, field) for key, field in root.model_fields.items() if _nested(field) is not None]
     out = [*intro, "", "Sections: " + " · ".join(f"[{key}](#{key})" for key, _ in sections), ""]
+    top = [(key, field) for key, field in root.model_fields.items() if _nested(field) is None]
+    if top:
+        out += ["## top level", "", "| key | type | default | range | what it does |", "|---|---|---|---|---|"]
+        for name, field in top:
+            annotation, comment = classes[root.__name__][name]
+            out.append(
+                f"| `{name}` | `{_cell(_type(annotation, aliases))}` | `{_cell(_yaml_value(field.default))}` "
+                f"| {_bounds(field)} | {_linked(_cell(comment))} |"
+            )
+        out.append("")
     for key, field in sections:
         out += _section(key, field.annotation, classes, aliases)
     return "\n".join(out).rstrip("\n") + "\n"

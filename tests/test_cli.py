@@ -78,6 +78,19 @@ def test_override_merges_nested_options_and_skips_the_ones_not_given():
         override(base, causal=True, loop={"enabled": True})
 
 
+def test_one_seed_at_the_top_level_seeds_every_section_and_a_sections_own_is_refused(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("seed: 7\nrefine:\n  window: 6\n")
+    cfg = load_config(path)
+    seeded = ("complete", "simulate", "demo", "train", "refine", "selfsup")
+    assert [getattr(cfg, key).seed for key in seeded] == [7] * len(seeded) and cfg.refine.window == 6
+    assert [getattr(override(cfg, seed=3), key).seed for key in seeded] == [3] * len(seeded)  # --seed
+    assert "seed" not in cfg.model_dump()["refine"] and cfg.model_dump()["seed"] == 7  # held once, as in the file
+    path.write_text("seed: 7\ntrain:\n  seed: 2\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml: train\.seed: the seed is set once, at the top level"):
+        load_config(path)
+
+
 def test_refine_flags_set_the_nested_settings(tmp_path, monkeypatch):
     """--loop-closure sets refine.loop.enabled beside the top-level flags, over the config file's values."""
     import leovr.cli as cli
