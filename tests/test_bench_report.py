@@ -117,6 +117,6 @@ def test_a_selfsup_run_of_the_kitti_part_alone_names_no_synthetic_or_traffic_dat
 def test_a_bench_records_its_command_as_a_user_types_it():
     from leovr.bench.common import command_line
 
-    for prog in ("/x/.venv/bin/leovr", "/tmp/clone/leovr/cli.py"):
+    for prog in ("/x/.venv/bin/leovr", "/tmp/clone/leovr/cli.py", "-c"):  # -c: python -c "...main()"
         assert command_line([prog, "bench", "speed", "--out", "s.json"]) == "leovr bench speed --out s.json"
     assert command_line(["tools/other.py", "--x"]) == "tools/other.py --x"

@@ -42,8 +42,8 @@ def git_commit() -> str | None:
 
 def command_line(argv: list[str]) -> str:
     """The command as a user types it: the CLI named `leovr` however it was started (its entry point, its
-    script, `python -m leovr.cli`)."""
-    cli = bool(argv) and Path(argv[0]).name in ("leovr", "cli.py")
+    script, `python -m leovr.cli`, `python -c "from leovr.cli import main; main()"`)."""
+    cli = bool(argv) and (Path(argv[0]).name in ("leovr", "cli.py") or argv[0] == "-c")
     return " ".join((["leovr"] if cli else argv[:1]) + argv[1:])
 
 

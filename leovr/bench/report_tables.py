@@ -40,7 +40,7 @@ def table(head: list[str], rows: list[list[str]]) -> list[str]:
 def command(name: str, cmd: Any) -> str:
     """The bench's command as a user types it: `leovr bench ...` with `--out docs/results/<name>.json`."""
     words = str(cmd).split() if cmd else ["leovr", "bench", name]
-    if Path(words[0]).name == "leovr":
+    if Path(words[0]).name == "leovr" or words[0] == "-c":
         words[0] = "leovr"
     words = [w for w in words if not w.startswith("--out=")]
     if "--out" in words:
