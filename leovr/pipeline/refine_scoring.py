@@ -35,33 +35,43 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
     textbook = MonoVO(s.first.K) if s.cfg.compare else None  # the `mono_vo` baseline on the same images
     frames = s.indices if score or textbook is not None else []
 
-    def read(i: int) -> tuple[Frame, EvalSample | None]:
-        """Frame i and, when scored, its input as the run deskewed it, with its held-out truth."""
+    def read(i: int) -> tuple[Frame, EvalSample | None, np.ndarray | None]:
+        """Frame i and, when scored, its input as the run deskewed it, with its held-out truth, and with `several`
+        the generator's depth on that input alone (the network releases the interpreter: it runs beside the
+        previous frame's score)."""
         frame = s.seq[i]
-        return frame, with_truth(s.sample(frame, state.deskew_motion(i)), s.ccfg) if score else None
+        if not score:
+            return frame, None, None
+        sample = with_truth(s.sample(frame, state.deskew_motion(i)), s.ccfg)
+        return frame, sample, s.generator(sample)[0] if several and sample.gt_kind != "none" else None
 
     names = s.seq.frame_numbers()  # the run's PNG names
-    reader, pending = Worker("score", threaded=torch_threads() > 1), {}  # the next frame read beside this one's score
+    threaded = torch_threads() > 1
+    # KISS-ICP reads the frames on its own, beside the frames' scores; the next frame read beside this one's score
+    beside, reader, pending = Worker("kiss", threaded), Worker("score", threaded), {}
+    icp_runs = beside.submit(kiss_runs, s, score and (several or s.first.T_world_cam is not None))
     try:
         for n, i in enumerate(tqdm(frames, desc="score", unit="frame", disable=not s.progress or not frames)):
             for j in frames[n : n + 2]:
                 if j not in pending:
                     pending[j] = reader.submit(read, j)
-            frame, sample = pending.pop(i).result()
+            frame, sample, single = pending.pop(i).result()
             if textbook is not None:
                 textbook.add(frame.image)
             if sample is not None:
                 scores.gt_poses.append(frame.T_world_cam)
-                fs = score_frame(s, i, sample, several, names)
+                fs = score_frame(s, i, sample, single, names)
                 if fs is not None:
                     scores.frames[i] = fs
+        runs = icp_runs.result()
     finally:
         reader.close(cancel=True)
+        beside.close()
     if textbook is not None:
         scores.baselines["mono_vo"] = np.stack(textbook.poses), "sim3"
         write_kitti_poses(s.out / "poses_mono_vo_kitti.txt", scores.baselines["mono_vo"][0])
     accumulated = several and bool(scores.frames)
-    icp = kiss_baselines(s, scores, accumulated or score and s.first.T_world_cam is not None)
+    icp = kiss_baselines(s, scores, runs)
     if accumulated and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
         accumulated_fills(
             s.seq,
@@ -78,10 +88,12 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
     return scores
 
 
-def score_frame(s: RunSetup, i: int, sample: EvalSample, several: bool, names: list[int]) -> FrameScore | None:
+def score_frame(
+    s: RunSetup, i: int, sample: EvalSample, single: np.ndarray | None, names: list[int]
+) -> FrameScore | None:
     """Frame i's score on its input as the run built it (`sample`, with its truth), its IP-Basic fill written: the
-    run's depth PNGs (named by `names`, the sequence's frame numbers), the fills of that input and with `several`
-    the generator on it alone; None without truth."""
+    run's depth PNGs (named by `names`, the sequence's frame numbers), the fills of that input and `single`, the
+    generator's depth on it alone (where earlier scans joined the run's generator input); None without truth."""
     frame = sample.frame
     ipbasic = complete_depth(sample.sparse, "ipbasic") if s.has_lidar else None
     if ipbasic is not None:
@@ -94,20 +106,24 @@ def score_frame(s: RunSetup, i: int, sample: EvalSample, several: bool, names: l
         fs.add("nearest", complete_depth(sample.sparse, "nearest"))
     for method, folder in RUN_DEPTH.items():
         fs.add(method, read_run_depth(s.out, folder, i, frame.shape))
-    if several:  # the same-run yardstick for what the earlier scans and the graph add
-        fs.add("generator_frame", s.generator(sample)[0])
+    if single is not None:  # the same-run yardstick for what the earlier scans and the graph add
+        fs.add("generator_frame", single)
     return fs
 
 
-def kiss_baselines(s: RunSetup, scores: RunScores, needed: bool) -> np.ndarray | None:
+def kiss_runs(s: RunSetup, needed: bool) -> dict[bool, np.ndarray] | None:
     """KISS-ICP with and without its deskew (without where scans carry point times: the other way to run it) on
-    the run's input, added to the baselines and their pose files written, with a LiDAR when compared or `needed`;
-    returns the deskewed run's poses (None when it did not run)."""
+    the run's input, with a LiDAR when compared or `needed` (deskew setting -> camera poses; None: not run). Its
+    progress is not shown: it runs beside the frames' scores."""
     if not s.has_lidar or not (s.cfg.compare or needed):
         return None
-    runs = kiss_icp_trajectories(
-        s.seq, s.indices, s.ccfg, (True, False) if s.first.point_times is not None else (True,), s.progress
-    )
+    deskews = (True, False) if s.first.point_times is not None else (True,)
+    return kiss_icp_trajectories(s.seq, s.indices, s.ccfg, deskews)
+
+
+def kiss_baselines(s: RunSetup, scores: RunScores, runs: dict[bool, np.ndarray] | None) -> np.ndarray | None:
+    """KISS-ICP's runs (`kiss_runs`) added to the baselines and their pose files written; returns the deskewed
+    run's poses (None when it did not run)."""
     if runs is None:
         return None
     for deskew, name in ((True, "kiss_icp"), (False, "kiss_icp_no_deskew")):
