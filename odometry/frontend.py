@@ -28,6 +28,7 @@ from odometry.initial_pose import (
     reprojection_inliers,
 )
 from odometry.lidar_assoc import associate
+from odometry.motion_gates import turning_as_the_images
 from odometry.mono_motion import MonoMotion, MonoStep, epipolar_agrees, parallax_agrees, sampson_px, triangulate
 from odometry.window_graph import FrameInput, Observation, WindowGraph
 
@@ -165,10 +166,12 @@ class FrontEnd:
         scan: np.ndarray | None,
         graph: WindowGraph,
         icp_guess: np.ndarray | None = None,
+        images_step: np.ndarray | None = None,
     ) -> FrameInput:
         """Build the graph input of a new frame (`depth`: generator depth; `sparse`: the LiDAR input
         as a depth map; `scan`: its points in the LiDAR frame, for KISS-ICP; `icp_guess`: the camera's motion
-        from the previous frame read from the images, KISS-ICP's prediction)."""
+        from the previous frame read from the images, KISS-ICP's prediction; `images_step`: the pair motion from the
+        previous frame, which the initial pose must turn as, where there is one)."""
         cfg = self.cfg
         step = self._mono_step(index, image, depth, log_sigma) if self.mono is not None else None
         if self.depth_scale != 1.0:  # the generator's depth at the road's metric scale
@@ -195,7 +198,7 @@ class FrontEnd:
             if step is not None:  # camera only: the epipolar motion, else PnP if the epipolar test agrees
                 T_init, source, odo_cov = self._camera_only_pose(step, T_prev, obj, img, p.feats.uv[ia], feats.uv[ib])
             else:
-                T_init, source = self._lidar_pose(T_prev, T_icp, obj, img)
+                T_init, source = self._lidar_pose(T_prev, T_icp, obj, img, images_step)
             T_rel = invert_T(T_prev) @ T_init
             triangulated = np.zeros(len(ia), bool)
             if not len(ia):
@@ -277,16 +280,23 @@ class FrontEnd:
         return step
 
     def _lidar_pose(
-        self, T_prev: np.ndarray, T_icp: np.ndarray | None, obj: np.ndarray, img: np.ndarray
+        self,
+        T_prev: np.ndarray,
+        T_icp: np.ndarray | None,
+        obj: np.ndarray,
+        img: np.ndarray,
+        images_step: np.ndarray | None = None,
     ) -> tuple[np.ndarray, str]:
         """Initial pose with LiDAR and its source: KISS-ICP's step or PnP on the previous frame's points, whichever
-        reprojects more matches; the last step again when neither holds (PnP on under 6 inliers, no ICP)."""
+        reprojects more matches among those that turn as the images do (`images_step`, the pair motion from the
+        previous frame); the last step again when neither holds (PnP on under 6 inliers, no ICP)."""
         p, px = self.prev, self.cfg.frontend.pnp_reproj_px
         cands: dict[str, np.ndarray | None] = {}
         if T_icp is not None and p.T_icp is not None:
             cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
         cands["pnp"] = pnp_pose(obj, img, self.K, px)[0]
         cands = self._plausible(cands, T_prev)
+        cands = turning_as_the_images(cands, T_prev, images_step)
         guess = choose_pose(cands, obj, img, self.K, px)
         if guess is None or guess.inliers < 6 and "icp" not in cands:
             return T_prev @ self.velocity, "constant_velocity"

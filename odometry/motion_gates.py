@@ -26,6 +26,28 @@ ICP_DIRECTION_GATE_DEG = 3.0
 ICP_DIRECTION_MIN_M = 1.0
 
 
+# an initial pose candidate (KISS-ICP's step, PnP) whose rotation is this far (deg) from the images' pair motion from
+# the previous frame is passed over (`turning_as_the_images`): from a wrong start the window's robust kernels take the
+# images' tight pair factors for outliers and keep the pose where it started
+# (docs/decisions/0020-initial-pose-turns-as-the-images.md)
+INIT_GATE_DEG = 1.0
+
+
+def turning_as_the_images(
+    cands: dict[str, np.ndarray | None], T_prev: np.ndarray, images_step: np.ndarray | None
+) -> dict[str, np.ndarray | None]:
+    """The candidates (world poses) whose step from `T_prev` turns within INIT_GATE_DEG of `images_step`; all of
+    them when there is no images' step or none does."""
+    if images_step is None:
+        return cands
+    kept = {
+        name: T
+        for name, T in cands.items()
+        if T is not None and rotation_angle_deg(images_step[:3, :3].T @ (invert_T(T_prev) @ T)[:3, :3]) <= INIT_GATE_DEG
+    }
+    return kept or cands
+
+
 def direction_agrees(t_images: np.ndarray, t_icp: np.ndarray) -> bool:
     """Whether two motions' translations point within ICP_DIRECTION_GATE_DEG of each other; true when either is
     shorter than ICP_DIRECTION_MIN_M (a direction read over a short baseline says little)."""

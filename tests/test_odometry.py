@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from leovr.geometry import make_T
+from leovr.geometry import invert_T, make_T
 from odometry.depth_field import CorrectionGrid, bilinear
 from odometry.factors import DepthConsistency, FrameDepth
 from odometry.initial_pose import choose_pose, pnp_pose, registration_covariance
@@ -99,6 +99,41 @@ def test_an_initial_pose_whose_step_jumps_from_the_last_steps_gives_way_to_one_t
     assert front._plausible(both_off, T_prev) == both_off
     front._step_lengths = [0.1, 0.1, 0.12]  # creeping: at least 0.3 m of change is allowed
     assert list(front._plausible({"icp": step(0.35), "pnp": step(0.5)}, T_prev)) == ["icp"]
+
+
+def test_an_initial_pose_that_turns_otherwise_than_the_images_gives_way_to_one_that_turns_as_they_do():
+    """A PnP on biased depths can reproject every match from a pose a degree off in yaw and win over KISS-ICP's
+    step; from there the window's robust kernels take the images' tight pair factors for outliers (the real drive's
+    frames 65-67, Mid-40-like). With the images' pair motion from the previous frame, a candidate turning more than
+    INIT_GATE_DEG away from it is passed over while another turns as the images do; all stand when none does."""
+    from types import SimpleNamespace
+
+    from leovr.config import RefineConfig
+    from odometry.frontend import FrontEnd
+    from odometry.motion_gates import INIT_GATE_DEG, turning_as_the_images
+
+    K = np.array([[700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]])
+    front = FrontEnd(RefineConfig(input="mid40"), K, (480, 640), np.eye(4))
+    T_prev = make_T(Rotation.from_euler("y", 10, degrees=True).as_matrix(), np.array([2.0, 0.0, 20.0]))
+
+    def step(yaw_deg: float, x: float = 0.0) -> np.ndarray:
+        return make_T(Rotation.from_euler("y", yaw_deg, degrees=True).as_matrix(), np.array([x, 0, 1.1]))
+
+    truth, off = step(0.2), step(1.4, -0.6)  # the true step; PnP's, 1.2 degrees and 0.6 m off
+    rng = np.random.default_rng(1)
+    cam = np.c_[rng.uniform(-8, 8, 120), rng.uniform(-3, 3, 120), rng.uniform(8, 40, 120)]  # in PnP's camera
+    T_off = T_prev @ off
+    obj = cam @ T_off[:3, :3].T + T_off[:3, 3]  # the previous frame's points, placed with biased depths
+    img = (cam @ K.T)[:, :2] / cam[:, 2:]
+    front.prev = SimpleNamespace(T_icp=np.eye(4))
+    T, source = front._lidar_pose(T_prev, truth, obj, img)
+    assert source == "pnp" and np.allclose(invert_T(T_prev) @ T, off, atol=1e-3)  # every match reprojects
+    T, source = front._lidar_pose(T_prev, truth, obj, img, images_step=step(0.25))
+    assert source == "icp" and np.allclose(invert_T(T_prev) @ T, truth, atol=1e-9)
+    T, source = front._lidar_pose(T_prev, truth, obj, img, images_step=step(0.2 + 2 * INIT_GATE_DEG))
+    assert source == "pnp"  # neither turns as the images: the reprojection decides
+    cands = {"a": T_prev @ step(0.5), "b": None}
+    assert turning_as_the_images(cands, T_prev, None) == cands
 
 
 def test_depth_consistency_vanishes_for_true_geometry_and_jacobians_match_numeric():

@@ -183,7 +183,15 @@ class RefineRun:
             self.front.icp.restart(p.first_scan)
         sparse = sample.sparse if s.has_lidar else None
         fi = self.front.process(
-            i, sample.frame.image, p.depth, p.log_sigma, sparse, sample.kept_points, self.graph, icp_guess=guess
+            i,
+            sample.frame.image,
+            p.depth,
+            p.log_sigma,
+            sparse,
+            sample.kept_points,
+            self.graph,
+            icp_guess=guess,
+            images_step=p.pairs.get(prev_i),
         )
         fi.pair_motions = p.pairs
         if i not in self.record.done and self.cone.runs(s.cfg.photometric.enabled, sample):
