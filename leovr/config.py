@@ -208,7 +208,8 @@ class LeovrConfig(_Model):
         # the sections' copies of the seed are the top level's: a dump holds it once, as a config file does
         data = handler(self)
         for key in SEEDED_SECTIONS:
-            data[key].pop("seed", None)
+            if isinstance(data.get(key), dict):  # a partial dump (include / exclude) may leave a section out
+                data[key].pop("seed", None)
         return data
 
 

@@ -20,7 +20,8 @@ class _Model(BaseModel):
 def top_level_seed() -> Any:
     """A job's seed field: set once, at the top level of a config file (`LeovrConfig.seed`), which fills every job's;
     a job carries its copy so that the settings a run saves say everything it drew with. A section may not set its
-    own, and the reference (docs/config.md) lists the top-level one only."""
+    own, and the reference (docs/config.md) lists the top-level one only. Set `LeovrConfig.seed` by assignment or
+    validation (`override`): `model_copy(update=...)` skips the validators and leaves the sections' copies behind."""
     return Field(0, ge=0, json_schema_extra={"top_level": True})
 
 

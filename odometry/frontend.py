@@ -296,9 +296,11 @@ class FrontEnd:
             cands["icp"] = T_prev @ invert_T(p.T_icp) @ T_icp
         cands["pnp"] = pnp_pose(obj, img, self.K, px)[0]
         cands = self._plausible(cands, T_prev)
-        cands = turning_as_the_images(cands, T_prev, images_step)
-        guess = choose_pose(cands, obj, img, self.K, px)
-        if guess is None or guess.inliers < 6 and "icp" not in cands:
+        turning = turning_as_the_images(cands, T_prev, images_step)
+        guess = choose_pose(turning, obj, img, self.K, px)
+        if turning is not cands and (guess is None or guess.inliers < 6 and "icp" not in turning):
+            turning, guess = cands, choose_pose(cands, obj, img, self.K, px)  # what turns as the images does not hold
+        if guess is None or guess.inliers < 6 and "icp" not in turning:
             return T_prev @ self.velocity, "constant_velocity"
         return guess.T_world_cam, guess.source
 

@@ -1,7 +1,8 @@
 """Gates on the motions the window graph takes from other estimators: an image pair motion or a KISS-ICP motion
-enters the window only where it agrees with another estimate of the same motion. A pair's tracks can fail
-together in a fast turn, and a cone LiDAR's registration can slip or slide there, each while sure of itself; a
-tight between factor from either pulls the poses however robust its kernel.
+enters the window only where it agrees with another estimate of the same motion, and a new pose starts from a
+candidate that turns as the images' pair motion does. A pair's tracks can fail together in a fast turn, and a cone
+LiDAR's registration can slip or slide there, each while sure of itself; a tight between factor from either pulls
+the poses however robust its kernel.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """The evaluation of a refine run: a pass over what the run wrote, once its frames are done. Each frame's input is
 rebuilt as the run deskewed it (`Progress.deskew`) and its held-out truth built; the run's depth PNGs are scored
 there beside the classical fills of that input (IP-Basic written to `depth_ipbasic/`) and, where earlier scans
-joined the generator's input, the generator on the frame's own scan; then the pose baselines (the textbook
-monocular VO with `--compare`, KISS-ICP with and without its deskew) and a cone LiDAR's accumulated fills. The
+joined the generator's input, the generator on the frame's own scan; the pose baselines (the textbook monocular VO
+with `--compare`, KISS-ICP with and without its deskew, beside the frames' scores where it is needed); then a cone
+LiDAR's accumulated fills. The
 refine loop itself keeps no evaluation state."""
 
 from __future__ import annotations
@@ -47,9 +48,10 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
 
     names = s.seq.frame_numbers()  # the run's PNG names
     threaded = torch_threads() > 1
-    # KISS-ICP reads the frames on its own, beside the frames' scores; the next frame read beside this one's score
+    # KISS-ICP reads the frames on its own, beside the frames' scores, where it is known to be needed (compared, or
+    # poses to score it against); the next frame read beside this one's score
     beside, reader, pending = Worker("kiss", threaded), Worker("score", threaded), {}
-    icp_runs = beside.submit(kiss_runs, s, score and (several or s.first.T_world_cam is not None))
+    icp_runs = beside.submit(kiss_runs, s, score and s.first.T_world_cam is not None, s.progress and not threaded)
     try:
         for n, i in enumerate(tqdm(frames, desc="score", unit="frame", disable=not s.progress or not frames)):
             for j in frames[n : n + 2]:
@@ -71,6 +73,8 @@ def score_run(setup: RunSetup, state: Progress, several: bool, score: bool) -> R
         scores.baselines["mono_vo"] = np.stack(textbook.poses), "sim3"
         write_kitti_poses(s.out / "poses_mono_vo_kitti.txt", scores.baselines["mono_vo"][0])
     accumulated = several and bool(scores.frames)
+    if runs is None and accumulated:  # the accumulated fills place the scans with KISS-ICP's poses
+        runs = kiss_runs(s, True, s.progress)
     icp = kiss_baselines(s, scores, runs)
     if accumulated and icp is not None:  # the fills given the same frames: the yardstick for a cone's several scans
         accumulated_fills(
@@ -111,14 +115,14 @@ def score_frame(
     return fs
 
 
-def kiss_runs(s: RunSetup, needed: bool) -> dict[bool, np.ndarray] | None:
+def kiss_runs(s: RunSetup, needed: bool, progress: bool) -> dict[bool, np.ndarray] | None:
     """KISS-ICP with and without its deskew (without where scans carry point times: the other way to run it) on
-    the run's input, with a LiDAR when compared or `needed` (deskew setting -> camera poses; None: not run). Its
-    progress is not shown: it runs beside the frames' scores."""
+    the run's input, with a LiDAR when compared or `needed` (deskew setting -> camera poses; None: not run);
+    `progress`: its bar (not beside the frames' scores)."""
     if not s.has_lidar or not (s.cfg.compare or needed):
         return None
     deskews = (True, False) if s.first.point_times is not None else (True,)
-    return kiss_icp_trajectories(s.seq, s.indices, s.ccfg, deskews)
+    return kiss_icp_trajectories(s.seq, s.indices, s.ccfg, deskews, progress)
 
 
 def kiss_baselines(s: RunSetup, scores: RunScores, runs: dict[bool, np.ndarray] | None) -> np.ndarray | None:
