@@ -3,8 +3,7 @@ rebuilt as the run deskewed it (`Progress.deskew`) and its held-out truth built;
 there beside the classical fills of that input (IP-Basic written to `depth_ipbasic/`) and, where earlier scans
 joined the generator's input, the generator on the frame's own scan; the pose baselines (the textbook monocular VO
 with `--compare`, KISS-ICP with and without its deskew, beside the frames' scores where it is needed); then a cone
-LiDAR's accumulated fills. The
-refine loop itself keeps no evaluation state."""
+LiDAR's accumulated fills. The refine loop itself keeps no evaluation state."""
 
 from __future__ import annotations
 
