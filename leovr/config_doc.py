@@ -125,6 +125,14 @@ def _anchor(key: str) -> str:
     return key.lower().replace(".", "")
 
 
+def _row(name: str, field: Any, annotation: str, comment: str, aliases: dict) -> str:
+    """One setting's table row: key, type, default, range and its comment."""
+    return (
+        f"| `{name}` | `{_cell(_type(annotation, aliases))}` | `{_cell(_yaml_value(field.default))}` "
+        f"| {_bounds(field)} | {_linked(_cell(comment))} |"
+    )
+
+
 def _section(key: str, model: type[BaseModel], classes: dict, aliases: dict, level: int = 2) -> list[str]:
     """One heading and table per model; a nested model's row links to its own table, which follows under
     a sub-heading named by its dotted key (`refine.graph`)."""
@@ -144,10 +152,7 @@ def _section(key: str, model: type[BaseModel], classes: dict, aliases: dict, lev
             default = f"[{key}.{name}](#{_anchor(f'{key}.{name}')})"
             lines.append(f"| `{name}` | `{sub.__name__}` | {default} |  | {_linked(_cell(comment))} |")
             continue
-        lines.append(
-            f"| `{name}` | `{_cell(_type(annotation, aliases))}` | `{_cell(_yaml_value(field.default))}` "
-            f"| {_bounds(field)} | {_linked(_cell(comment))} |"
-        )
+        lines.append(_row(name, field, annotation, comment, aliases))
     lines.append("")
     for sub_key, sub in nested:
         lines += _section(sub_key, sub, classes, aliases, min(level + 1, 6))
@@ -168,11 +173,7 @@ def _render(root: type[BaseModel], sources: list[str], intro: list[str]) -> str:
     if top:
         out += ["## top level", "", "| key | type | default | range | what it does |", "|---|---|---|---|---|"]
         for name, field in top:
-            annotation, comment = classes[root.__name__][name]
-            out.append(
-                f"| `{name}` | `{_cell(_type(annotation, aliases))}` | `{_cell(_yaml_value(field.default))}` "
-                f"| {_bounds(field)} | {_linked(_cell(comment))} |"
-            )
+            out.append(_row(name, field, *classes[root.__name__][name], aliases))
         out.append("")
     for key, field in sections:
         out += _section(key, field.annotation, classes, aliases)
